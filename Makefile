@@ -1,0 +1,34 @@
+# Two entry points (README): `make demo` and `make test`. Both create or refresh .venv idempotently.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+# Rerun and matplotlib write caches/analytics under HOME unless told otherwise.
+export RERUN_ANALYTICS := 0
+export MPLBACKEND := Agg
+
+.PHONY: venv demo test lint bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+demo: $(STAMP)
+	$(PY) -m secure3d demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+lint: $(STAMP)
+	$(PY) -m ruff check secure3d tests benchmarks examples
+
+bench: $(STAMP)
+	$(PY) benchmarks/bench_mapping.py
+	$(PY) benchmarks/bench_planner.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,43 @@
+"""secure3d: secure minimum-time planning for aerial robots whose map cannot be trusted.
+
+Implements Ivanov & Campbell, "Secure Minimum Time Planning Under Environmental Uncertainty":
+plan only trajectories whose reactive sets S_r(x(t)) were seen in full by the camera at an earlier
+time and never touch a known obstacle (the paper's problem TightProb and its NLP).
+
+The public entry points are re-exported here lazily, so ``import secure3d`` stays cheap:
+
+- :func:`load_scenario` / :class:`Scenario`: the scenario data model (``maps/*.yaml``);
+- :func:`plan` and :func:`certify`: the planner and the independent safety certificate;
+- :func:`simulate`: the closed loop (the paper's Algorithm 1).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+__version__ = "0.1.0"
+
+_EXPORTS = {
+    "Scenario": "secure3d.world.spec",
+    "load_scenario": "secure3d.world.scenario",
+    "OccupancyMap": "secure3d.mapping.occupancy",
+    "plan": "secure3d.planning.solve",
+    "PlanResult": "secure3d.planning.result",
+    "certify": "secure3d.planning.certificate",
+    "simulate": "secure3d.simulation.closed_loop",
+    "SimResult": "secure3d.simulation.closed_loop",
+}
+
+__all__ = sorted(_EXPORTS)
+
+if TYPE_CHECKING:  # pragma: no cover
+    from secure3d.world.spec import Scenario
+
+
+def __getattr__(name: str) -> Any:
+    try:
+        module = _EXPORTS[name]
+    except KeyError:
+        raise AttributeError(f"module 'secure3d' has no attribute {name!r}") from None
+    return getattr(importlib.import_module(module), name)

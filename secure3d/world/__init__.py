@@ -1,0 +1,1 @@
+"""secure3d.world"""

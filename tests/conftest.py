@@ -1,0 +1,39 @@
+"""Shared fixtures. Keeps Rerun/matplotlib from writing into the real HOME during tests."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+_SANDBOX_HOME = Path(tempfile.mkdtemp(prefix="secure3d-test-home-"))
+for _var in ("HOME", "XDG_CONFIG_HOME", "XDG_DATA_HOME", "XDG_CACHE_HOME", "MPLCONFIGDIR"):
+    os.environ[_var] = str(_SANDBOX_HOME / _var.lower())
+    Path(os.environ[_var]).mkdir(parents=True, exist_ok=True)
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+MAPS = REPO / "maps"
+SHARED_OCTOMAP = REPO.parent / "shared" / "data" / "octomap"
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    """A seeded generator: every random test is reproducible."""
+    return np.random.default_rng(0)
+
+
+@pytest.fixture(scope="session")
+def maps_dir() -> Path:
+    return MAPS
+
+
+@pytest.fixture(scope="session")
+def octomap_dir() -> Path:
+    """The real OctoMap files shipped in ../shared/data/octomap (skips nothing: they must exist)."""
+    if not SHARED_OCTOMAP.is_dir():
+        raise FileNotFoundError(f"shared OctoMap data not found at {SHARED_OCTOMAP}")
+    return SHARED_OCTOMAP
