@@ -1,1 +1,28 @@
-"""secure3d.planning"""
+"""Secure minimum-time planning (the paper's eq. NLP), the baseline planner and the certificate.
+
+- :func:`plan` / :func:`plan_problem`: build, guess, solve (IPOPT or fatrop), certify;
+- :class:`PlanningProblem`, :class:`PlannerOptions`: *what* is solved;
+- :mod:`.collocation`: *how* it is transcribed; :mod:`.constraints`: the constraint families;
+- :func:`certify`: the independent safety check (shares no constraint code with the NLP).
+"""
+
+from secure3d.planning.certificate import CertificateSettings, certify
+from secure3d.planning.collocation import NLPCache
+from secure3d.planning.problem import PlannerOptions, PlanningProblem, problem_from_scenario
+from secure3d.planning.result import Certificate, PlanResult, PlanStatus, Violation
+from secure3d.planning.solve import plan, plan_problem
+
+__all__ = [
+    "Certificate",
+    "CertificateSettings",
+    "NLPCache",
+    "PlanResult",
+    "PlanStatus",
+    "PlannerOptions",
+    "PlanningProblem",
+    "Violation",
+    "certify",
+    "plan",
+    "plan_problem",
+    "problem_from_scenario",
+]

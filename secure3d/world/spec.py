@@ -9,13 +9,18 @@ be used to build scenarios in Python too::
     Scenario(name="demo", world=World(bounds=Bounds((0, 0, 0), (10, 10, 3)), boxes=(...)), ...)
 
 Units are SI (metres, seconds, radians unless a field says degrees). Frames: world is z-up.
+
+Every validation error is a :class:`~secure3d.errors.ScenarioError` whose message reads
+``"<field>: <problem> (got <value>)"``; the YAML loader prefixes the file name.
 """
 
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from numbers import Real
 from pathlib import Path
 from typing import Literal
 
@@ -30,31 +35,98 @@ Vec3 = tuple[float, float, float]
 MAX_WORLD_EXTENT = 2000.0
 #: Largest number of obstacles of one kind in a scenario file.
 MAX_OBSTACLES = 5000
+#: Largest number of voxels the robot's map may span (world volume / resolution^3). 1e9 cells is
+#: e.g. 1 km x 1 km x 100 m at 10 cm: beyond that the scenario is a unit error, not a test case.
+MAX_MAP_VOXELS = 1e9
+#: OctoMap keys are 16 bit, centred on the origin: |coordinate| / resolution must stay below 2^15.
+OCTOMAP_KEY_HALF_RANGE = 32768
 
 VEHICLE_MODELS = ("point_mass", "quadrotor", "diff_drive")
 ATTACK_KINDS = ("hide", "phantom", "shift", "stale")
 
 
+def _short(value: object, limit: int = 60) -> str:
+    """``repr(value)`` cut to one short line, for error messages."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def _vec3(value: object, what: str) -> Vec3:
+    if isinstance(value, (str, bytes)):
+        raise ScenarioError(f"{what}: expected 3 numbers (got {_short(value)})")
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise ScenarioError(f"{what}: expected 3 numbers, got {value!r}") from None
+        raise ScenarioError(f"{what}: expected 3 numbers (got {_short(value)})") from None
     if arr.shape != (3,):
-        raise ScenarioError(f"{what}: expected 3 numbers, got {value!r}")
+        raise ScenarioError(f"{what}: expected 3 numbers (got {_short(value)})")
     if not np.all(np.isfinite(arr)):
-        raise ScenarioError(f"{what}: must be finite, got {value!r}")
+        raise ScenarioError(f"{what}: must be finite (got {_short(value)})")
     return (float(arr[0]), float(arr[1]), float(arr[2]))
 
 
-def _positive(value: float, what: str, *, allow_zero: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ScenarioError(f"{what}: expected a number, got {value!r}")
+def _number(value: object, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, Real):
+        raise ScenarioError(f"{what}: expected a number (got {_short(value)})")
     v = float(value)
-    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
-        bound = ">= 0" if allow_zero else "> 0"
-        raise ScenarioError(f"{what}: must be finite and {bound}, got {value!r}")
+    if not math.isfinite(v):
+        raise ScenarioError(f"{what}: must be finite (got {_short(value)})")
     return v
+
+
+def _positive(value: object, what: str, *, allow_zero: bool = False) -> float:
+    v = _number(value, what)
+    if v < 0 or (v == 0 and not allow_zero):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ScenarioError(f"{what}: must be {bound} (got {_short(value)})")
+    return v
+
+
+def _integer(value: object, what: str, lo: int, hi: int | None = None) -> int:
+    ok = not isinstance(value, bool) and isinstance(value, (int, np.integer))
+    if not ok or value < lo or (hi is not None and value > hi):
+        span = f"[{lo}, {hi}]" if hi is not None else f">= {lo}"
+        raise ScenarioError(f"{what}: must be an integer {span} (got {_short(value)})")
+    return int(value)
+
+
+def _choice(value: object, options: tuple[str, ...], what: str) -> str:
+    if value not in options:
+        raise ScenarioError(f"{what}: must be one of {', '.join(options)} (got {_short(value)})")
+    return str(value)
+
+
+def _name(value: object, what: str) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise ScenarioError(f"{what}: must be a non-empty string (got {_short(value)})")
+    return value
+
+
+def _fmt(v: object) -> str:
+    """``(1, 2.5, 0)``: a vector printed compactly for summaries."""
+    return "(" + ", ".join(f"{float(x):.3g}" for x in np.ravel(v)) + ")"
+
+
+def _count(n: int, one: str, many: str) -> str:
+    return f"{n} {one if n == 1 else many}"
+
+
+def box_distance(lo_a: object, hi_a: object, lo_b: object, hi_b: object) -> np.ndarray:
+    """Euclidean distance between axis-aligned boxes (0 when they touch or overlap).
+
+    Parameters
+    ----------
+    lo_a, hi_a : (..., 3) float
+        Corners of the first box(es).
+    lo_b, hi_b : (..., 3) float
+        Corners of the second box(es); broadcast against the first. A point is a box with lo = hi.
+
+    Returns
+    -------
+    (...) float
+    """
+    gap = np.maximum(np.subtract(lo_b, hi_a), np.subtract(lo_a, hi_b))
+    return np.linalg.norm(np.maximum(gap, 0.0), axis=-1)
 
 
 @dataclass(frozen=True)
@@ -65,19 +137,30 @@ class Bounds:
     hi: Vec3
 
     def __post_init__(self) -> None:
-        lo, hi = _vec3(self.lo, "bounds.lo"), _vec3(self.hi, "bounds.hi")
+        lo, hi = _vec3(self.lo, "world.bounds.lo"), _vec3(self.hi, "world.bounds.hi")
         object.__setattr__(self, "lo", lo)
         object.__setattr__(self, "hi", hi)
         ext = np.subtract(hi, lo)
         if np.any(ext <= 0):
-            raise ScenarioError(f"bounds: hi must exceed lo on every axis, got lo={lo} hi={hi}")
+            raise ScenarioError(
+                f"world.bounds.hi: must exceed lo on every axis (got lo={lo}, hi={hi})"
+            )
         if np.any(ext > MAX_WORLD_EXTENT):
-            raise ScenarioError(f"bounds: extent {tuple(ext)} exceeds {MAX_WORLD_EXTENT} m")
+            raise ScenarioError(
+                f"world.bounds: extent exceeds {MAX_WORLD_EXTENT:g} m on some axis"
+                f" (got {_fmt(ext)} m)"
+            )
+
+    @property
+    def extent(self) -> Vec3:
+        """Size along x, y, z (m)."""
+        return tuple(float(e) for e in np.subtract(self.hi, self.lo))
 
     def contains(self, p: object, margin: float = 0.0) -> bool:
         """True if point ``p`` lies inside the bounds shrunk by ``margin``."""
         q = np.asarray(p, dtype=float)
-        return bool(np.all(q >= np.add(self.lo, margin)) and np.all(q <= np.subtract(self.hi, margin)))
+        lo, hi = np.add(self.lo, margin), np.subtract(self.hi, margin)
+        return bool(np.all(q >= lo) and np.all(q <= hi))
 
 
 @dataclass(frozen=True)
@@ -89,16 +172,20 @@ class Box:
     hi: Vec3
 
     def __post_init__(self) -> None:
+        _name(self.name, "box.name")
         lo = _vec3(self.lo, f"box {self.name!r}.lo")
         hi = _vec3(self.hi, f"box {self.name!r}.hi")
         object.__setattr__(self, "lo", lo)
         object.__setattr__(self, "hi", hi)
         if np.any(np.subtract(hi, lo) <= 0):
-            raise ScenarioError(f"box {self.name!r}: hi must exceed lo, got lo={lo} hi={hi}")
+            raise ScenarioError(
+                f"box {self.name!r}.hi: must exceed lo on every axis (got lo={lo}, hi={hi})"
+            )
 
     def shifted(self, offset: Vec3, name: str | None = None) -> Box:
         """The same box moved by ``offset``."""
-        return Box(name or self.name, tuple(np.add(self.lo, offset)), tuple(np.add(self.hi, offset)))
+        lo, hi = np.add(self.lo, offset), np.add(self.hi, offset)
+        return Box(name or self.name, tuple(lo), tuple(hi))
 
 
 @dataclass(frozen=True, eq=False)
@@ -108,41 +195,67 @@ class MeshObstacle:
     Attributes
     ----------
     vertices : (n, 3) float, read-only
+        World coordinates: the file's vertices already scaled by ``scale`` then moved by
+        ``translate``.
     faces : (m, 3) int, read-only
     path : the file it came from (None when built in Python).
+    translate : (3,) float
+        The translation applied to the file's vertices (m); kept so the scenario can be written
+        back as YAML.
+    scale : float
+        The uniform scale applied to the file's vertices before ``translate``.
     """
 
     name: str
     vertices: np.ndarray
     faces: np.ndarray
     path: Path | None = None
+    translate: Vec3 = (0.0, 0.0, 0.0)
+    scale: float = 1.0
 
     def __post_init__(self) -> None:
+        _name(self.name, "mesh.name")
         v = np.array(self.vertices, dtype=float)
         f = np.array(self.faces, dtype=np.int64)
         if v.ndim != 2 or v.shape[1] != 3 or len(v) < 4:
-            raise ScenarioError(f"mesh {self.name!r}: vertices must be (n>=4, 3), got {v.shape}")
+            raise ScenarioError(f"mesh {self.name!r}.vertices: must be (n>=4, 3) (got {v.shape})")
         if f.ndim != 2 or f.shape[1] != 3 or len(f) < 4:
-            raise ScenarioError(f"mesh {self.name!r}: faces must be (m>=4, 3), got {f.shape}")
+            raise ScenarioError(f"mesh {self.name!r}.faces: must be (m>=4, 3) (got {f.shape})")
         if not np.all(np.isfinite(v)):
-            raise ScenarioError(f"mesh {self.name!r}: vertices contain NaN or inf")
+            raise ScenarioError(f"mesh {self.name!r}.vertices: contain NaN or inf")
         if f.min() < 0 or f.max() >= len(v):
-            raise ScenarioError(f"mesh {self.name!r}: face index out of range [0, {len(v)})")
+            raise ScenarioError(
+                f"mesh {self.name!r}.faces: index out of range [0, {len(v)})"
+                f" (got {f.min()}..{f.max()})"
+            )
         v.flags.writeable = False
         f.flags.writeable = False
         object.__setattr__(self, "vertices", v)
         object.__setattr__(self, "faces", f)
+        translate = _vec3(self.translate, f"mesh {self.name!r}.translate")
+        object.__setattr__(self, "translate", translate)
+        object.__setattr__(self, "scale", _positive(self.scale, f"mesh {self.name!r}.scale"))
+        if self.path is not None:
+            object.__setattr__(self, "path", Path(self.path))
 
     @property
     def lo(self) -> Vec3:
-        return tuple(self.vertices.min(axis=0))
+        return tuple(float(x) for x in self.vertices.min(axis=0))
 
     @property
     def hi(self) -> Vec3:
-        return tuple(self.vertices.max(axis=0))
+        return tuple(float(x) for x in self.vertices.max(axis=0))
 
     def shifted(self, offset: Vec3, name: str | None = None) -> MeshObstacle:
-        return MeshObstacle(name or self.name, self.vertices + np.asarray(offset), self.faces, self.path)
+        """The same mesh moved by ``offset``."""
+        return MeshObstacle(
+            name or self.name,
+            self.vertices + np.asarray(offset, dtype=float),
+            self.faces,
+            self.path,
+            tuple(np.add(self.translate, offset)),
+            self.scale,
+        )
 
 
 @dataclass(frozen=True)
@@ -157,12 +270,15 @@ class World:
     def __post_init__(self) -> None:
         object.__setattr__(self, "boxes", tuple(self.boxes))
         object.__setattr__(self, "meshes", tuple(self.meshes))
-        if len(self.boxes) + len(self.meshes) > MAX_OBSTACLES:
-            raise ScenarioError(f"world: more than {MAX_OBSTACLES} obstacles")
+        n = len(self.boxes) + len(self.meshes)
+        if n > MAX_OBSTACLES:
+            raise ScenarioError(f"world: at most {MAX_OBSTACLES} obstacles (got {n})")
         names = [o.name for o in (*self.boxes, *self.meshes)]
-        dup = {n for n in names if names.count(n) > 1}
+        dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
-            raise ScenarioError(f"world: obstacle names must be unique, repeated: {sorted(dup)}")
+            raise ScenarioError(f"world: obstacle names must be unique (got repeated {dup})")
+        if self.octomap is not None:
+            object.__setattr__(self, "octomap", Path(self.octomap))
 
     def obstacle(self, name: str) -> Box | MeshObstacle:
         """The obstacle called ``name``; ``ScenarioError`` if there is none."""
@@ -183,7 +299,7 @@ class Attack:
     kind
         ``hide``: obstacle ``target`` is deleted from the server map (the dangerous case);
         ``phantom``: ``box`` is added although it does not exist;
-        ``shift``: obstacle ``target`` is reported moved by ``offset``;
+        ``shift``: obstacle ``target`` is reported moved by ``offset`` (m);
         ``stale``: obstacle ``target`` appeared after the map was made (reported absent).
     """
 
@@ -193,24 +309,39 @@ class Attack:
     offset: Vec3 | None = None
 
     def __post_init__(self) -> None:
-        if self.kind not in ATTACK_KINDS:
-            raise ScenarioError(f"attack.kind: must be one of {ATTACK_KINDS}, got {self.kind!r}")
-        if self.kind in ("hide", "shift", "stale") and not self.target:
-            raise ScenarioError(f"attack {self.kind!r}: needs a 'target' obstacle name")
-        if self.kind == "phantom" and self.box is None:
-            raise ScenarioError("attack 'phantom': needs a 'box'")
+        _choice(self.kind, ATTACK_KINDS, "attack.kind")
+        if self.kind in ("hide", "shift", "stale"):
+            _name(self.target, f"attack {self.kind!r}.target")
+        elif self.target is not None:
+            raise ScenarioError(
+                f"attack 'phantom'.target: a phantom has no target (got {self.target!r})"
+            )
+        if self.kind == "phantom" and not isinstance(self.box, Box):
+            raise ScenarioError(f"attack 'phantom'.box: needs a Box (got {_short(self.box)})")
+        if self.kind != "phantom" and self.box is not None:
+            raise ScenarioError(f"attack {self.kind!r}.box: only a phantom has a box")
         if self.kind == "shift":
             if self.offset is None:
-                raise ScenarioError("attack 'shift': needs an 'offset'")
-            object.__setattr__(self, "offset", _vec3(self.offset, "attack.offset"))
+                raise ScenarioError("attack 'shift'.offset: missing (a shift needs an offset)")
+            object.__setattr__(self, "offset", _vec3(self.offset, "attack 'shift'.offset"))
+        elif self.offset is not None:
+            raise ScenarioError(f"attack {self.kind!r}.offset: only a shift has an offset")
+
+    def describe(self) -> str:
+        """One phrase such as ``"shift shelf_3 by (0.5, 0, 0)"``."""
+        if self.kind == "phantom":
+            return f"phantom {self.box.name} {_fmt(self.box.lo)}-{_fmt(self.box.hi)}"
+        if self.kind == "shift":
+            return f"shift {self.target} by {_fmt(self.offset)}"
+        return f"{self.kind} {self.target}"
 
 
 @dataclass(frozen=True)
 class ServerMapSpec:
     """What the (untrusted) map server claims.
 
-    Either derived from the true world with ``attacks`` applied (``bt is None``), or given as its own
-    OctoMap file ``bt``. ``resolution`` is the voxel size of the robot's map (m).
+    Either derived from the true world with ``attacks`` applied (``bt is None``), or given as its
+    own OctoMap file ``bt``. ``resolution`` is the voxel size of the robot's map (m).
     """
 
     attacks: tuple[Attack, ...] = ()
@@ -221,7 +352,14 @@ class ServerMapSpec:
         object.__setattr__(self, "attacks", tuple(self.attacks))
         r = _positive(self.resolution, "server_map.resolution")
         if not 0.01 <= r <= 2.0:  # finer than 1 cm or coarser than 2 m is a unit error here
-            raise ScenarioError(f"server_map.resolution: must be in [0.01, 2] m, got {r}")
+            raise ScenarioError(f"server_map.resolution: must be in [0.01, 2] m (got {r})")
+        if self.bt is not None:
+            object.__setattr__(self, "bt", Path(self.bt))
+            if self.attacks:
+                raise ScenarioError(
+                    "server_map.attacks: must be empty when the server map is given as a .bt"
+                    f" (got {len(self.attacks)} attacks)"
+                )
 
 
 @dataclass(frozen=True)
@@ -237,12 +375,15 @@ class VehicleSpec:
     limits: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.model not in VEHICLE_MODELS:
-            raise ScenarioError(f"vehicle.model: must be one of {VEHICLE_MODELS}, got {self.model!r}")
+        _choice(self.model, VEHICLE_MODELS, "vehicle.model")
         r = _positive(self.body_radius, "vehicle.body_radius")
         if r > 5.0:
-            raise ScenarioError(f"vehicle.body_radius: {r} m is absurd (> 5 m)")
-        object.__setattr__(self, "limits", dict(self.limits))
+            raise ScenarioError(f"vehicle.body_radius: must be <= 5 m (got {r})")
+        limits = dict(self.limits)
+        for key, value in limits.items():
+            _name(key, "vehicle.limits")
+            _number(value, f"vehicle.limits.{key}")
+        object.__setattr__(self, "limits", limits)
 
     def __hash__(self) -> int:
         return hash((self.model, self.body_radius, tuple(sorted(self.limits.items()))))
@@ -278,26 +419,24 @@ class CameraSpec:
 
     def __post_init__(self) -> None:
         for name in ("width", "height"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or not 8 <= v <= 4096:
-                raise ScenarioError(f"camera.{name}: must be an integer in [8, 4096], got {v!r}")
+            _integer(getattr(self, name), f"camera.{name}", 8, 4096)
         h = _positive(self.hfov_deg, "camera.hfov_deg")
         if not h < 170:
-            raise ScenarioError(f"camera.hfov_deg: must be < 170 for a pinhole camera, got {h}")
+            raise ScenarioError(f"camera.hfov_deg: must be < 170 for a pinhole camera (got {h})")
         if self.vfov_deg is not None:
             v = _positive(self.vfov_deg, "camera.vfov_deg")
             if not v < 170:
-                raise ScenarioError(f"camera.vfov_deg: must be < 170, got {v}")
+                raise ScenarioError(f"camera.vfov_deg: must be < 170 (got {v})")
         _positive(self.max_range, "camera.max_range")
-        if self.far_kind not in ("depth", "range"):
-            raise ScenarioError(f"camera.far_kind: must be 'depth' or 'range', got {self.far_kind!r}")
+        _choice(self.far_kind, ("depth", "range"), "camera.far_kind")
         _positive(self.rate_hz, "camera.rate_hz")
-        if not -89 <= float(self.mount_pitch_deg) <= 89:
-            raise ScenarioError(f"camera.mount_pitch_deg: must be in [-89, 89], got {self.mount_pitch_deg}")
+        pitch = _number(self.mount_pitch_deg, "camera.mount_pitch_deg")
+        if not -89 <= pitch <= 89:
+            raise ScenarioError(f"camera.mount_pitch_deg: must be in [-89, 89] (got {pitch})")
         object.__setattr__(self, "mount_offset", _vec3(self.mount_offset, "camera.mount_offset"))
         _positive(self.noise_std, "camera.noise_std", allow_zero=True)
-        if not 0 <= float(self.dropout) < 1:
-            raise ScenarioError(f"camera.dropout: must be in [0, 1), got {self.dropout}")
+        if not 0 <= _number(self.dropout, "camera.dropout") < 1:
+            raise ScenarioError(f"camera.dropout: must be in [0, 1) (got {self.dropout})")
 
     @property
     def vfov(self) -> float:
@@ -331,8 +470,7 @@ class StartSpec:
     def __post_init__(self) -> None:
         object.__setattr__(self, "position", _vec3(self.position, "start.position"))
         object.__setattr__(self, "velocity", _vec3(self.velocity, "start.velocity"))
-        if not math.isfinite(float(self.yaw)):
-            raise ScenarioError(f"start.yaw: must be finite, got {self.yaw!r}")
+        object.__setattr__(self, "yaw", _number(self.yaw, "start.yaw"))
 
 
 @dataclass(frozen=True)
@@ -367,23 +505,14 @@ class PlannerSpec:
     max_iter: int = 500
 
     def __post_init__(self) -> None:
-        if isinstance(self.nodes, bool) or not isinstance(self.nodes, int) or not 5 <= self.nodes <= 400:
-            raise ScenarioError(f"planner.nodes: must be an integer in [5, 400], got {self.nodes!r}")
-        if self.lookback not in ("adaptive", "fixed"):
-            raise ScenarioError(f"planner.lookback: must be 'adaptive' or 'fixed', got {self.lookback!r}")
-        if not isinstance(self.lookback_steps, int) or not 1 <= self.lookback_steps < self.nodes:
-            raise ScenarioError(f"planner.lookback_steps: must be in [1, nodes), got {self.lookback_steps!r}")
-        if self.solver not in ("ipopt", "fatrop"):
-            raise ScenarioError(f"planner.solver: must be 'ipopt' or 'fatrop', got {self.solver!r}")
-        if self.reactive_family not in ("fitted", "closed_form"):
-            raise ScenarioError(
-                f"planner.reactive_family: must be 'fitted' or 'closed_form', got {self.reactive_family!r}"
-            )
-        if self.controller not in ("braking", "mpc"):
-            raise ScenarioError(f"planner.controller: must be 'braking' or 'mpc', got {self.controller!r}")
+        nodes = _integer(self.nodes, "planner.nodes", 5, 400)
+        _choice(self.lookback, ("adaptive", "fixed"), "planner.lookback")
+        _integer(self.lookback_steps, "planner.lookback_steps", 1, nodes - 1)
+        _choice(self.solver, ("ipopt", "fatrop"), "planner.solver")
+        _choice(self.reactive_family, ("fitted", "closed_form"), "planner.reactive_family")
+        _choice(self.controller, ("braking", "mpc"), "planner.controller")
         _positive(self.margin, "planner.margin", allow_zero=True)
-        if not isinstance(self.max_iter, int) or self.max_iter < 1:
-            raise ScenarioError(f"planner.max_iter: must be a positive integer, got {self.max_iter!r}")
+        _integer(self.max_iter, "planner.max_iter", 1)
 
 
 @dataclass(frozen=True)
@@ -396,13 +525,21 @@ class SimulationSpec:
     def __post_init__(self) -> None:
         dt = _positive(self.dt, "simulation.dt")
         if dt > 0.1:
-            raise ScenarioError(f"simulation.dt: must be <= 0.1 s, got {dt}")
+            raise ScenarioError(f"simulation.dt: must be <= 0.1 s (got {dt})")
         _positive(self.time_limit, "simulation.time_limit")
 
 
 @dataclass(frozen=True)
 class Scenario:
-    """A complete, validated planning/simulation scenario."""
+    """A complete, validated planning/simulation scenario.
+
+    Besides each part's own checks, the whole must be consistent: start and goal lie inside the
+    bounds (shrunk by the body radius) and clear of every true box; attacks name existing
+    obstacles, each at most once; phantom names are new; the bounds fit in OctoMap's key range at
+    the map resolution and do not span an absurd number of voxels.
+
+    ``print(scenario)`` gives a readable summary (:meth:`summary`).
+    """
 
     name: str
     world: World
@@ -417,21 +554,173 @@ class Scenario:
     source: Path | None = None
 
     def __post_init__(self) -> None:
+        _name(self.name, "name")
+        if not isinstance(self.description, str):
+            raise ScenarioError(f"description: must be a string (got {_short(self.description)})")
+        if self.source is not None:
+            object.__setattr__(self, "source", Path(self.source))
+        self._check_map_size()
+        self._check_start_goal()
+        self._check_attacks()
+
+    def _check_map_size(self) -> None:
+        b, res = self.world.bounds, self.server_map.resolution
+        reach = OCTOMAP_KEY_HALF_RANGE * res
+        worst = float(np.max(np.abs([b.lo, b.hi])))
+        if worst >= reach:
+            raise ScenarioError(
+                f"world.bounds: coordinates must stay within +-{reach:g} m for an OctoMap at"
+                f" resolution {res:g} m (got {worst:g} m)"
+            )
+        voxels = float(np.prod(b.extent)) / res**3
+        if voxels > MAX_MAP_VOXELS:
+            raise ScenarioError(
+                f"world.bounds: the map would span {voxels:.3g} voxels at {res:g} m, more than"
+                f" {MAX_MAP_VOXELS:.0e} (got extent {_fmt(b.extent)} m)"
+            )
+
+    def _check_start_goal(self) -> None:
         b = self.world.bounds
         r = self.vehicle.body_radius
-        if not b.contains(self.start.position, margin=r):
-            raise ScenarioError(f"start.position {self.start.position} is not inside the world bounds")
-        if not b.contains(self.goal.position, margin=r):
-            raise ScenarioError(f"goal.position {self.goal.position} is not inside the world bounds")
-        known = set(self.world.obstacle_names)
-        for a in self.server_map.attacks:
-            if a.target is not None and a.target not in known:
+        boxes = self.world.boxes
+        lo = np.array([o.lo for o in boxes]).reshape(-1, 3)
+        hi = np.array([o.hi for o in boxes]).reshape(-1, 3)
+        for what, p in (("start", self.start.position), ("goal", self.goal.position)):
+            if not b.contains(p, margin=r):
                 raise ScenarioError(
-                    f"server_map.attacks: {a.kind} targets {a.target!r}, which is not an obstacle"
-                    f" of the world (known: {sorted(known)})"
+                    f"{what}.position: must lie inside the world bounds shrunk by the body radius"
+                    f" {r:g} m, bounds {_fmt(b.lo)}-{_fmt(b.hi)} (got {_fmt(p)})"
                 )
+            d = box_distance(lo, hi, p, p)
+            if np.any(d < r):
+                hit = boxes[int(np.argmin(d))].name
+                raise ScenarioError(
+                    f"{what}.position: the body (radius {r:g} m) overlaps obstacle {hit!r}"
+                    f" (got {_fmt(p)})"
+                )
+
+    def _check_attacks(self) -> None:
+        known = set(self.world.obstacle_names)
+        targets: set[str] = set()
+        for i, a in enumerate(self.server_map.attacks):
+            where = f"server_map.attacks[{i}]"
+            if a.target is not None:
+                if a.target not in known:
+                    raise ScenarioError(
+                        f"{where}.target: not an obstacle of the world"
+                        f" (got {a.target!r}; known: {', '.join(sorted(known)) or 'none'})"
+                    )
+                if a.target in targets:
+                    raise ScenarioError(
+                        f"{where}.target: each obstacle may be attacked once (got {a.target!r})"
+                    )
+                targets.add(a.target)
+            if a.box is not None:
+                if a.box.name in known:
+                    raise ScenarioError(
+                        f"{where}.box.name: a phantom needs a name of its own (got {a.box.name!r})"
+                    )
+                known.add(a.box.name)
 
     @property
     def hidden_obstacles(self) -> tuple[str, ...]:
         """Names of true obstacles the server does not report (hide/stale attacks)."""
         return tuple(a.target for a in self.server_map.attacks if a.kind in ("hide", "stale"))
+
+    def summary(self, max_obstacles: int = 30) -> str:
+        """A readable multi-line description (also what ``secure3d show`` prints).
+
+        Parameters
+        ----------
+        max_obstacles : int
+            List at most this many obstacles one per line; the rest are counted.
+        """
+        w, b, v, c, p = self.world, self.world.bounds, self.vehicle, self.camera, self.planner
+        status: dict[str, str] = {}
+        for a in self.server_map.attacks:
+            if a.kind in ("hide", "stale"):
+                status[a.target] = f"HIDDEN by the server ({a.kind})"
+            elif a.kind == "shift":
+                status[a.target] = f"SHIFTED by the server by {_fmt(a.offset)} m"
+        rows = [(o.name, "box", o.lo, o.hi, status.get(o.name, "")) for o in w.boxes]
+        rows += [
+            (
+                o.name,
+                f"mesh {o.path.name if o.path else '(inline)'}",
+                o.lo,
+                o.hi,
+                status.get(o.name, ""),
+            )
+            for o in w.meshes
+        ]
+        rows += [
+            (a.box.name, "box", a.box.lo, a.box.hi, "PHANTOM: claimed by the server, not real")
+            for a in self.server_map.attacks
+            if a.kind == "phantom"
+        ]
+        width = max([len(r[0]) for r in rows] + [4])
+        kind_width = max([len(r[1]) for r in rows] + [3])
+        out = [f"Scenario {self.name!r}" + (f"  ({self.source})" if self.source else "")]
+        text = " ".join(self.description.split()) or "(no description)"
+        out += textwrap.wrap(text, 96, initial_indent="  purpose   : ", subsequent_indent=" " * 14)
+        ext = b.extent
+        out.append(
+            f"  world     : {ext[0]:g} x {ext[1]:g} x {ext[2]:g} m, bounds {_fmt(b.lo)} -"
+            f" {_fmt(b.hi)}; {_count(len(w.boxes), 'box', 'boxes')},"
+            f" {_count(len(w.meshes), 'mesh', 'meshes')}"
+            + (f", octomap {w.octomap.name}" if w.octomap else "")
+        )
+        voxels = f", plus the occupied voxels of {w.octomap.name}" if w.octomap else ""
+        out.append(f"  obstacles : {len(rows)} named (true and claimed){voxels}")
+        for name, kind, lo, hi, note in rows[:max_obstacles]:
+            line = f"    {name:<{width}}  {kind:<{kind_width}}  {_fmt(lo)} - {_fmt(hi)}"
+            out.append(f"{line}  {note}" if note else line)
+        if len(rows) > max_obstacles:
+            out.append(f"    ... and {len(rows) - max_obstacles} more")
+        s = self.server_map
+        if s.bt is not None:
+            claim = f"given as its own OctoMap {s.bt.name}"
+        else:
+            claim = "the truth with attacks: " + (
+                "; ".join(a.describe() for a in s.attacks) if s.attacks else "none (honest)"
+            )
+        out.append(f"  server map: resolution {s.resolution:g} m, {claim}")
+        lim = ", ".join(f"{k}={val:g}" for k, val in sorted(v.limits.items())) or "model defaults"
+        out.append(f"  vehicle   : {v.model}, body radius {v.body_radius:g} m, limits: {lim}")
+        vfov = math.degrees(c.vfov)
+        out.append(
+            f"  camera    : {c.width}x{c.height} px, hfov {c.hfov_deg:g} deg, vfov {vfov:.3g} deg,"
+            f" {c.far_kind} limit {c.max_range:g} m, {c.rate_hz:g} Hz,"
+            f" pitch {c.mount_pitch_deg:g} deg, offset {_fmt(c.mount_offset)} m"
+            + (f", noise {c.noise_std:g} m" if c.noise_std else "")
+            + (f", dropout {c.dropout:g}" if c.dropout else "")
+        )
+        st, g = self.start, self.goal
+        dist = float(np.linalg.norm(np.subtract(g.position, st.position)))
+        out.append(
+            f"  start     : {_fmt(st.position)} m, velocity {_fmt(st.velocity)} m/s,"
+            f" yaw {math.degrees(st.yaw):.3g} deg"
+        )
+        out.append(
+            f"  goal      : {_fmt(g.position)} m +- {g.tolerance:g} m"
+            f" ({dist:.3g} m from the start in a straight line)"
+        )
+        look = f"{p.lookback} look-back" + (
+            f" ({p.lookback_steps} steps)" if p.lookback == "fixed" else ""
+        )
+        out.append(
+            f"  planner   : {p.nodes} nodes, {look}, {p.solver}, {p.reactive_family} reactive sets,"
+            f" {p.controller} controller, margin {p.margin:g} m, max {p.max_iter} iterations"
+        )
+        sim = self.simulation
+        out.append(f"  simulation: dt {sim.dt:g} s, time limit {sim.time_limit:g} s")
+        wrapped = [
+            "\n".join(textwrap.wrap(line, 100, subsequent_indent=" " * 14))
+            if len(line) > 100
+            else line
+            for line in out
+        ]
+        return "\n".join(wrapped)
+
+    def __str__(self) -> str:
+        return self.summary()

@@ -1,0 +1,302 @@
+"""Vehicle model interface shared by the planner (CasADi), the simulator and the reactive module.
+
+A model is a thin class over component kernels (see :mod:`secure3d.dynamics._symbolic`): each of
+``f``, ``path_constraints``, ``position``, ``velocity``, ``body_rotation`` and ``camera_pose`` has
+ONE body that evaluates numpy states ``(nx,)``, numpy batches ``(N, nx)`` and CasADi columns.
+Rotations come from :mod:`secure3d.geometry.transforms` (body x forward, y left, z up; optical z
+forward, x right, y down; positive mount pitch looks down).
+Limits are frozen dataclasses validated in ``__post_init__``; bad values raise
+:class:`~secure3d.errors.ConfigError` naming the field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Any, ClassVar
+
+import casadi as ca
+import numpy as np
+
+from secure3d.dynamics import _symbolic as sym
+from secure3d.dynamics.integrate import rk4_step
+from secure3d.errors import ConfigError
+from secure3d.geometry import transforms
+
+Vec3 = tuple[float, float, float]
+
+
+def check_positive(owner: str, name: str, value: Any, *, allow_zero: bool = False) -> float:
+    """Return ``value`` as a float or raise :class:`ConfigError` naming ``owner.name``.
+
+    Parameters
+    ----------
+    owner : class name used in the message (e.g. ``"PointMassLimits"``).
+    name : field name (the key scenario files use under ``vehicle.limits``).
+    value : the user's value; must be a real number, finite and > 0 (>= 0 with ``allow_zero``).
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ConfigError(f"{owner}.{name}: expected a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ConfigError(f"{owner}.{name}: must be finite and {bound}, got {value!r}")
+    return v
+
+
+def normalise_fields(obj: Any, owner: str, *, allow_zero: tuple[str, ...] = ()) -> None:
+    """Validate every float field of a frozen limits dataclass in place (:func:`check_positive`)."""
+    for f in dataclasses.fields(obj):
+        if f.type in ("float", float):
+            value = check_positive(
+                owner, f.name, getattr(obj, f.name), allow_zero=f.name in allow_zero
+            )
+            object.__setattr__(obj, f.name, value)
+
+
+@dataclass(frozen=True)
+class CameraMount:
+    """Where the camera sits on the body.
+
+    Attributes
+    ----------
+    pitch : float
+        Downward pitch of the optical axis from body x (rad, positive down), |pitch| < pi/2.
+    offset : (3,) float
+        Camera position in the body frame (m; x forward, y left, z up).
+    """
+
+    pitch: float = 0.0
+    offset: Vec3 = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        p = self.pitch
+        if isinstance(p, bool) or not isinstance(p, (int, float, np.integer, np.floating)):
+            raise ConfigError(f"CameraMount.pitch: expected a number (rad), got {p!r}")
+        if not (math.isfinite(float(p)) and abs(float(p)) < math.pi / 2):
+            raise ConfigError(
+                f"CameraMount.pitch: must be finite with |pitch| < pi/2 rad, got {p!r}"
+            )
+        object.__setattr__(self, "pitch", float(p))
+        try:
+            off = np.asarray(self.offset, dtype=float)
+        except (TypeError, ValueError):
+            raise ConfigError(
+                f"CameraMount.offset: expected 3 numbers, got {self.offset!r}"
+            ) from None
+        if off.shape != (3,) or not np.all(np.isfinite(off)):
+            raise ConfigError(f"CameraMount.offset: expected 3 finite numbers, got {self.offset!r}")
+        object.__setattr__(self, "offset", (float(off[0]), float(off[1]), float(off[2])))
+
+
+class VehicleModel(ABC):
+    """A vehicle: dynamics, limits, body radius and camera mount.
+
+    Subclasses define the component kernels ``_f``, ``_path``, ``_position`` and ``_velocity``, and
+    :meth:`body_rotation`; the public methods below stack them for numpy or CasADi.
+
+    Attributes
+    ----------
+    name : model name (``"point_mass"``, ``"quadrotor"``, ``"diff_drive"``).
+    state_names, control_names : names of the state and control entries.
+    limits : the model's frozen limits dataclass.
+    body_radius : radius of the ball bounding the body (m).
+    mount : :class:`CameraMount`.
+    u_lo, u_hi : (nu,) float, control box bounds.
+    x_lo, x_hi : (nx,) float, state box bounds (+-inf where none).
+    """
+
+    name: ClassVar[str]
+    state_names: ClassVar[tuple[str, ...]]
+    control_names: ClassVar[tuple[str, ...]]
+    limits_type: ClassVar[type]
+
+    def __init__(
+        self, limits: Any = None, body_radius: float = 0.2, mount: CameraMount | None = None
+    ):
+        if limits is None:
+            limits = self.limits_type()
+        if not isinstance(limits, self.limits_type):
+            raise ConfigError(
+                f"{type(self).__name__}.limits: expected {self.limits_type.__name__}, "
+                f"got {limits!r}"
+            )
+        r = check_positive(type(self).__name__, "body_radius", body_radius)
+        if r > 5.0:
+            raise ConfigError(f"{type(self).__name__}.body_radius: {r} m is absurd (> 5 m)")
+        mount = CameraMount() if mount is None else mount
+        if not isinstance(mount, CameraMount):
+            raise ConfigError(f"{type(self).__name__}.mount: expected CameraMount, got {mount!r}")
+        self.limits = limits
+        self.body_radius = r
+        self.mount = mount
+        lo, hi = self._control_bounds()
+        self.u_lo, self.u_hi = _frozen(lo), _frozen(hi)
+        lo, hi = self._state_bounds()
+        self.x_lo, self.x_hi = _frozen(lo), _frozen(hi)
+
+    def __repr__(self) -> str:
+        return (
+            f"{type(self).__name__}({self.limits!r}, body_radius={self.body_radius}, "
+            f"mount={self.mount!r})"
+        )
+
+    # ---- sizes -----------------------------------------------------------------------------------
+    @property
+    def nx(self) -> int:
+        """Number of states."""
+        return len(self.state_names)
+
+    @property
+    def nu(self) -> int:
+        """Number of controls."""
+        return len(self.control_names)
+
+    # ---- component kernels (one body for numpy and CasADi) ---------------------------------------
+    @abstractmethod
+    def _f(self, xs: list[Any], us: list[Any], m: ModuleType) -> list[Any]: ...
+
+    @abstractmethod
+    def _path(self, xs: list[Any], us: list[Any], m: ModuleType) -> list[Any]: ...
+
+    @abstractmethod
+    def _position(self, xs: list[Any], m: ModuleType) -> list[Any]: ...
+
+    @abstractmethod
+    def _velocity(self, xs: list[Any], m: ModuleType) -> list[Any]: ...
+
+    @abstractmethod
+    def _control_bounds(self) -> tuple[list[float], list[float]]: ...
+
+    @abstractmethod
+    def _state_bounds(self) -> tuple[list[float], list[float]]: ...
+
+    # ---- public API, numpy and CasADi ----------------------------------------------------------
+    def f(self, x: Any, u: Any) -> Any:
+        """State derivative ``xdot = f(x, u)``.
+
+        Parameters
+        ----------
+        x : (nx,) or (N, nx) float, or CasADi column of length nx.
+        u : (nu,) or (N, nu) float, or CasADi column of length nu.
+
+        Returns
+        -------
+        xdot : same layout as ``x``.
+        """
+        cas = sym.is_casadi(x, u)
+        m = sym.math_of(x, u)
+        return sym.stack(self._f(sym.split(x, self.nx, "x"), sym.split(u, self.nu, "u"), m), cas)
+
+    def path_constraints(self, x: Any, u: Any) -> Any:
+        """Path constraints ``g(x, u) <= 0`` beyond the box bounds (may have zero entries).
+
+        Returns
+        -------
+        g : (k,) or (N, k) float, or CasADi column of length k.
+        """
+        cas = sym.is_casadi(x, u)
+        m = sym.math_of(x, u)
+        g = self._path(sym.split(x, self.nx, "x"), sym.split(u, self.nu, "u"), m)
+        if not g and not cas:
+            return np.zeros((*np.shape(x)[:-1], 0))
+        return sym.stack(g, cas)
+
+    def position(self, x: Any) -> Any:
+        """Body centre (m): (3,) / (N, 3) float, or CasADi 3-vector."""
+        return sym.stack(
+            self._position(sym.split(x, self.nx, "x"), sym.math_of(x)), sym.is_casadi(x)
+        )
+
+    def velocity(self, x: Any) -> Any:
+        """World velocity (m/s): (3,) / (N, 3) float, or CasADi 3-vector."""
+        return sym.stack(
+            self._velocity(sym.split(x, self.nx, "x"), sym.math_of(x)), sym.is_casadi(x)
+        )
+
+    @abstractmethod
+    def body_rotation(self, x: Any) -> Any:
+        """World-from-body rotation: (3, 3) / (N, 3, 3) float, or CasADi 3x3."""
+
+    def camera_pose(self, x: Any) -> tuple[Any, Any]:
+        """Camera pose from the state and the mount.
+
+        Returns
+        -------
+        R_world_from_optical : (3, 3) / (N, 3, 3) float, or CasADi 3x3 (optical z forward, x right,
+            y down).
+        origin : (3,) / (N, 3) float, or CasADi 3-vector: ``p + R_wb @ mount.offset``.
+        """
+        r_wb = self.body_rotation(x)
+        r_wo = transforms.camera_rotation(r_wb, self.mount.pitch)
+        if sym.is_casadi(x):
+            return r_wo, self.position(x) + ca.mtimes(r_wb, ca.DM(self.mount.offset))
+        return r_wo, self.position(x) + np.einsum("...ij,j->...i", r_wb, self.mount.offset)
+
+    # ---- numpy only ----------------------------------------------------------------------------
+    def f_batch(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """Vectorised ``f`` over N states: X (N, nx), U (N, nu) -> (N, nx) float."""
+        X, U = np.asarray(X, dtype=float), np.asarray(U, dtype=float)
+        if X.ndim != 2 or X.shape[1] != self.nx or U.shape != (len(X), self.nu):
+            raise ValueError(
+                f"f_batch: expected X (N, {self.nx}) and U (N, {self.nu}), got {X.shape}, {U.shape}"
+            )
+        return self.f(X, U)
+
+    def step(self, x: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+        """One RK4 step (control held), followed by :meth:`project_state`. x (nx,) -> (nx,)."""
+        return self.project_state(
+            rk4_step(self.f, np.asarray(x, dtype=float), np.asarray(u, dtype=float), dt)
+        )
+
+    def step_batch(self, X: np.ndarray, U: np.ndarray, dt: float) -> np.ndarray:
+        """Vectorised :meth:`step`: X (N, nx), U (N, nu) -> (N, nx)."""
+        return self.project_state(
+            rk4_step(self.f_batch, np.asarray(X, dtype=float), np.asarray(U, dtype=float), dt)
+        )
+
+    def speed(self, x: np.ndarray) -> np.ndarray:
+        """Speed |v| (m/s): scalar for (nx,), (N,) for (N, nx)."""
+        return np.linalg.norm(self.velocity(x), axis=-1)
+
+    def project_state(self, x: np.ndarray) -> np.ndarray:
+        """Map a numerically drifted state back onto the state manifold (identity by default)."""
+        return x
+
+    @abstractmethod
+    def yaw(self, x: np.ndarray) -> np.ndarray:
+        """Heading of the body x axis about world z (rad)."""
+
+    @abstractmethod
+    def initial_state(
+        self, position: Any, velocity: Any = (0.0, 0.0, 0.0), yaw: float = 0.0
+    ) -> np.ndarray:
+        """A state at ``position`` (m) moving with ``velocity`` (m/s), heading ``yaw`` (rad)."""
+
+    def rest_state(self, position: Any, yaw: float = 0.0) -> np.ndarray:
+        """A state at rest at ``position`` with heading ``yaw``: (nx,) float."""
+        return self.initial_state(position, (0.0, 0.0, 0.0), yaw)
+
+    def nominal_control(self, x: np.ndarray) -> np.ndarray:
+        """Control that keeps the velocity (zero acceleration, or hover): (nu,) or (N, nu)."""
+        return np.zeros((*np.shape(x)[:-1], self.nu))
+
+
+def _frozen(values: list[float]) -> np.ndarray:
+    arr = np.array(values, dtype=float)
+    arr.flags.writeable = False
+    return arr
+
+
+def vec3(value: Any, what: str) -> np.ndarray:
+    """``value`` as a finite (3,) float array, or :class:`ConfigError` naming ``what``."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{what}: expected 3 numbers, got {value!r}") from None
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ConfigError(f"{what}: expected 3 finite numbers, got {value!r}")
+    return arr

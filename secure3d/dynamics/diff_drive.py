@@ -1,0 +1,110 @@
+"""The paper's planar bounded-acceleration differential-drive robot (paper section "Results").
+
+State ``(x, y, theta, v, omega)``, control ``(a, alpha)``: ``xdot = v cos(theta)``,
+``ydot = v sin(theta)``, ``thetadot = omega``, ``vdot = a``, ``omegadot = alpha``. The body centre
+moves in the horizontal plane at the fixed height ``limits.height``; the camera looks along
+``theta`` with the mount's pitch.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+from secure3d.dynamics import _symbolic as sym
+from secure3d.dynamics.base import VehicleModel, normalise_fields, vec3
+from secure3d.errors import ConfigError
+from secure3d.geometry.transforms import yaw_matrix
+
+
+@dataclass(frozen=True)
+class DiffDriveLimits:
+    """Limits of the differential-drive robot.
+
+    Attributes
+    ----------
+    max_accel : float
+        Largest |linear acceleration| (m/s^2).
+    max_ang_accel : float
+        Largest |angular acceleration| (rad/s^2).
+    max_speed : float
+        Largest |linear speed| (m/s).
+    max_ang_speed : float
+        Largest |angular speed| (rad/s).
+    height : float
+        Fixed height of the body centre above the ground plane z = 0 (m), >= 0.
+    """
+
+    max_accel: float = 2.0
+    max_ang_accel: float = 6.0
+    max_speed: float = 2.0
+    max_ang_speed: float = 3.0
+    height: float = 0.5
+
+    def __post_init__(self) -> None:
+        normalise_fields(self, "DiffDriveLimits", allow_zero=("height",))
+
+
+class DiffDrive(VehicleModel):
+    """Differential drive (see module docstring). ``limits`` is a :class:`DiffDriveLimits`."""
+
+    name = "diff_drive"
+    state_names = ("x", "y", "theta", "v", "omega")
+    control_names = ("a", "alpha")
+    limits_type = DiffDriveLimits
+    limits: DiffDriveLimits
+
+    def _control_bounds(self) -> tuple[list[float], list[float]]:
+        a, al = self.limits.max_accel, self.limits.max_ang_accel
+        return [-a, -al], [a, al]
+
+    def _state_bounds(self) -> tuple[list[float], list[float]]:
+        v, w, inf = self.limits.max_speed, self.limits.max_ang_speed, np.inf
+        return [-inf, -inf, -inf, -v, -w], [inf, inf, inf, v, w]
+
+    def _f(self, xs: list[Any], us: list[Any], m: ModuleType) -> list[Any]:
+        th, v = xs[2], xs[3]
+        return [v * m.cos(th), v * m.sin(th), xs[4], us[0], us[1]]
+
+    def _path(self, xs: list[Any], us: list[Any], m: ModuleType) -> list[Any]:
+        return []
+
+    def _position(self, xs: list[Any], m: ModuleType) -> list[Any]:
+        return [xs[0], xs[1], self.limits.height + 0.0 * xs[0]]
+
+    def _velocity(self, xs: list[Any], m: ModuleType) -> list[Any]:
+        th, v = xs[2], xs[3]
+        return [v * m.cos(th), v * m.sin(th), 0.0 * v]
+
+    def body_rotation(self, x: Any) -> Any:
+        """World-from-body rotation (heading theta): (3, 3) / (N, 3, 3) float, or CasADi 3x3."""
+        return yaw_matrix(x[2] if sym.is_casadi(x) else np.asarray(x, dtype=float)[..., 2])
+
+    def yaw(self, x: np.ndarray) -> np.ndarray:
+        """Heading theta (rad): scalar or (N,)."""
+        return np.asarray(x, dtype=float)[..., 2]
+
+    def initial_state(
+        self, position: Any, velocity: Any = (0.0, 0.0, 0.0), yaw: float = 0.0
+    ) -> np.ndarray:
+        """State (5,) at ``position`` (its z is ignored) heading ``yaw``.
+
+        ``velocity`` must point along the heading (or against it, for reversing): a wheeled robot
+        cannot move sideways, so a lateral component raises :class:`ConfigError`.
+        """
+        p, v = vec3(position, "position"), vec3(velocity, "velocity")
+        yaw = float(yaw)
+        if not np.isfinite(yaw):
+            raise ConfigError(f"DiffDrive.initial_state: yaw must be finite, got {yaw!r}")
+        heading = np.array([np.cos(yaw), np.sin(yaw)])
+        speed = float(v[:2] @ heading)
+        lateral = float(np.hypot(*(v[:2] - speed * heading)))
+        if lateral > 1e-9 * (1.0 + abs(speed)) or v[2] != 0.0:
+            raise ConfigError(
+                f"DiffDrive.initial_state: velocity {tuple(v)} is not along the heading yaw={yaw} "
+                "(a differential drive cannot move sideways or vertically)"
+            )
+        return np.array([p[0], p[1], yaw, speed, 0.0])

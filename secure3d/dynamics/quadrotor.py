@@ -1,0 +1,162 @@
+"""Quadrotor with mass-normalised collective thrust and body-rate control.
+
+State ``(px, py, pz, vx, vy, vz, qw, qx, qy, qz)``, control ``(thrust, wx, wy, wz)``:
+``pdot = v``, ``vdot = R(q) e3 T - g e3``, ``qdot = 0.5 q (x) (0, w)`` (Hamilton product, body
+rates). The camera is fixed in the body frame, so tilting to accelerate or brake moves the field of
+view with the attitude.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+from secure3d.dynamics import _symbolic as sym
+from secure3d.dynamics.base import VehicleModel, normalise_fields, vec3
+from secure3d.errors import ConfigError
+from secure3d.geometry.transforms import quat_to_matrix
+
+
+@dataclass(frozen=True)
+class QuadrotorLimits:
+    """Limits of the quadrotor (mass-normalised, so thrusts are accelerations).
+
+    Attributes
+    ----------
+    thrust_min, thrust_max : float
+        Collective thrust range (m/s^2). ``thrust_min < gravity < thrust_max`` (else it cannot
+        hover).
+    max_rate : float
+        Largest |roll/pitch body rate| (rad/s).
+    max_yaw_rate : float
+        Largest |yaw body rate| (rad/s).
+    max_speed : float
+        Largest speed |v| (m/s).
+    gravity : float
+        Gravitational acceleration (m/s^2).
+    max_tilt : float
+        Largest angle between the thrust axis and world up the planner may use (rad, in (0, pi/2]);
+        a path constraint, and the attitude range the reactive sets are fitted on.
+    """
+
+    thrust_min: float = 1.0
+    thrust_max: float = 20.0
+    max_rate: float = 4.0
+    max_yaw_rate: float = 2.0
+    max_speed: float = 5.0
+    gravity: float = 9.81
+    max_tilt: float = math.radians(60.0)
+
+    def __post_init__(self) -> None:
+        normalise_fields(self, "QuadrotorLimits", allow_zero=("thrust_min",))
+        if self.thrust_max <= self.gravity:
+            raise ConfigError(
+                f"QuadrotorLimits.thrust_max: {self.thrust_max} m/s^2 cannot hover against gravity "
+                f"{self.gravity} m/s^2 (need thrust_max > gravity)"
+            )
+        if self.thrust_min >= self.gravity:
+            raise ConfigError(
+                f"QuadrotorLimits.thrust_min: {self.thrust_min} m/s^2 cannot hover "
+                f"(need thrust_min < gravity = {self.gravity} m/s^2)"
+            )
+        if self.max_tilt > math.pi / 2:
+            raise ConfigError(
+                f"QuadrotorLimits.max_tilt: must be in (0, pi/2] rad, got {self.max_tilt!r}"
+            )
+
+
+class Quadrotor(VehicleModel):
+    """Quadrotor (see module docstring). ``limits`` is a :class:`QuadrotorLimits`."""
+
+    name = "quadrotor"
+    state_names = ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")
+    control_names = ("thrust", "wx", "wy", "wz")
+    limits_type = QuadrotorLimits
+    limits: QuadrotorLimits
+
+    def _control_bounds(self) -> tuple[list[float], list[float]]:
+        lim = self.limits
+        return (
+            [lim.thrust_min, -lim.max_rate, -lim.max_rate, -lim.max_yaw_rate],
+            [lim.thrust_max, lim.max_rate, lim.max_rate, lim.max_yaw_rate],
+        )
+
+    def _state_bounds(self) -> tuple[list[float], list[float]]:
+        v, inf = self.limits.max_speed, np.inf
+        return [-inf, -inf, -inf, -v, -v, -v, -1, -1, -1, -1], [inf, inf, inf, v, v, v, 1, 1, 1, 1]
+
+    def _f(self, xs: list[Any], us: list[Any], m: ModuleType) -> list[Any]:
+        qw, qx, qy, qz = xs[6:10]
+        thrust, wx, wy, wz = us
+        # Thrust axis R(q) e3 (third column of quat_rotation).
+        zx, zy, zz = 2 * (qx * qz + qw * qy), 2 * (qy * qz - qw * qx), 1 - 2 * (qx * qx + qy * qy)
+        g = self.limits.gravity
+        return [
+            xs[3],
+            xs[4],
+            xs[5],
+            thrust * zx,
+            thrust * zy,
+            thrust * zz - g,
+            0.5 * (-qx * wx - qy * wy - qz * wz),
+            0.5 * (qw * wx + qy * wz - qz * wy),
+            0.5 * (qw * wy - qx * wz + qz * wx),
+            0.5 * (qw * wz + qx * wy - qy * wx),
+        ]
+
+    def _path(self, xs: list[Any], us: list[Any], m: ModuleType) -> list[Any]:
+        lim = self.limits
+        qx, qy = xs[7], xs[8]
+        return [
+            xs[3] ** 2 + xs[4] ** 2 + xs[5] ** 2 - lim.max_speed**2,
+            math.cos(lim.max_tilt) - (1 - 2 * (qx * qx + qy * qy)),
+        ]
+
+    def _position(self, xs: list[Any], m: ModuleType) -> list[Any]:
+        return xs[0:3]
+
+    def _velocity(self, xs: list[Any], m: ModuleType) -> list[Any]:
+        return xs[3:6]
+
+    def body_rotation(self, x: Any) -> Any:
+        """World-from-body rotation R(q): (3, 3) / (N, 3, 3) float, or CasADi 3x3.
+
+        numpy normalises q first; CasADi uses q as given (the NLP keeps |q| = 1).
+        """
+        return quat_to_matrix(
+            x[6:10] if sym.is_casadi(x) else np.asarray(x, dtype=float)[..., 6:10]
+        )
+
+    def yaw(self, x: np.ndarray) -> np.ndarray:
+        """Heading of the body x axis about world z (rad): scalar or (N,)."""
+        R = self.body_rotation(x)
+        return np.arctan2(R[..., 1, 0], R[..., 0, 0])
+
+    def thrust_axis(self, x: np.ndarray) -> np.ndarray:
+        """World direction of the thrust, ``R(q) e3``: (3,) or (N, 3)."""
+        return self.body_rotation(x)[..., :, 2]
+
+    def project_state(self, x: np.ndarray) -> np.ndarray:
+        """Renormalise the quaternion (RK4 drifts off |q| = 1 by O(dt^5) per step)."""
+        x = np.array(x, dtype=float)
+        q = x[..., 6:10]
+        x[..., 6:10] = q / np.linalg.norm(q, axis=-1, keepdims=True)
+        return x
+
+    def initial_state(
+        self, position: Any, velocity: Any = (0.0, 0.0, 0.0), yaw: float = 0.0
+    ) -> np.ndarray:
+        """Level state (10,) at ``position`` with ``velocity`` and heading ``yaw`` (rad)."""
+        p, v = vec3(position, "position"), vec3(velocity, "velocity")
+        h = 0.5 * float(yaw)
+        return np.concatenate([p, v, [math.cos(h), 0.0, 0.0, math.sin(h)]])
+
+    def nominal_control(self, x: np.ndarray) -> np.ndarray:
+        """Hover thrust ``gravity`` and zero body rates: (4,) or (N, 4)."""
+        u = np.zeros((*np.shape(x)[:-1], self.nu))
+        u[..., 0] = self.limits.gravity
+        return u

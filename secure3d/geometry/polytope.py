@@ -1,0 +1,390 @@
+"""Convex polytopes ``P = {y : A y <= b}``: boxes, convex hulls, distances and separation.
+
+The planner keeps reactive-set ellipsoids (and their line-of-sight hulls) away from known
+obstacles through a dual certificate (DESIGN.md section 4, "Known obstacles" and "Occlusion"):
+
+    dist(E, P) >= m   <=   exists lam >= 0, |A^T lam| <= 1,  lam.(A c - b) - |M A^T lam| >= m,
+
+and for the hull ``H = conv({o} ∪ E)`` the same ``lam`` must also give ``lam.(A o - b) >= m``.
+By LP duality the best ``lam`` attains the exact distance. :func:`dual_separation_margin` and
+:func:`los_hull_margins` are those constraint functions (numpy or CasADi);
+:func:`ellipsoid_polytope_distance` and :func:`los_hull_distance` compute the exact distance and an
+optimal ``lam`` (numpy) to initialise the NLP's multiplier variables and to check plans.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+
+from secure3d.errors import GeometryError
+from secure3d.geometry import backend as B
+from secure3d.geometry.backend import ArrayOrSym
+from secure3d.geometry.ellipsoid import check_ellipsoid
+
+#: Two hull facets whose unit normals differ by less than this (max-norm) are one face.
+NORMAL_MERGE_TOL = 1e-9
+#: Target accuracy of the distance solvers relative to the scene size (m per m).
+DISTANCE_REL_TOL = 1e-9
+
+_BOX_NORMALS = np.vstack([np.eye(3), -np.eye(3)])
+_BOX_NORMALS.setflags(write=False)
+
+
+# --------------------------------------------------------------------------------------------
+# Construction and validation
+# --------------------------------------------------------------------------------------------
+
+
+def _boxes(lo: object, hi: object) -> tuple[np.ndarray, np.ndarray]:
+    lo = np.asarray(lo, dtype=float)
+    hi = np.asarray(hi, dtype=float)
+    if lo.shape[-1:] != (3,) or lo.shape != hi.shape:
+        raise GeometryError(
+            f"box: lo and hi must have the same shape (..., 3), got {lo.shape}, {hi.shape}"
+        )
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise GeometryError("box: lo and hi must be finite")
+    if np.any(lo > hi):
+        i = np.argwhere(np.any(lo > hi, axis=-1))[0]
+        raise GeometryError(
+            f"box: lo must not exceed hi, got lo={lo[tuple(i)].tolist()} hi={hi[tuple(i)].tolist()}"
+        )
+    return lo, hi
+
+
+def box_halfspaces(lo: object, hi: object) -> tuple[np.ndarray, np.ndarray]:
+    """Faces of the axis-aligned box ``lo <= y <= hi``.
+
+    Returns
+    -------
+    A : (6, 3) float, unit rows ``+x, +y, +z, -x, -y, -z``.
+    b : (6,) float, ``(hi, -lo)``.
+    """
+    lo, hi = _boxes(lo, hi)
+    if lo.shape != (3,):
+        raise GeometryError(f"box_halfspaces: expected lo, hi of shape (3,), got {lo.shape}")
+    return _BOX_NORMALS.copy(), np.concatenate([hi, -lo])
+
+
+def boxes_halfspaces(lo: object, hi: object) -> tuple[np.ndarray, np.ndarray]:
+    """Faces of ``n`` boxes at once.
+
+    Parameters
+    ----------
+    lo, hi : (n, 3) float
+
+    Returns
+    -------
+    A : (n, 6, 3) float
+    b : (n, 6) float
+    """
+    lo, hi = _boxes(lo, hi)
+    lo, hi = lo.reshape(-1, 3), hi.reshape(-1, 3)
+    A = np.broadcast_to(_BOX_NORMALS, (lo.shape[0], 6, 3)).copy()
+    return A, np.concatenate([hi, -lo], axis=-1)
+
+
+def convex_hull_halfspaces(vertices: object) -> tuple[np.ndarray, np.ndarray]:
+    """Faces of the convex hull of points, coplanar facets merged.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float, n >= 4, not all in one plane.
+
+    Returns
+    -------
+    A : (k, 3) float, unit outward normals, one per distinct face plane.
+    b : (k,) float
+    """
+    V = np.asarray(vertices, dtype=float)
+    if V.ndim != 2 or V.shape[1] != 3 or V.shape[0] < 4:
+        raise GeometryError(f"convex hull: expected (n >= 4, 3) vertices, got shape {V.shape}")
+    if not np.all(np.isfinite(V)):
+        raise GeometryError("convex hull: vertices must be finite")
+    extent = float(np.max(V.max(axis=0) - V.min(axis=0)))
+    try:
+        hull = ConvexHull(V)
+    except QhullError as exc:
+        raise GeometryError(f"convex hull: degenerate (flat or repeated) vertices: {exc}") from None
+    # A volume this small relative to the extent means the points are (numerically) coplanar.
+    if not hull.volume > 1e-12 * extent**3:
+        raise GeometryError(f"convex hull: vertices are flat (volume {hull.volume:.3g})")
+    N = hull.equations[:, :3]
+    off = -hull.equations[:, 3]
+    scale = np.linalg.norm(N, axis=1)
+    N, off = N / scale[:, None], off / scale
+    same = np.abs(N[:, None, :] - N[None, :, :]).max(axis=-1) < NORMAL_MERGE_TOL
+    group = np.argmax(same, axis=1)  # first facet with the same normal
+    keep, inverse = np.unique(group, return_inverse=True)
+    b = np.full(keep.shape, -np.inf)
+    np.maximum.at(b, inverse, off)
+    return N[keep], b
+
+
+# --------------------------------------------------------------------------------------------
+# Point / segment queries against boxes
+# --------------------------------------------------------------------------------------------
+
+
+def box_signed_distance(points: object, lo: object, hi: object) -> np.ndarray:
+    """Exact signed Euclidean distance from points to boxes (negative inside).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    lo, hi : (m, 3) float
+
+    Returns
+    -------
+    (n, m) float
+    """
+    p = np.asarray(points, dtype=float).reshape(-1, 3)
+    lo, hi = _boxes(lo, hi)
+    lo, hi = lo.reshape(-1, 3), hi.reshape(-1, 3)
+    q = np.maximum(lo[None] - p[:, None], p[:, None] - hi[None])  # (n, m, 3) per-axis excess
+    outside = np.linalg.norm(np.maximum(q, 0.0), axis=-1)
+    inside = np.minimum(q.max(axis=-1), 0.0)
+    return outside + inside
+
+
+def min_box_distance(points: object, lo: object, hi: object) -> np.ndarray:
+    """Smallest signed distance from each point to any box (``+inf`` without boxes).
+
+    Returns
+    -------
+    (n,) float
+    """
+    d = box_signed_distance(points, lo, hi)
+    return np.min(d, axis=1, initial=np.inf)
+
+
+def segment_box_intersects(p0: object, p1: object, lo: object, hi: object) -> np.ndarray:
+    """Whether each segment ``[p0_i, p1_i]`` touches each closed box (slab test).
+
+    Parameters
+    ----------
+    p0, p1 : (n, 3) float
+    lo, hi : (m, 3) float
+
+    Returns
+    -------
+    (n, m) bool
+    """
+    p0 = np.asarray(p0, dtype=float).reshape(-1, 3)
+    p1 = np.asarray(p1, dtype=float).reshape(-1, 3)
+    if p0.shape != p1.shape:
+        raise GeometryError(f"segments: p0 and p1 shapes differ, {p0.shape} vs {p1.shape}")
+    lo, hi = _boxes(lo, hi)
+    lo, hi = lo.reshape(-1, 3)[None], hi.reshape(-1, 3)[None]
+    start = p0[:, None, :]
+    delta = (p1 - p0)[:, None, :]
+    parallel = delta == 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_a = (lo - start) / delta
+        t_b = (hi - start) / delta
+    t_enter = np.minimum(t_a, t_b)
+    t_exit = np.maximum(t_a, t_b)
+    # A segment parallel to a slab is inside it for all t, or for none.
+    inside = (start >= lo) & (start <= hi)
+    t_enter = np.where(parallel, np.where(inside, -np.inf, np.inf), t_enter)
+    t_exit = np.where(parallel, np.where(inside, np.inf, -np.inf), t_exit)
+    t0 = np.maximum(t_enter.max(axis=-1), 0.0)
+    t1 = np.minimum(t_exit.min(axis=-1), 1.0)
+    return t0 <= t1
+
+
+# --------------------------------------------------------------------------------------------
+# Dual separation certificates (numpy or CasADi)
+# --------------------------------------------------------------------------------------------
+
+
+def dual_separation_margin(
+    center: ArrayOrSym,
+    shape: ArrayOrSym,
+    A: ArrayOrSym,
+    b: ArrayOrSym,
+    lam: ArrayOrSym,
+    eps: float = 1e-6,
+) -> ArrayOrSym:
+    """Dual lower bound on ``dist(E, P)``: ``lam.(A c - b) - smooth_norm(M A^T lam, eps)``.
+
+    For any ``lam >= 0`` with ``|A^T lam| <= 1`` the result is ``<= dist(E, P)`` (weak duality,
+    DESIGN.md section 4, "Known obstacles"); the smooth norm (``|x| <= sqrt(|x|^2 + eps^2)``) keeps
+    the gradient defined at ``A^T lam = 0`` and only lowers the bound, by at most ``eps``. The
+    planner imposes ``>= clearance`` with ``lam`` as extra decision variables.
+
+    Parameters
+    ----------
+    center : (3,) or (N, 3) float, or CasADi (3, 1)
+    shape : (3, 3) or (N, 3, 3) float, or CasADi 3x3
+    A : (k, 3) float or CasADi
+    b : (k,) float or CasADi (k, 1)
+    lam : (k,) or (N, k) float, or CasADi (k, 1)
+    eps : float
+        Smoothing of the norm (m).
+
+    Returns
+    -------
+    float (``(N,)`` for a batch), or CasADi scalar.
+    """
+    sym = B.is_symbolic(center, shape, A, b, lam)
+    if sym:
+        c, M = B.vector(center, True), B.matrix(shape, True)
+    else:
+        c, M = check_ellipsoid(center, shape)
+    A, b, lam = B.matrix(A, sym), B.vector(b, sym), B.vector(lam, sym)
+    w = B.matvec(B.transpose(A), lam)
+    return B.dot(lam, B.matvec(A, c) - b) - B.smooth_norm(B.matvec(M, w), eps)
+
+
+def los_hull_margins(
+    origin: ArrayOrSym,
+    center: ArrayOrSym,
+    shape: ArrayOrSym,
+    A: ArrayOrSym,
+    b: ArrayOrSym,
+    lam: ArrayOrSym,
+    eps: float = 1e-6,
+) -> tuple[ArrayOrSym, ArrayOrSym]:
+    """The two dual bounds certifying that ``H = conv({o} ∪ E)`` misses ``P`` (numpy or CasADi).
+
+    Returns ``(lam.(A o - b), dual_separation_margin(c, M, A, b, lam, eps))``. If both are
+    ``>= m`` for one ``lam >= 0`` with ``|A^T lam| <= 1``, then ``dist(H, P) >= m``: the separating
+    plane ``(A^T lam).y = lam.b + m`` clears both the camera ``o`` and ``E`` (DESIGN.md section 4,
+    "Occlusion"). Since ``H ⊇ E`` this also replaces the plain obstacle constraint on ``E``.
+
+    Parameters
+    ----------
+    origin : (3,) float or CasADi (3, 1): the camera centre.
+    center, shape, A, b, lam, eps : as in :func:`dual_separation_margin`.
+
+    Returns
+    -------
+    apex_margin, ellipsoid_margin : float (``(N,)`` for a batch), or CasADi scalars.
+    """
+    sym = B.is_symbolic(origin, center, shape, A, b, lam)
+    o = B.vector(origin, sym)
+    A_, b_, lam_ = B.matrix(A, sym), B.vector(b, sym), B.vector(lam, sym)
+    apex = B.dot(lam_, B.matvec(A_, o) - b_)
+    return apex, dual_separation_margin(center, shape, A_, b_, lam_, eps)
+
+
+# --------------------------------------------------------------------------------------------
+# Exact distances (numpy), for initialisation and checking
+# --------------------------------------------------------------------------------------------
+
+
+@functools.cache
+def _kernel():
+    # numba is imported on first use only: compiling (or loading the cache) costs seconds.
+    from secure3d.geometry import _separation_kernel
+
+    return _separation_kernel
+
+
+def _vec3(x: object, what: str) -> np.ndarray:
+    a = np.ascontiguousarray(x, dtype=float)
+    if a.shape != (3,) or not np.isfinite(a.sum()):
+        raise GeometryError(f"{what}: expected 3 finite numbers, got {x!r}")
+    return a
+
+
+def _separation(origin, center, shape, A, b, los: bool) -> tuple[float, np.ndarray]:
+    # Light checks here; symmetry, definiteness and zero rows are checked inside the kernel
+    # (check_ellipsoid's numpy calls would cost more than the solve).
+    c = _vec3(center, "center")
+    o = c if origin is None else _vec3(origin, "origin")
+    M = np.ascontiguousarray(shape, dtype=float)
+    A = np.ascontiguousarray(A, dtype=float)
+    b = np.ascontiguousarray(b, dtype=float)
+    if M.shape != (3, 3) or not np.isfinite(M.sum()):
+        raise GeometryError(f"shape: expected a finite (3, 3) matrix, got shape {M.shape}")
+    if A.ndim != 2 or A.shape[1] != 3 or A.shape[0] < 1 or b.shape != (A.shape[0],):
+        raise GeometryError(f"polytope: expected A (k, 3) and b (k,), got {A.shape}, {b.shape}")
+    if not np.isfinite(A.sum() + b.sum()):
+        raise GeometryError("polytope: A and b must be finite")
+    scale = max(1.0, float(np.abs(b).max()), float(np.abs(c).max()), float(np.abs(o).max()))
+    tol = DISTANCE_REL_TOL * scale
+    kern = _kernel()
+    status, lower, upper, lam, _ = kern.solve_separation(o, c, M, A, b, los, tol)
+    if status in (kern.NOT_SYMMETRIC, kern.NOT_POSITIVE_DEFINITE):
+        raise GeometryError(f"{kern.STATUS_MESSAGES[status]}, got {M.tolist()}")
+    if status != kern.OK:
+        raise GeometryError(kern.STATUS_MESSAGES[status])
+    if upper <= tol or not lower > 0.0:
+        # Intersecting (or touching within tol): the distance is 0 and the kernel's lam is
+        # arbitrary, so offer the face closest to separating them as the optimiser's guess.
+        return 0.0, _best_single_face(o, c, M, A, b, los, lam, lower)
+    return float(lower), lam
+
+
+def _best_single_face(o, c, M, A, b, los, lam, lower) -> np.ndarray:
+    norms = np.linalg.norm(A, axis=1)
+    face = (A @ c - b - np.linalg.norm(A @ M, axis=1)) / norms
+    if los:
+        face = np.minimum(face, (A @ o - b) / norms)
+    i = int(np.argmax(face))
+    if np.isfinite(lower) and lower >= face[i]:
+        return lam
+    single = np.zeros(A.shape[0])
+    single[i] = 1.0 / norms[i]
+    return single
+
+
+def ellipsoid_polytope_distance(
+    center: object, shape: object, A: object, b: object
+) -> tuple[float, np.ndarray]:
+    """Exact Euclidean distance between an ellipsoid and a polytope, with an optimal dual ``lam``.
+
+    Solved by a compiled interior-point method (see ``_separation_kernel``) that stops when the
+    primal distance of explicit points and the dual bound of ``lam`` agree within ``1e-9`` times the
+    scene size; the returned distance is the dual bound, so it never exceeds the true distance by
+    more than rounding.
+
+    Parameters
+    ----------
+    center : (3,) float
+    shape : (3, 3) float, symmetric positive definite
+    A : (k, 3) float, non-zero rows (unit rows recommended: then ``b`` offsets are metric)
+    b : (k,) float
+
+    Returns
+    -------
+    distance : float
+        ``dist(E, P)`` (m); 0 if they intersect or touch.
+    lam : (k,) float
+        ``lam >= 0`` with ``|A^T lam| <= 1`` and ``dual_separation_margin(c, M, A, b, lam) ~=
+        distance`` when separated. When they intersect, the single face that is closest to
+        separating them (a starting guess for the NLP).
+
+    Raises
+    ------
+    GeometryError
+        Invalid ellipsoid or polytope, or an empty polytope.
+    """
+    return _separation(None, center, shape, A, b, los=False)
+
+
+def los_hull_distance(
+    origin: object, center: object, shape: object, A: object, b: object
+) -> tuple[float, np.ndarray]:
+    """Exact distance between the line-of-sight hull ``conv({o} ∪ E)`` and a polytope.
+
+    ``lam`` maximises ``min(los_hull_margins(o, c, M, A, b, lam))`` (the two bounds agree at the
+    optimum unless the apex or the ellipsoid alone is the closest part of the hull). Accuracy is
+    ~1e-8 of the scene size: that dual has a kink at its optimum, so it converges more slowly.
+
+    Parameters
+    ----------
+    origin : (3,) float, the camera centre.
+    center, shape, A, b : as in :func:`ellipsoid_polytope_distance`.
+
+    Returns
+    -------
+    distance : float
+    lam : (k,) float
+    """
+    return _separation(origin, center, shape, A, b, los=True)

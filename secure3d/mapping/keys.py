@@ -1,0 +1,820 @@
+"""OctoMap voxel keys, Morton codes and the batched 3D DDA that turns a scan into voxel updates.
+
+Everything here reproduces OctoMap 1.9/1.10 bit for bit (DESIGN.md section 5):
+
+- a coordinate is first rounded to ``float32`` (OctoMap's ``point3d``), then
+  ``key = floor(c * (1/res)) + 32768`` in double precision; keys live in ``[0, 65536)`` (16 levels);
+- a ray's free keys come from OctoMap's ``computeRayKeys`` (Amanatides & Woo DDA): the origin voxel
+  is included, the end voxel excluded, with the same float/double mix (so ties break the same way);
+- a scan (``computeUpdate``) marks every ray voxel free and every endpoint occupied, each voxel once
+  per scan, occupied winning over free; a beam longer than ``max_range`` only clears space up to
+  ``max_range`` along its direction and marks nothing occupied.
+
+Voxels are identified by a 48-bit *Morton code* (bits of x, y, z interleaved, x lowest), stored as
+``int64``. In Morton order the 8 children of an octree node are consecutive and a node at depth
+``d`` is the code shifted right by ``3 * (16 - d)``, so sorted codes are the octree's depth-first
+order: this is what makes ``.bt`` reading, writing and pruning vectorisable.
+
+The scan kernel is a numba function over all rays at once. Per-scan de-duplication uses a chunked
+bitmap (8x8x8-voxel chunks found through a small hash directory): consecutive DDA steps usually stay
+in the same chunk, so most steps cost a bit test instead of a hash lookup.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from secure3d.errors import GeometryError
+
+#: OctoMap's tree depth and key offset (``tree_max_val``): keys are in ``[0, 2 * TREE_MAX_VAL)``.
+TREE_DEPTH = 16
+TREE_MAX_VAL = 32768
+KEY_LIMIT = 2 * TREE_MAX_VAL
+
+_DBL_MAX = 1.7976931348623157e308
+_EMPTY = -1
+# Fibonacci hashing constant (2**64 / golden ratio): spreads clustered Morton codes over the table.
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+# A DDA step moves one key along one axis, so no ray inside the key cube needs more steps.
+_MAX_RAY_STEPS = 3 * KEY_LIMIT + 3
+
+
+# --------------------------------------------------------------------------- Morton codes
+
+
+@numba.njit(cache=True, inline="always")
+def _spread16(v: int) -> int:
+    """Insert two zero bits between each of the low 16 bits of ``v`` (numba and numpy ints)."""
+    v = v & 0xFFFF
+    v = (v | (v << 16)) & 0x0000FF0000FF
+    v = (v | (v << 8)) & 0x00F00F00F00F
+    v = (v | (v << 4)) & 0x0C30C30C30C3
+    v = (v | (v << 2)) & 0x249249249249
+    return v
+
+
+@numba.njit(cache=True, inline="always")
+def _compact16(v: int) -> int:
+    """Inverse of :func:`_spread16`: gather every third bit of ``v`` into 16 bits."""
+    v = v & 0x249249249249
+    v = (v | (v >> 2)) & 0x0C30C30C30C3
+    v = (v | (v >> 4)) & 0x00F00F00F00F
+    v = (v | (v >> 8)) & 0x0000FF0000FF
+    v = (v | (v >> 16)) & 0xFFFF
+    return v
+
+
+@numba.njit(cache=True, inline="always")
+def _morton3(kx: int, ky: int, kz: int) -> int:
+    return _spread16(kx) | (_spread16(ky) << 1) | (_spread16(kz) << 2)
+
+
+def morton_encode(keys: ArrayLike) -> NDArray[np.int64]:
+    """Morton codes of OctoMap keys.
+
+    Parameters
+    ----------
+    keys : (n, 3) int
+        Keys in ``[0, 65536)``.
+
+    Returns
+    -------
+    (n,) int64
+        Codes with x in bit 0, y in bit 1, z in bit 2 of every 3-bit group, so the octree child
+        index at tree level ``l`` (root = 0) is ``(code >> 3 * (15 - l)) & 7 = x + 2y + 4z``,
+        OctoMap's ``computeChildIdx``.
+    """
+    k = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+    return _spread16(k[:, 0]) | (_spread16(k[:, 1]) << 1) | (_spread16(k[:, 2]) << 2)
+
+
+def morton_decode(codes: ArrayLike) -> NDArray[np.int64]:
+    """Keys of Morton codes: the inverse of :func:`morton_encode`.
+
+    Parameters
+    ----------
+    codes : (n,) int64
+
+    Returns
+    -------
+    (n, 3) int64
+    """
+    c = np.asarray(codes, dtype=np.int64).ravel()
+    return np.stack([_compact16(c), _compact16(c >> 1), _compact16(c >> 2)], axis=1)
+
+
+# --------------------------------------------------------------------------- coordinates <-> keys
+
+
+def coords_to_keys(
+    points: ArrayLike, resolution: float
+) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """OctoMap keys of points (``coordToKeyChecked`` on ``float32`` coordinates).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    resolution : float
+        Voxel edge length (m).
+
+    Returns
+    -------
+    keys : (n, 3) int64
+        Keys; rows that are not valid hold 0.
+    valid : (n,) bool
+        False where a coordinate is not finite or falls outside the key range.
+    """
+    p32 = np.asarray(points, dtype=np.float64).reshape(-1, 3).astype(np.float32)
+    with np.errstate(invalid="ignore", over="ignore"):
+        scaled = np.floor(p32.astype(np.float64) * (1.0 / resolution))
+        valid = np.all((scaled >= -TREE_MAX_VAL) & (scaled < TREE_MAX_VAL), axis=1)
+    keys = np.zeros(scaled.shape, dtype=np.int64)
+    keys[valid] = scaled[valid].astype(np.int64) + TREE_MAX_VAL
+    return keys, valid
+
+
+def coords_to_codes(
+    points: ArrayLike, resolution: float
+) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """Morton codes of points; see :func:`coords_to_keys`. Invalid rows hold ``-1``."""
+    keys, valid = coords_to_keys(points, resolution)
+    codes = morton_encode(keys)
+    codes[~valid] = _EMPTY
+    return codes, valid
+
+
+def keys_to_coords(keys: ArrayLike, resolution: float) -> NDArray[np.float64]:
+    """Voxel centres of keys (OctoMap's ``keyToCoord`` at full depth).
+
+    Parameters
+    ----------
+    keys : (n, 3) int
+    resolution : float
+
+    Returns
+    -------
+    (n, 3) float64
+        ``(key - 32768 + 0.5) * resolution``.
+    """
+    k = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+    return ((k - TREE_MAX_VAL).astype(np.float64) + 0.5) * resolution
+
+
+def codes_to_coords(codes: ArrayLike, resolution: float) -> NDArray[np.float64]:
+    """Voxel centres of Morton codes, ``(n, 3) float64``."""
+    return keys_to_coords(morton_decode(codes), resolution)
+
+
+# --------------------------------------------------------------------------- the scan kernel
+
+
+@numba.njit(cache=True, inline="always")
+def _key_of(c: float, res_factor: float) -> int:
+    """``coordToKeyChecked`` for one coordinate (already rounded to float32); -1 if out of range."""
+    s = math.floor(res_factor * c)
+    if not (s >= -TREE_MAX_VAL and s < TREE_MAX_VAL):  # also rejects NaN
+        return -1
+    return np.int64(s) + TREE_MAX_VAL
+
+
+@numba.njit(cache=True, inline="always")
+def _fib_slot(key: int, shift: int) -> int:
+    return np.int64((np.uint64(key) * _GOLDEN) >> np.uint64(shift))
+
+
+@numba.njit(cache=True)
+def _dir_rehash(keys: np.ndarray, vals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Double an open-addressing table (linear probing, Fibonacci hashing), keeping its entries."""
+    cap = keys.shape[0] * 2
+    shift = 64 - int(np.log2(cap))
+    nk = np.full(cap, _EMPTY, np.int64)
+    nv = np.empty(cap, np.int64)
+    for i in range(keys.shape[0]):
+        k = keys[i]
+        if k != _EMPTY:
+            h = _fib_slot(k, shift)
+            while nk[h] != _EMPTY:
+                h = (h + 1) & (cap - 1)
+            nk[h] = k
+            nv[h] = vals[i]
+    return nk, nv
+
+
+@numba.njit(cache=True)
+def _grow_to(a: np.ndarray, need: int) -> np.ndarray:
+    """A zero-padded copy of ``a`` with at least ``need`` rows (at least doubled)."""
+    out = np.zeros((max(2 * a.shape[0], need),) + a.shape[1:], a.dtype)
+    out[: a.shape[0]] = a
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _axis_setup(k: int, d: float, o: float, resolution: float, half: float) -> tuple:
+    """Step, first t-crossing and t-increment along one axis (``computeRayKeys``'s init)."""
+    if d > 0.0:
+        border = (np.float64(k - TREE_MAX_VAL) + 0.5) * resolution + half
+        return 1, (border - np.float64(o)) / np.float64(d), resolution / abs(np.float64(d))
+    if d < 0.0:
+        border = (np.float64(k - TREE_MAX_VAL) + 0.5) * resolution - half
+        return -1, (border - np.float64(o)) / np.float64(d), resolution / abs(np.float64(d))
+    return 0, _DBL_MAX, _DBL_MAX
+
+
+@numba.njit(cache=True, inline="always")
+def _dda_setup(
+    ox: float,
+    oy: float,
+    oz: float,
+    ex: float,
+    ey: float,
+    ez: float,
+    kx: int,
+    ky: int,
+    kz: int,
+    resolution: float,
+) -> tuple:
+    """Initialisation of ``computeRayKeys`` from origin ``o`` (key ``k``) to end ``e`` (float32).
+
+    Reproduces OctoMap's arithmetic: direction normalised in float32 by a float32 length; the first
+    voxel border is ``keyToCoord`` (double) plus ``(float)(step * res / 2)``; t-values are doubles.
+    Returns (length, steps x/y/z, tmax x/y/z, tdelta x/y/z).
+    """
+    dx = ex - ox
+    dy = ey - oy
+    dz = ez - oz
+    length = np.float32(math.sqrt(np.float64(dx * dx + dy * dy + dz * dz)))
+    half = np.float64(np.float32(resolution * 0.5))
+    sx, tmx, tdx = _axis_setup(kx, dx / length, ox, resolution, half)
+    sy, tmy, tdy = _axis_setup(ky, dy / length, oy, resolution, half)
+    sz, tmz, tdz = _axis_setup(kz, dz / length, oz, resolution, half)
+    return length, sx, sy, sz, tmx, tmy, tmz, tdx, tdy, tdz
+
+
+@numba.njit(cache=True)
+def _clipped_ends(
+    points: np.ndarray, origin: np.ndarray, resolution: float, max_range: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """Per point: effective end (float32), its keys and a status; plus the key box of all rays
+    and a bound on their total number of voxels (L1 key distances + 2 each).
+
+    Status: 0 hit (ray + occupied end), 1 clipped at max range (ray only), 2 non-finite,
+    3 end outside the key range (a finite value too big for float32 included). The clipped end
+    follows OctoMap: ``origin + (p - origin).normalized() * (float) maxrange``. The key box
+    (lo, hi) spans the origin and every used end key; every DDA step changes one key by one.
+    """
+    n = points.shape[0]
+    res_factor = 1.0 / resolution
+    ends = np.empty((n, 3), np.float32)
+    keys = np.empty((n, 3), np.int64)
+    status = np.empty(n, np.int8)
+    lo = np.empty(3, np.int64)
+    hi = np.empty(3, np.int64)
+    for a in range(3):
+        lo[a] = _key_of(np.float64(origin[a]), res_factor)
+        hi[a] = lo[a]
+    lo_o = lo.copy()
+    ox = origin[0]
+    oy = origin[1]
+    oz = origin[2]
+    fmax = np.float32(max_range)
+    steps = 0
+    for i in range(n):
+        if not (
+            np.isfinite(points[i, 0]) and np.isfinite(points[i, 1]) and np.isfinite(points[i, 2])
+        ):
+            status[i] = 2
+            continue
+        px = np.float32(points[i, 0])
+        py = np.float32(points[i, 1])
+        pz = np.float32(points[i, 2])
+        st = 0
+        if max_range >= 0.0:
+            dx = px - ox
+            dy = py - oy
+            dz = pz - oz
+            norm = math.sqrt(np.float64(dx * dx + dy * dy + dz * dz))
+            if not norm <= max_range:
+                st = 1
+                fl = np.float32(norm)
+                px = ox + (dx / fl) * fmax
+                py = oy + (dy / fl) * fmax
+                pz = oz + (dz / fl) * fmax
+        kx = _key_of(np.float64(px), res_factor)
+        ky = _key_of(np.float64(py), res_factor)
+        kz = _key_of(np.float64(pz), res_factor)
+        if kx < 0 or ky < 0 or kz < 0:
+            status[i] = 3
+            continue
+        status[i] = st
+        ends[i, 0] = px
+        ends[i, 1] = py
+        ends[i, 2] = pz
+        keys[i, 0] = kx
+        keys[i, 1] = ky
+        keys[i, 2] = kz
+        lo[0] = min(lo[0], kx)
+        lo[1] = min(lo[1], ky)
+        lo[2] = min(lo[2], kz)
+        hi[0] = max(hi[0], kx)
+        hi[1] = max(hi[1], ky)
+        hi[2] = max(hi[2], kz)
+        steps += abs(kx - lo_o[0]) + abs(ky - lo_o[1]) + abs(kz - lo_o[2]) + 2
+    return ends, keys, status, lo, hi, steps
+
+
+#: Largest key box (voxels) the dense kernel handles: two bitmaps of 2**27 bits = 32 MB of virtual
+#: memory, of which only the touched pages are ever used. Bigger scans use the chunked kernel.
+_DENSE_VOXEL_LIMIT = 1 << 27
+#: Margin (voxels) around the box of a scan's end keys: DDA rounding may step one voxel beside the
+#: segment's own box before it notices it has passed the end.
+_BOX_PAD = 2
+
+
+@numba.njit(cache=True)
+def _idx_to_codes(idx: np.ndarray, lo: np.ndarray, dims: np.ndarray) -> np.ndarray:
+    out = np.empty(idx.shape[0], np.int64)
+    for j in range(idx.shape[0]):
+        v = idx[j]
+        kx = lo[0] + v % dims[0]
+        v //= dims[0]
+        out[j] = _morton3(kx, lo[1] + v % dims[1], lo[2] + v // dims[1])
+    return out
+
+
+@numba.njit(cache=True)
+def _scan_dense_kernel(
+    ends: np.ndarray,
+    end_keys: np.ndarray,
+    status: np.ndarray,
+    origin: np.ndarray,
+    resolution: float,
+    lo: np.ndarray,
+    dims: np.ndarray,
+    max_voxels: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """OctoMap's ``computeUpdate`` over all rays, de-duplicated with dense bitmaps.
+
+    Voxel ``k`` of the box ``lo``/``dims`` has linear index
+    ``(kx - lo_x) + dims_x ((ky - lo_y) + dims_y (kz - lo_z))``; a DDA step is one addition to it.
+    ``max_voxels`` bounds the number of free voxels (see :func:`_clipped_ends`), so the lists are
+    allocated once: reallocating inside the loop halves its speed.
+    Returns (free codes, occupied codes), each voxel once, occupied winning.
+    """
+    res_factor = 1.0 / resolution
+    ox = origin[0]
+    oy = origin[1]
+    oz = origin[2]
+    kox = _key_of(np.float64(ox), res_factor)
+    koy = _key_of(np.float64(oy), res_factor)
+    koz = _key_of(np.float64(oz), res_factor)
+    nx = dims[0]
+    nxy = dims[0] * dims[1]
+    total = nxy * dims[2]
+    free_bits = np.zeros((total + 63) >> 6, np.uint64)
+    occ_bits = np.zeros((total + 63) >> 6, np.uint64)
+    # Each voxel is listed once: np.empty only reserves address space, pages are committed as the
+    # lists fill.
+    free_idx = np.empty(min(total, max_voxels), np.int64)
+    nfree = 0
+    occ_idx = np.empty(min(total, ends.shape[0]), np.int64)
+    nocc = 0
+    origin_idx = (kox - lo[0]) + nx * (koy - lo[1]) + nxy * (koz - lo[2])
+    one = np.uint64(1)
+    utotal = np.uint64(total)
+
+    for i in range(ends.shape[0]):
+        ray_status = status[i]
+        if ray_status >= 2:
+            continue
+        ekx = end_keys[i, 0]
+        eky = end_keys[i, 1]
+        ekz = end_keys[i, 2]
+        end_idx = (ekx - lo[0]) + nx * (eky - lo[1]) + nxy * (ekz - lo[2])
+        if end_idx != origin_idx:
+            # Every DDA step changes one key by one: a bound on this ray's steps.
+            bound = abs(ekx - kox) + abs(eky - koy) + abs(ekz - koz) + 2
+            length, sx, sy, sz, tmx, tmy, tmz, tdx, tdy, tdz = _dda_setup(
+                ox, oy, oz, ends[i, 0], ends[i, 1], ends[i, 2], kox, koy, koz, resolution
+            )
+            stx = sx
+            sty = sy * nx
+            stz = sz * nxy
+            idx = origin_idx
+            w = idx >> 6
+            m = one << np.uint64(idx & 63)
+            if (free_bits[w] & m) == 0:
+                free_bits[w] |= m
+                free_idx[nfree] = idx
+                nfree += 1
+            for _ in range(bound):
+                if tmx < tmy:
+                    if tmx < tmz:
+                        idx += stx
+                        tmx += tdx
+                    else:
+                        idx += stz
+                        tmz += tdz
+                elif tmy < tmz:
+                    idx += sty
+                    tmy += tdy
+                else:
+                    idx += stz
+                    tmz += tdz
+                # Accumulated rounding can pass the end voxel without hitting it: stop there.
+                if idx == end_idx or min(tmx, min(tmy, tmz)) > length:
+                    break
+                if np.uint64(idx) >= utotal:
+                    break  # impossible inside the padded box; never write outside it
+                w = idx >> 6
+                m = one << np.uint64(idx & 63)
+                if (free_bits[w] & m) == 0:
+                    free_bits[w] |= m
+                    free_idx[nfree] = idx
+                    nfree += 1
+        if ray_status == 0:
+            w = end_idx >> 6
+            m = one << np.uint64(end_idx & 63)
+            if (occ_bits[w] & m) == 0:
+                occ_bits[w] |= m
+                occ_idx[nocc] = end_idx
+                nocc += 1
+
+    # Occupied wins over free within a scan.
+    keep = np.empty(nfree, np.int64)
+    nf = 0
+    for j in range(nfree):
+        v = free_idx[j]
+        if (occ_bits[v >> 6] & (one << np.uint64(v & 63))) == 0:
+            keep[nf] = v
+            nf += 1
+    return _idx_to_codes(keep[:nf], lo, dims), _idx_to_codes(occ_idx[:nocc], lo, dims)
+
+
+@numba.njit(cache=True)
+def _chunked_batch(
+    first: int,
+    ends: np.ndarray,
+    end_keys: np.ndarray,
+    status: np.ndarray,
+    origin_keys: np.ndarray,
+    origin: np.ndarray,
+    resolution: float,
+    bits: np.ndarray,
+    hkeys: np.ndarray,
+    hvals: np.ndarray,
+    free_keys: np.ndarray,
+    free_chunk: np.ndarray,
+    occ_keys: np.ndarray,
+    state: np.ndarray,
+) -> int:
+    """Process rays from ``first`` while the arrays surely have room; return the next ray.
+
+    ``state`` = [free count, occupied count, chunks, directory entries, log2 directory size]. No
+    array is reallocated here (that would slow the loop down twofold); the caller grows them.
+    """
+    ox = origin[0]
+    oy = origin[1]
+    oz = origin[2]
+    kox = origin_keys[0]
+    koy = origin_keys[1]
+    koz = origin_keys[2]
+    nfree = state[0]
+    nocc = state[1]
+    nchunks = state[2]
+    hcount = state[3]
+    hshift = 64 - state[4]
+    hmask = hkeys.shape[0] - 1
+    last_cid = -1
+    ci = 0
+    i = first
+    while i < ends.shape[0]:
+        ray_status = status[i]
+        if ray_status >= 2:
+            i += 1
+            continue
+        ekx = end_keys[i, 0]
+        eky = end_keys[i, 1]
+        ekz = end_keys[i, 2]
+        bound = abs(ekx - kox) + abs(eky - koy) + abs(ekz - koz) + 2
+        if (
+            nfree + bound > free_keys.shape[0]
+            or nocc >= occ_keys.shape[0]
+            or nchunks + bound + 1 > bits.shape[0]
+            or 2 * (hcount + bound + 1) > hkeys.shape[0]
+        ):
+            break
+        same_voxel = ekx == kox and eky == koy and ekz == koz
+        if not same_voxel:
+            length, sx, sy, sz, tmx, tmy, tmz, tdx, tdy, tdz = _dda_setup(
+                ox, oy, oz, ends[i, 0], ends[i, 1], ends[i, 2], kox, koy, koz, resolution
+            )
+        kx = kox
+        ky = koy
+        kz = koz
+        # One pass per voxel: the origin voxel, the DDA steps (free), then the end point
+        # (occupied, only for a real hit). The end voxel itself is never marked free.
+        for s in range(bound + 1):
+            layer = 0
+            if same_voxel or s == bound:
+                layer = 1
+            elif s > 0:
+                if tmx < tmy:
+                    if tmx < tmz:
+                        kx += sx
+                        tmx += tdx
+                    else:
+                        kz += sz
+                        tmz += tdz
+                elif tmy < tmz:
+                    ky += sy
+                    tmy += tdy
+                else:
+                    kz += sz
+                    tmz += tdz
+                if (kx == ekx and ky == eky and kz == ekz) or min(tmx, min(tmy, tmz)) > length:
+                    layer = 1
+            if layer == 1:
+                if ray_status != 0:
+                    break
+                kx = ekx
+                ky = eky
+                kz = ekz
+            if kx < 0 or ky < 0 or kz < 0 or kx >= KEY_LIMIT or ky >= KEY_LIMIT or kz >= KEY_LIMIT:
+                break  # impossible (rays stay between valid keys); never pack a bad key
+            cid = (kx >> 3) | ((ky >> 3) << 13) | ((kz >> 3) << 26)
+            if cid != last_cid:
+                last_cid = cid
+                h = _fib_slot(cid, hshift)
+                while True:
+                    kk = hkeys[h]
+                    if kk == cid:
+                        ci = hvals[h]
+                        break
+                    if kk == _EMPTY:
+                        hkeys[h] = cid
+                        hvals[h] = nchunks
+                        ci = nchunks
+                        nchunks += 1
+                        hcount += 1
+                        break
+                    h = (h + 1) & hmask
+            m = np.uint64(1) << np.uint64((kx & 7) | ((ky & 7) << 3))
+            w = 8 * layer + (kz & 7)
+            if (bits[ci, w] & m) == 0:
+                bits[ci, w] |= m
+                packed = kx | (ky << 16) | (kz << 32)
+                if layer == 0:
+                    free_keys[nfree] = packed
+                    free_chunk[nfree] = ci
+                    nfree += 1
+                else:
+                    occ_keys[nocc] = packed
+                    nocc += 1
+            if layer == 1:
+                break
+        i += 1
+    state[0] = nfree
+    state[1] = nocc
+    state[2] = nchunks
+    state[3] = hcount
+    return i
+
+
+@numba.njit(cache=True)
+def _scan_chunked_kernel(
+    ends: np.ndarray,
+    end_keys: np.ndarray,
+    status: np.ndarray,
+    origin: np.ndarray,
+    resolution: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_scan_dense_kernel` for scans of any extent, with sparse storage.
+
+    Voxels are de-duplicated with bits in 8x8x8 chunks (8 words free, 8 words occupied), found
+    through an open-addressing hash directory of chunk ids. Rays are processed in batches between
+    which the arrays grow.
+    """
+    res_factor = 1.0 / resolution
+    origin_keys = np.empty(3, np.int64)
+    for a in range(3):
+        origin_keys[a] = _key_of(np.float64(origin[a]), res_factor)
+    bits = np.zeros((1 << 12, 16), np.uint64)
+    hkeys = np.full(1 << 12, _EMPTY, np.int64)
+    hvals = np.empty(hkeys.shape[0], np.int64)
+    free_keys = np.empty(1 << 16, np.int64)
+    free_chunk = np.empty(1 << 16, np.int64)
+    occ_keys = np.empty(1 << 14, np.int64)
+    state = np.array([0, 0, 0, 0, 12], np.int64)
+    i = 0
+    while i < ends.shape[0]:
+        i = _chunked_batch(
+            i,
+            ends,
+            end_keys,
+            status,
+            origin_keys,
+            origin,
+            resolution,
+            bits,
+            hkeys,
+            hvals,
+            free_keys,
+            free_chunk,
+            occ_keys,
+            state,
+        )
+        if i < ends.shape[0]:
+            # Room for at least the ray that did not fit (arrays at least double).
+            need = 3
+            for a in range(3):
+                need += abs(end_keys[i, a] - origin_keys[a])
+            if state[0] + need > free_keys.shape[0]:
+                free_keys = _grow_to(free_keys, state[0] + need)
+                free_chunk = _grow_to(free_chunk, state[0] + need)
+            if state[1] + 1 > occ_keys.shape[0]:
+                occ_keys = _grow_to(occ_keys, state[1] + 1)
+            if state[2] + need + 1 > bits.shape[0]:
+                bits = _grow_to(bits, state[2] + need + 1)
+            while 2 * (state[3] + need + 1) > hkeys.shape[0]:
+                hkeys, hvals = _dir_rehash(hkeys, hvals)
+                state[4] += 1
+
+    # Occupied wins: drop free keys whose occupied bit is set; convert to Morton codes.
+    nfree = state[0]
+    free_out = np.empty(nfree, np.int64)
+    nf = 0
+    for j in range(nfree):
+        key = free_keys[j]
+        kx = key & 0xFFFF
+        ky = (key >> 16) & 0xFFFF
+        kz = key >> 32
+        m = np.uint64(1) << np.uint64((kx & 7) | ((ky & 7) << 3))
+        if (bits[free_chunk[j], 8 + (kz & 7)] & m) == 0:
+            free_out[nf] = _morton3(kx, ky, kz)
+            nf += 1
+    occ_out = np.empty(state[1], np.int64)
+    for j in range(state[1]):
+        key = occ_keys[j]
+        occ_out[j] = _morton3(key & 0xFFFF, (key >> 16) & 0xFFFF, key >> 32)
+    return free_out[:nf], occ_out
+
+
+class ScanUpdate(NamedTuple):
+    """The voxel updates of one scan (OctoMap's ``computeUpdate``), each voxel listed once.
+
+    Attributes
+    ----------
+    free : (m,) int64
+        Morton codes of voxels to mark free (disjoint from ``occupied``).
+    occupied : (k,) int64
+        Morton codes of voxels to mark occupied.
+    points_used : int
+        Points whose ray was cast (including beams clipped at the maximum range).
+    skipped_nonfinite : int
+        Points with a NaN or infinite coordinate.
+    skipped_out_of_range : int
+        Points whose (clipped) end lies outside the key range; OctoMap drops these whole.
+    clipped : int
+        Beams longer than the maximum range (they only clear space).
+    """
+
+    free: NDArray[np.int64]
+    occupied: NDArray[np.int64]
+    points_used: int
+    skipped_nonfinite: int
+    skipped_out_of_range: int
+    clipped: int
+
+
+def check_origin(origin: ArrayLike, resolution: float) -> NDArray[np.float32]:
+    """Return ``origin`` as ``(3,) float32`` or raise :class:`GeometryError` if unusable."""
+    try:
+        o = np.asarray(origin, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise GeometryError(f"origin: expected 3 numbers, got {origin!r}") from None
+    if o.shape != (3,) or not np.all(np.isfinite(o)):
+        raise GeometryError(f"origin: expected 3 finite numbers, got {origin!r}")
+    _, valid = coords_to_keys(o[None], resolution)
+    if not valid[0]:
+        raise GeometryError(
+            f"origin: {o.tolist()} is outside the key range of a map at resolution {resolution}"
+        )
+    return o.astype(np.float32)
+
+
+def check_points(points: ArrayLike, what: str = "points") -> NDArray[np.float64]:
+    """Return ``points`` as ``(n, 3) float64`` or raise :class:`GeometryError` naming the shape."""
+    try:
+        p = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise GeometryError(f"{what}: expected an (n, 3) array of numbers") from None
+    if p.ndim == 1 and p.shape[0] == 3:
+        p = p[None]
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise GeometryError(f"{what}: expected shape (n, 3), got {p.shape}")
+    return p
+
+
+def scan_update(
+    points: ArrayLike, origin: ArrayLike, resolution: float, max_range: float | None = None
+) -> ScanUpdate:
+    """Voxel updates of one scan, exactly as OctoMap's ``insertPointCloud`` computes them.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Measured end points in the world frame (m). Rows with NaN/inf are skipped and counted.
+    origin : (3,) float
+        Sensor position (m); must be finite and inside the key range.
+    resolution : float
+        Voxel edge length (m).
+    max_range : float or None
+        Beams longer than this (Euclidean, m) only clear space up to it; None or negative: no limit.
+
+    Returns
+    -------
+    ScanUpdate
+    """
+    p = np.ascontiguousarray(check_points(points))
+    o = check_origin(origin, resolution)
+    mr = -1.0 if max_range is None or not np.isfinite(max_range) else float(max_range)
+    ends, keys, status, lo, hi, steps = _clipped_ends(p, o, float(resolution), mr)
+    lo = lo - _BOX_PAD
+    dims = hi + _BOX_PAD - lo + 1
+    if float(np.prod(dims.astype(np.float64))) <= _DENSE_VOXEL_LIMIT:
+        free, occ = _scan_dense_kernel(
+            ends, keys, status, o, float(resolution), lo, dims, int(steps)
+        )
+    else:
+        free, occ = _scan_chunked_kernel(ends, keys, status, o, float(resolution))
+    counts = np.bincount(status, minlength=4)
+    return ScanUpdate(
+        free, occ, int(counts[0] + counts[1]), int(counts[2]), int(counts[3]), int(counts[1])
+    )
+
+
+def ray_keys(origin: ArrayLike, end: ArrayLike, resolution: float) -> NDArray[np.int64]:
+    """Free-space keys of one ray, OctoMap's ``computeRayKeys`` (origin in, end voxel out).
+
+    Parameters
+    ----------
+    origin, end : (3,) float
+    resolution : float
+
+    Returns
+    -------
+    (m, 3) int64
+        Keys in traversal order (empty if both points share a voxel).
+    """
+    o = check_origin(origin, resolution)
+    e = check_points(end, "end")
+    if e.shape[0] != 1:
+        raise GeometryError(f"end: expected one point, got {e.shape[0]}")
+    return _single_ray_kernel(e.astype(np.float32), o, float(resolution))
+
+
+@numba.njit(cache=True)
+def _single_ray_kernel(end: np.ndarray, origin: np.ndarray, resolution: float) -> np.ndarray:
+    """Traversal-ordered keys of one ray (the same steps as :func:`_scan_update_kernel`)."""
+    res_factor = 1.0 / resolution
+    kx = _key_of(np.float64(origin[0]), res_factor)
+    ky = _key_of(np.float64(origin[1]), res_factor)
+    kz = _key_of(np.float64(origin[2]), res_factor)
+    ekx = _key_of(np.float64(end[0, 0]), res_factor)
+    eky = _key_of(np.float64(end[0, 1]), res_factor)
+    ekz = _key_of(np.float64(end[0, 2]), res_factor)
+    if ekx < 0 or eky < 0 or ekz < 0 or (ekx == kx and eky == ky and ekz == kz):
+        return np.empty((0, 3), np.int64)
+    length, sx, sy, sz, tmx, tmy, tmz, tdx, tdy, tdz = _dda_setup(
+        origin[0], origin[1], origin[2], end[0, 0], end[0, 1], end[0, 2], kx, ky, kz, resolution
+    )
+    bound = abs(ekx - kx) + abs(eky - ky) + abs(ekz - kz) + 2
+    out = np.empty((bound, 3), np.int64)
+    n = 0
+    for s in range(bound):
+        if s > 0:
+            if tmx < tmy:
+                if tmx < tmz:
+                    kx += sx
+                    tmx += tdx
+                else:
+                    kz += sz
+                    tmz += tdz
+            elif tmy < tmz:
+                ky += sy
+                tmy += tdy
+            else:
+                kz += sz
+                tmz += tdz
+            if (kx == ekx and ky == eky and kz == ekz) or min(tmx, min(tmy, tmz)) > length:
+                break
+        out[n, 0] = kx
+        out[n, 1] = ky
+        out[n, 2] = kz
+        n += 1
+    return out[:n]

@@ -1,0 +1,919 @@
+"""The occupancy store: OctoMap-compatible sensor log-odds plus the server's claim, kept apart.
+
+Two layers answer for every voxel (DESIGN.md section 4, "Map update rules"):
+
+- the **sensor layer**: OctoMap's probabilistic map built only from our own camera/lidar, with
+  OctoMap's exact semantics (keys, ray casting, per-scan update sets, log-odds, clamping; see
+  :mod:`secure3d.mapping.keys`). ``classify`` reads it like octomap-python's ``getLabels``;
+- the **claim layer**: what the (untrusted) server says, occupied or free, per voxel.
+
+Sensor evidence always overrides the claim. This is the paper's map update in the proof of the
+safety theorem, with O the newly seen obstacles and "observed" the union of the frusta so far::
+
+    C_free <- C_free u (observed \\ O)          C_obst <- (C_obst u O) \\ (observed n C_free)
+
+so a voxel the sensor has seen free is free even if the server claims it occupied, a voxel the
+sensor has seen occupied is an obstacle even if the server claims it free, and unobserved voxels
+keep the server's claim. Known obstacles for the planner are therefore
+``sensed occupied u (claimed occupied \\ sensed free)``, and space outside the map ``bounds`` (the
+server map's extent) is treated as unplannable.
+
+Each voxel reports one :class:`Trust` level. Coordinates are metres in the world frame; voxel
+``k`` spans ``[(k - 32768) r, (k - 32767) r)`` per axis for resolution ``r``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+from enum import IntEnum
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from secure3d.errors import ConfigError, GeometryError, MapFormatError
+from secure3d.mapping import octomap_io
+from secure3d.mapping.boxes import boxes_near_points, merge_cells_budget
+from secure3d.mapping.keys import (
+    KEY_LIMIT,
+    TREE_DEPTH,
+    TREE_MAX_VAL,
+    check_points,
+    codes_to_coords,
+    coords_to_codes,
+    morton_decode,
+    morton_encode,
+    scan_update,
+)
+from secure3d.mapping.store import LeafLayer
+from secure3d.mapping.surface import boundary_mesh
+
+#: Most voxels one claim call may create (about 0.5 GB); bigger claims are almost surely a unit or
+#: resolution mistake.
+MAX_CLAIM_VOXELS = 40_000_000
+#: Largest map file accepted by the readers (bytes).
+MAX_FILE_BYTES = 1 << 30
+
+
+def _logodds(p: float) -> np.float32:
+    """OctoMap's ``logodds``: computed in double, stored as float."""
+    return np.float32(math.log(p / (1.0 - p)))
+
+
+@dataclass(frozen=True)
+class OccupancyParams:
+    """OctoMap's sensor model; the defaults are OctoMap's.
+
+    Attributes
+    ----------
+    prob_hit : float
+        Probability that a voxel containing a measured end point is occupied (0.7 = +0.85
+        log-odds per hit). Must be in (0.5, 1).
+    prob_miss : float
+        Probability that a voxel a beam passes through is occupied (0.4 = -0.41 log-odds per
+        miss). Must be in (0, 0.5).
+    occupancy_threshold : float
+        A voxel is occupied when its probability is at least this (0.5 = log-odds 0).
+    clamp_min, clamp_max : float
+        Log-odds are clamped to these probabilities (0.1192 = -2.0, 0.971 = +3.51 log-odds) so
+        the map can change its mind. ``0 < clamp_min < occupancy_threshold <= clamp_max < 1``.
+    """
+
+    prob_hit: float = 0.7
+    prob_miss: float = 0.4
+    occupancy_threshold: float = 0.5
+    clamp_min: float = 0.1192
+    clamp_max: float = 0.971
+
+    def __post_init__(self) -> None:
+        for name in ("prob_hit", "prob_miss", "occupancy_threshold", "clamp_min", "clamp_max"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 < v < 1.0:
+                raise ConfigError(f"OccupancyParams.{name}: must be a number in (0, 1), got {v!r}")
+        if not self.prob_hit > 0.5:
+            raise ConfigError(f"OccupancyParams.prob_hit: must exceed 0.5, got {self.prob_hit!r}")
+        if not self.prob_miss < 0.5:
+            raise ConfigError(
+                f"OccupancyParams.prob_miss: must be below 0.5, got {self.prob_miss!r}"
+            )
+        if not self.clamp_min < self.occupancy_threshold <= self.clamp_max:
+            raise ConfigError(
+                "OccupancyParams: need clamp_min < occupancy_threshold <= clamp_max, got "
+                f"{self.clamp_min!r}, {self.occupancy_threshold!r}, {self.clamp_max!r}"
+            )
+
+    @property
+    def hit_log(self) -> np.float32:
+        return _logodds(self.prob_hit)
+
+    @property
+    def miss_log(self) -> np.float32:
+        return _logodds(self.prob_miss)
+
+    @property
+    def threshold_log(self) -> np.float32:
+        return _logodds(self.occupancy_threshold)
+
+    @property
+    def clamp_min_log(self) -> np.float32:
+        return _logodds(self.clamp_min)
+
+    @property
+    def clamp_max_log(self) -> np.float32:
+        return _logodds(self.clamp_max)
+
+
+@dataclass(frozen=True)
+class InsertStats:
+    """What one :meth:`OccupancyMap.insert_point_cloud` did.
+
+    Attributes
+    ----------
+    points_used : int
+        Points whose ray was inserted (including beams clipped at the maximum range).
+    skipped_nonfinite : int
+        Points with NaN/inf coordinates (for depth images also invalid pixels), ignored.
+    skipped_out_of_range : int
+        Points whose end falls outside the key range (+-32768 voxels), ignored whole as OctoMap.
+    clipped : int
+        Beams longer than the maximum range: they only cleared space.
+    voxels_free : int
+        Voxels updated as free (each once).
+    voxels_occupied : int
+        Voxels updated as occupied (each once; occupied wins over free within a scan).
+    """
+
+    points_used: int
+    skipped_nonfinite: int
+    skipped_out_of_range: int
+    clipped: int
+    voxels_free: int
+    voxels_occupied: int
+
+    @property
+    def voxels_updated(self) -> int:
+        return self.voxels_free + self.voxels_occupied
+
+
+class Trust(IntEnum):
+    """What we know about a voxel, from least to most trusted source."""
+
+    UNKNOWN = 0
+    CLAIMED_FREE = 1
+    CLAIMED_OCCUPIED = 2
+    SENSED_FREE = 3
+    SENSED_OCCUPIED = 4
+
+
+def _check_resolution(resolution: object) -> float:
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, float, np.floating)):
+        raise ConfigError(f"resolution: expected a number, got {resolution!r}")
+    r = float(resolution)
+    if not (math.isfinite(r) and r > 0.0):
+        raise ConfigError(f"resolution: must be finite and > 0, got {resolution!r}")
+    return r
+
+
+def _check_bounds(bounds: object) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    if bounds is None:
+        return None
+    try:
+        lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        raise ConfigError(f"bounds: expected (lo, hi), 3 numbers each, got {bounds!r}") from None
+    if lo.shape != (3,) or hi.shape != (3,) or not np.all(np.isfinite(lo) & np.isfinite(hi)):
+        raise ConfigError(f"bounds: expected finite (lo (3,), hi (3,)), got {bounds!r}")
+    if np.any(hi <= lo):
+        raise ConfigError(f"bounds: hi must exceed lo on every axis, got lo={lo} hi={hi}")
+    return lo, hi
+
+
+class OccupancyMap:
+    """OctoMap-compatible occupancy map with a separate layer for the server's claim.
+
+    Parameters
+    ----------
+    resolution : float
+        Voxel edge length (m).
+    params : OccupancyParams
+        Sensor model (OctoMap's defaults).
+    bounds : (lo (3,), hi (3,)) or None
+        The plannable region (the server map's extent, m). Outside it, :meth:`is_known_obstacle`
+        is True and :meth:`known_obstacle_boxes` adds walls. None: unbounded.
+
+    Notes
+    -----
+    The sensor layer is a flat hash of finest-level voxels (plus pruned leaves read from files),
+    which answers exactly what OctoMap's pruned octree answers. Only the sensor layer is stored in
+    ``.bt``/``.ot`` files; a ``.bt`` keeps only the binary state (OctoMap writes leaves at the
+    clamping bounds), a ``.ot`` keeps the log-odds.
+    """
+
+    def __init__(
+        self,
+        resolution: float = 0.1,
+        params: OccupancyParams = OccupancyParams(),  # noqa: B008 (frozen, immutable)
+        bounds: tuple[ArrayLike, ArrayLike] | None = None,
+    ) -> None:
+        if not isinstance(params, OccupancyParams):
+            raise ConfigError(f"params: expected OccupancyParams, got {type(params).__name__}")
+        self._resolution = _check_resolution(resolution)
+        self._params = params
+        self._bounds = _check_bounds(bounds)
+        self._sensor = LeafLayer()
+        self._claim_codes = np.empty(0, np.int64)  # sorted
+        self._claim_occ = np.empty(0, bool)
+        self._version = 0
+        self._box_cache: tuple[int, int | None, bool, NDArray, NDArray] | None = None
+
+    # ------------------------------------------------------------------ basic properties
+
+    @property
+    def resolution(self) -> float:
+        """Voxel edge length (m)."""
+        return self._resolution
+
+    @property
+    def params(self) -> OccupancyParams:
+        return self._params
+
+    @property
+    def bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """The plannable region (lo, hi), or None."""
+        if self._bounds is None:
+            return None
+        return self._bounds[0].copy(), self._bounds[1].copy()
+
+    @property
+    def version(self) -> int:
+        """Increases with every change (for caches of derived data)."""
+        return self._version
+
+    def __len__(self) -> int:
+        """Number of finest-level voxels with sensor evidence."""
+        return len(self._sensor)
+
+    def __repr__(self) -> str:
+        return (
+            f"OccupancyMap(resolution={self._resolution}, sensed={len(self)}, "
+            f"claimed={self._claim_codes.size})"
+        )
+
+    def copy(self) -> OccupancyMap:
+        """Independent deep copy."""
+        out = OccupancyMap.__new__(OccupancyMap)
+        out._resolution = self._resolution
+        out._params = self._params
+        out._bounds = (
+            None if self._bounds is None else (self._bounds[0].copy(), self._bounds[1].copy())
+        )
+        out._sensor = self._sensor.copy()
+        out._claim_codes = self._claim_codes.copy()
+        out._claim_occ = self._claim_occ.copy()
+        out._version = self._version
+        out._box_cache = self._box_cache
+        return out
+
+    def _changed(self) -> None:
+        self._version += 1
+
+    # ------------------------------------------------------------------ sensor updates
+
+    def insert_point_cloud(
+        self, points: ArrayLike, origin: ArrayLike, max_range: float | None = None
+    ) -> InsertStats:
+        """Insert one scan, exactly as OctoMap's ``insertPointCloud`` (not discretised).
+
+        Parameters
+        ----------
+        points : (n, 3) float
+            End points in the world frame (m). Rows with NaN/inf, and rows whose end lies outside
+            the key range, are skipped and counted.
+        origin : (3,) float
+            Sensor position (m).
+        max_range : float or None
+            Beams longer than this (m) only clear space up to it. None or inf: no limit.
+
+        Returns
+        -------
+        InsertStats
+
+        Raises
+        ------
+        GeometryError
+            ``points`` is not (n, 3), or ``origin`` is not finite / outside the key range.
+        ConfigError
+            ``max_range`` is negative or NaN.
+        """
+        mr = self._check_max_range(max_range)
+        upd = scan_update(points, origin, self._resolution, mr)
+        p = self._params
+        self._sensor.add_logodds(upd.free, p.miss_log, p.clamp_min_log, p.clamp_max_log)
+        self._sensor.add_logodds(upd.occupied, p.hit_log, p.clamp_min_log, p.clamp_max_log)
+        self._changed()
+        return InsertStats(
+            upd.points_used,
+            upd.skipped_nonfinite,
+            upd.skipped_out_of_range,
+            upd.clipped,
+            int(upd.free.size),
+            int(upd.occupied.size),
+        )
+
+    @staticmethod
+    def _check_max_range(max_range: float | None) -> float | None:
+        if max_range is None:
+            return None
+        if isinstance(max_range, bool) or not isinstance(max_range, (int, float, np.floating)):
+            raise ConfigError(f"max_range: expected a number or None, got {max_range!r}")
+        mr = float(max_range)
+        if math.isnan(mr) or mr < 0.0:
+            raise ConfigError(f"max_range: must be >= 0 (or None), got {max_range!r}")
+        return None if math.isinf(mr) else mr
+
+    def insert_depth_image(
+        self,
+        depth: ArrayLike,
+        intrinsics: ArrayLike,
+        cam2world: ArrayLike,
+        origin: ArrayLike,
+        max_range: float | None,
+    ) -> InsertStats:
+        """Insert a z-depth image from a pinhole camera (see :func:`depth_image_points`).
+
+        Finite depths are hits (with OctoMap's max-range rule on their Euclidean range), ``inf``
+        pixels are "no return" and clear space up to ``max_range`` only, NaN or non-positive
+        pixels are skipped (counted as non-finite).
+
+        Parameters
+        ----------
+        depth : (H, W) float
+            z-depth (m).
+        intrinsics : (3, 3) float or (4,) float
+            Camera matrix K, or ``(fx, fy, cx, cy)`` in pixels.
+        cam2world : (3, 3) float
+            Rotation from the camera frame (x right, y down, z forward) to the world frame.
+        origin : (3,) float
+            Camera centre in the world (m).
+        max_range : float or None
+            Maximum sensing range (m); with None, ``inf`` pixels are skipped.
+
+        Returns
+        -------
+        InsertStats
+        """
+        mr = self._check_max_range(max_range)
+        points = depth_image_points(depth, intrinsics, cam2world, origin, mr)
+        return self.insert_point_cloud(points, origin, mr)
+
+    # ------------------------------------------------------------------ point queries
+
+    def _codes(self, points: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+        return coords_to_codes(check_points(points), self._resolution)
+
+    def _sensor_values(self, codes: NDArray[np.int64]) -> NDArray[np.float32]:
+        return self._sensor.get(codes)
+
+    def _claim_state(self, codes: NDArray[np.int64]) -> NDArray[np.int8]:
+        """-1 no claim, 0 claimed free, 1 claimed occupied."""
+        out = np.full(codes.shape, -1, np.int8)
+        if self._claim_codes.size:
+            pos = np.searchsorted(self._claim_codes, codes)
+            pos_c = np.minimum(pos, self._claim_codes.size - 1)
+            hit = (self._claim_codes[pos_c] == codes) & (codes >= 0)
+            out[hit] = self._claim_occ[pos_c[hit]]
+        return out
+
+    def classify(self, points: ArrayLike) -> NDArray[np.int8]:
+        """Sensor-layer state per point, octomap-python's ``getLabels`` convention.
+
+        Parameters
+        ----------
+        points : (n, 3) float
+
+        Returns
+        -------
+        (n,) int8
+            -1 unknown (also non-finite or out of the key range), 0 free, 1 occupied.
+        """
+        codes, _ = self._codes(points)
+        val = self._sensor_values(codes)
+        out = np.full(codes.shape, -1, np.int8)
+        known = ~np.isnan(val)
+        out[known] = val[known] >= self._params.threshold_log
+        return out
+
+    def observed(self, points: ArrayLike) -> NDArray[np.bool_]:
+        """Whether the sensor has evidence (free or occupied) at each point's voxel, (n,) bool."""
+        codes, _ = self._codes(points)
+        return ~np.isnan(self._sensor_values(codes))
+
+    def trust(self, points: ArrayLike) -> NDArray[np.uint8]:
+        """:class:`Trust` of each point's voxel, (n,) uint8: sensor evidence first, then claim."""
+        codes, _ = self._codes(points)
+        return self._trust_of_codes(codes)
+
+    def _trust_of_codes(self, codes: NDArray[np.int64]) -> NDArray[np.uint8]:
+        val = self._sensor_values(codes)
+        claim = self._claim_state(codes)
+        out = np.full(codes.shape, Trust.UNKNOWN, np.uint8)
+        out[claim == 0] = Trust.CLAIMED_FREE
+        out[claim == 1] = Trust.CLAIMED_OCCUPIED
+        sensed = ~np.isnan(val)
+        occ = np.zeros(codes.shape, bool)
+        occ[sensed] = val[sensed] >= self._params.threshold_log
+        out[sensed & ~occ] = Trust.SENSED_FREE
+        out[sensed & occ] = Trust.SENSED_OCCUPIED
+        return out
+
+    def in_bounds(self, points: ArrayLike) -> NDArray[np.bool_]:
+        """Whether each point lies in the plannable region (closed box), ``(n,) bool``."""
+        p = check_points(points)
+        if self._bounds is None:
+            return np.all(np.isfinite(p), axis=1)
+        lo, hi = self._bounds
+        return np.all((p >= lo) & (p <= hi), axis=1)
+
+    def is_known_obstacle(self, points: ArrayLike) -> NDArray[np.bool_]:
+        """Known obstacle at each point (``(n,) bool``): sensed occupied, or claimed occupied and
+        not sensed free, or outside ``bounds`` (unplannable)."""
+        t = self.trust(points)
+        return (
+            (t == Trust.SENSED_OCCUPIED) | (t == Trust.CLAIMED_OCCUPIED) | ~self.in_bounds(points)
+        )
+
+    # ------------------------------------------------------------------ voxel sets
+
+    def _sensor_voxels(self) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+        return self._sensor.voxels()
+
+    def occupied_voxels(self) -> NDArray[np.float64]:
+        """Centres of sensed occupied voxels, ``(n, 3) float64`` sorted in octree order."""
+        codes, vals = self._sensor_voxels()
+        return codes_to_coords(codes[vals >= self._params.threshold_log], self._resolution)
+
+    def free_voxels(self) -> NDArray[np.float64]:
+        """Centres of sensed free voxels, ``(n, 3) float64`` sorted in octree order."""
+        codes, vals = self._sensor_voxels()
+        return codes_to_coords(codes[vals < self._params.threshold_log], self._resolution)
+
+    def claimed_voxels(self, occupied: bool = True) -> NDArray[np.float64]:
+        """Centres of voxels the server claims occupied (or free), ``(n, 3) float64``."""
+        return codes_to_coords(self._claim_codes[self._claim_occ == occupied], self._resolution)
+
+    def leaves(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float32]]:
+        """Sensor layer in pruned form (as OctoMap would store it, identical siblings merged).
+
+        Returns
+        -------
+        centres : (n, 3) float64
+        sizes : (n,) float64
+            Edge length of each leaf (m).
+        log_odds : (n,) float32
+        """
+        starts, depths, vals = octomap_io.prune(*self._sensor.leaves())
+        sizes = self._resolution * np.exp2(TREE_DEPTH - depths.astype(np.float64))
+        corner = codes_to_coords(starts, self._resolution) - 0.5 * self._resolution
+        return corner + 0.5 * sizes[:, None], sizes, vals
+
+    def _known_obstacle_codes(self) -> NDArray[np.int64]:
+        codes, vals = self._sensor_voxels()
+        sensed_occ = codes[vals >= self._params.threshold_log]
+        claimed = self._claim_codes[self._claim_occ]
+        unsensed = np.isnan(self._sensor_values(claimed))
+        return np.union1d(sensed_occ, claimed[unsensed])
+
+    def known_obstacle_voxels(self) -> NDArray[np.float64]:
+        """Centres of known obstacle voxels: sensed occupied u (claimed occupied \\ sensed free).
+
+        Returns
+        -------
+        (n, 3) float64
+        """
+        return codes_to_coords(self._known_obstacle_codes(), self._resolution)
+
+    def voxels_in_box(
+        self, lo: ArrayLike, hi: ArrayLike
+    ) -> tuple[NDArray[np.float64], NDArray[np.uint8]]:
+        """Voxels with any information whose centres lie in the box ``[lo, hi]``.
+
+        Parameters
+        ----------
+        lo, hi : (3,) float
+            Box corners (m).
+
+        Returns
+        -------
+        centres : (n, 3) float64
+        trust : (n,) uint8
+            :class:`Trust` of each (never UNKNOWN).
+        """
+        lo_a, hi_a = self._check_box(lo, hi)
+        klo = np.ceil(lo_a / self._resolution - 0.5).astype(np.int64) + TREE_MAX_VAL
+        khi = np.floor(hi_a / self._resolution - 0.5).astype(np.int64) + TREE_MAX_VAL
+        klo = np.clip(klo, 0, KEY_LIMIT - 1)
+        khi = np.clip(khi, 0, KEY_LIMIT - 1)
+        if np.any(khi < klo):
+            return np.empty((0, 3)), np.empty(0, np.uint8)
+        n_box = float(np.prod((khi - klo + 1).astype(np.float64)))
+        n_known = len(self._sensor) + self._claim_codes.size
+        if n_box <= 4 * max(n_known, 1 << 16):
+            # Small box: look every voxel of it up.
+            axes = [np.arange(a, b + 1) for a, b in zip(klo, khi, strict=True)]
+            keys = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+            codes = np.sort(morton_encode(keys))
+        else:
+            sensor_codes, _ = self._sensor_voxels()
+            codes = np.union1d(sensor_codes, self._claim_codes)
+            keys = morton_decode(codes)
+            inside = np.all((keys >= klo) & (keys <= khi), axis=1)
+            codes = codes[inside]
+        t = self._trust_of_codes(codes)
+        known = t != Trust.UNKNOWN
+        return codes_to_coords(codes[known], self._resolution), t[known]
+
+    @staticmethod
+    def _check_box(lo: ArrayLike, hi: ArrayLike) -> tuple[NDArray, NDArray]:
+        lo_a = np.asarray(lo, dtype=np.float64)
+        hi_a = np.asarray(hi, dtype=np.float64)
+        if (
+            lo_a.shape != (3,)
+            or hi_a.shape != (3,)
+            or not np.all(np.isfinite(lo_a) & np.isfinite(hi_a))
+        ):
+            raise GeometryError(f"box: expected finite lo (3,), hi (3,), got {lo!r}, {hi!r}")
+        return lo_a, hi_a
+
+    # ------------------------------------------------------------------ claim layer
+
+    def _merge_claims(self, codes: NDArray[np.int64], occupied: NDArray[np.bool_]) -> None:
+        """New claims override older ones on the same voxel."""
+        all_codes = np.concatenate([codes, self._claim_codes])
+        all_occ = np.concatenate([occupied, self._claim_occ])
+        if all_codes.size > MAX_CLAIM_VOXELS:
+            raise GeometryError(
+                f"claim layer would hold {all_codes.size} voxels (limit {MAX_CLAIM_VOXELS}); "
+                "check units and resolution"
+            )
+        self._claim_codes, first = np.unique(all_codes, return_index=True)
+        self._claim_occ = all_occ[first]
+        self._changed()
+
+    def set_claim_voxels(self, centres: ArrayLike, occupied: bool | ArrayLike = True) -> None:
+        """Record the server's claim for the voxels containing ``centres``.
+
+        Parameters
+        ----------
+        centres : (n, 3) float
+            Points (m), typically voxel centres; each names the voxel containing it.
+        occupied : bool or (n,) bool
+            Claimed occupied (True) or free (False), per point or for all.
+
+        Raises
+        ------
+        GeometryError
+            Non-finite points or points outside the key range (the count is in the message).
+        """
+        codes, valid = self._codes(centres)
+        if not valid.all():
+            raise GeometryError(
+                f"set_claim_voxels: {int((~valid).sum())} of {valid.size} points are non-finite "
+                "or outside the key range"
+            )
+        occ = np.broadcast_to(np.asarray(occupied, dtype=bool), codes.shape)
+        # The last claim of a voxel within one call wins, like later calls.
+        rev_codes, rev_first = np.unique(codes[::-1], return_index=True)
+        self._merge_claims(rev_codes, occ[::-1][rev_first])
+
+    def set_claim_boxes(self, lo: ArrayLike, hi: ArrayLike, occupied: bool = True) -> None:
+        """Claim axis-aligned boxes occupied or free.
+
+        An occupied claim covers every voxel overlapping the box (conservative for obstacles); a
+        free claim covers only voxels entirely inside it (conservative for free space).
+
+        Parameters
+        ----------
+        lo, hi : (n, 3) float
+            Box corners (m), ``lo <= hi``.
+        occupied : bool
+        """
+        lo_a = check_points(lo, "lo")
+        hi_a = check_points(hi, "hi")
+        if lo_a.shape != hi_a.shape:
+            raise GeometryError(f"lo and hi: shapes differ, {lo_a.shape} vs {hi_a.shape}")
+        if not np.all(np.isfinite(lo_a) & np.isfinite(hi_a)) or np.any(hi_a < lo_a):
+            raise GeometryError("set_claim_boxes: boxes must be finite with lo <= hi")
+        a = lo_a / self._resolution
+        b = hi_a / self._resolution
+        if occupied:
+            first = np.floor(a).astype(np.int64)
+            last = np.ceil(b).astype(np.int64) - 1
+            last = np.maximum(last, first)  # a zero-thickness box still touches its voxel
+        else:
+            first = np.ceil(a).astype(np.int64)
+            last = np.floor(b).astype(np.int64) - 1
+        keys_lo = np.clip(first + TREE_MAX_VAL, 0, KEY_LIMIT - 1)
+        keys_hi = np.clip(last + TREE_MAX_VAL, -1, KEY_LIMIT - 1)
+        keys = _box_cells(keys_lo, keys_hi)
+        self._merge_claims(np.unique(morton_encode(keys)), np.full(len(keys), bool(occupied)))
+
+    def set_claim_mesh(self, vertices: ArrayLike, faces: ArrayLike, occupied: bool = True) -> None:
+        """Claim the interior of a closed triangle mesh occupied or free.
+
+        Voxel centres are classified with Open3D's signed distance (negative inside, by ray
+        parity). An occupied claim takes every voxel whose centre is inside or within half a
+        voxel diagonal of the surface (so every voxel the solid touches); a free claim only voxels
+        entirely inside (centre deeper than half a diagonal).
+
+        Parameters
+        ----------
+        vertices : (v, 3) float
+        faces : (f, 3) int
+            A closed (watertight) mesh, any orientation.
+        occupied : bool
+        """
+        from secure3d._deps import open3d
+
+        verts = check_points(vertices, "vertices")
+        tri = np.asarray(faces)
+        if tri.ndim != 2 or tri.shape[1] != 3 or tri.shape[0] == 0:
+            raise GeometryError(f"faces: expected (f, 3) indices, got shape {tri.shape}")
+        if not np.all(np.isfinite(verts)) or tri.min() < 0 or tri.max() >= verts.shape[0]:
+            raise GeometryError("set_claim_mesh: non-finite vertices or face index out of range")
+        half_diag = 0.5 * math.sqrt(3.0) * self._resolution
+        lo = verts.min(axis=0) - half_diag
+        hi = verts.max(axis=0) + half_diag
+        klo = np.floor(lo / self._resolution).astype(np.int64) + TREE_MAX_VAL
+        khi = np.floor(hi / self._resolution).astype(np.int64) + TREE_MAX_VAL
+        keys = _box_cells(np.clip(klo, 0, KEY_LIMIT - 1), np.clip(khi, 0, KEY_LIMIT - 1))
+        centres = ((keys - TREE_MAX_VAL) + 0.5) * self._resolution
+        o3d = open3d()
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(
+            o3d.core.Tensor(verts.astype(np.float32)), o3d.core.Tensor(tri.astype(np.uint32))
+        )
+        sd = scene.compute_signed_distance(o3d.core.Tensor(centres.astype(np.float32))).numpy()
+        take = sd <= half_diag if occupied else sd < -half_diag
+        self._merge_claims(
+            np.unique(morton_encode(keys[take])), np.full(int(take.sum()), bool(occupied))
+        )
+
+    def set_claim_from_map(self, other: OccupancyMap) -> None:
+        """Take another map's sensor layer (e.g. a ``.bt`` from the server) as the claim.
+
+        Its occupied voxels become claimed occupied, its free voxels claimed free; earlier claims on
+        the same voxels are overridden.
+
+        Raises
+        ------
+        ConfigError
+            The resolutions differ.
+        """
+        if not isinstance(other, OccupancyMap):
+            raise ConfigError(f"set_claim_from_map: expected OccupancyMap, got {type(other)}")
+        if other.resolution != self._resolution:
+            raise ConfigError(
+                f"set_claim_from_map: resolution {other.resolution} differs from this map's "
+                f"{self._resolution}"
+            )
+        codes, vals = other._sensor.voxels(MAX_CLAIM_VOXELS)
+        self._merge_claims(codes, vals >= other.params.threshold_log)
+
+    def clear_claim(self) -> None:
+        """Forget everything the server claimed."""
+        self._claim_codes = np.empty(0, np.int64)
+        self._claim_occ = np.empty(0, bool)
+        self._changed()
+
+    # ------------------------------------------------------------------ planner views
+
+    def known_obstacle_boxes(
+        self, max_boxes: int | None = None, include_bounds: bool = True
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Known obstacle voxels merged into axis-aligned boxes (cached until the map changes).
+
+        Parameters
+        ----------
+        max_boxes : int or None
+            Budget; if the exact cover needs more boxes, a conservative coarser cover is returned
+            (a superset of the obstacles, see :func:`secure3d.mapping.boxes.merge_cells_budget`).
+        include_bounds : bool
+            With ``bounds`` set, add six slabs (as thick as the bounds' largest extent) around
+            them, so "outside is unplannable" reaches the planner as obstacles.
+
+        Returns
+        -------
+        lo, hi : (m, 3) float64
+            Box corners (m).
+        """
+        key = (self._version, max_boxes, include_bounds)
+        if self._box_cache is not None and self._box_cache[:3] == key:
+            return self._box_cache[3].copy(), self._box_cache[4].copy()
+        keys = morton_decode(self._known_obstacle_codes())
+        klo, khi = merge_cells_budget(keys, max_boxes)
+        lo = (klo - TREE_MAX_VAL).astype(np.float64) * self._resolution
+        hi = (khi + 1 - TREE_MAX_VAL).astype(np.float64) * self._resolution
+        if include_bounds and self._bounds is not None:
+            wlo, whi = _bounds_walls(*self._bounds)
+            lo = np.concatenate([lo, wlo])
+            hi = np.concatenate([hi, whi])
+        self._box_cache = (*key, lo, hi)
+        return lo.copy(), hi.copy()
+
+    def boxes_near(
+        self, points: ArrayLike, radius: float, max_boxes: int | None = None
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Known obstacle boxes within ``radius`` of any of ``points`` (a corridor).
+
+        Parameters
+        ----------
+        points : (k, 3) float
+        radius : float
+            Distance (m) from the points; boxes touching that neighbourhood are returned.
+        max_boxes : int or None
+            Passed to :meth:`known_obstacle_boxes`.
+
+        Returns
+        -------
+        lo, hi : (m, 3) float64
+        """
+        p = check_points(points)
+        if not np.all(np.isfinite(p)):
+            raise GeometryError("boxes_near: points must be finite")
+        if not (isinstance(radius, (int, float, np.floating)) and radius >= 0.0):
+            raise GeometryError(f"boxes_near: radius must be a number >= 0, got {radius!r}")
+        lo, hi = self.known_obstacle_boxes(max_boxes)
+        near = boxes_near_points(lo, hi, p, float(radius))
+        return lo[near], hi[near]
+
+    def surface_mesh(self, which: str = "known") -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Closed outer surface of a voxel set (faces between set and non-set voxels).
+
+        Parameters
+        ----------
+        which : {"known", "sensed", "claimed"}
+            Known obstacles, sensed occupied voxels, or claimed occupied voxels.
+
+        Returns
+        -------
+        vertices : (v, 3) float64
+            Voxel corners (m).
+        faces : (f, 3) int64
+            Triangles, counter-clockwise seen from outside.
+        """
+        if which == "known":
+            codes = self._known_obstacle_codes()
+        elif which == "sensed":
+            codes, vals = self._sensor_voxels()
+            codes = codes[vals >= self._params.threshold_log]
+        elif which == "claimed":
+            codes = self._claim_codes[self._claim_occ]
+        else:
+            raise ConfigError(f"surface_mesh: which must be known/sensed/claimed, got {which!r}")
+        corners, faces = boundary_mesh(morton_decode(codes))
+        return (corners - TREE_MAX_VAL).astype(np.float64) * self._resolution, faces
+
+    # ------------------------------------------------------------------ files
+
+    def to_bytes(self, fmt: str = "bt") -> bytes:
+        """The sensor layer as an OctoMap ``.bt`` or ``.ot`` buffer, byte-identical to what
+        OctoMap's ``writeBinary``/``write`` produces for the same map."""
+        starts, depths, vals = octomap_io.prune(*self._sensor.leaves())
+        if fmt == "ot":
+            return octomap_io.write_ot_bytes(self._resolution, starts, depths, vals)
+        if fmt != "bt":
+            raise ConfigError(f"fmt: expected 'bt' or 'ot', got {fmt!r}")
+        p = self._params
+        occ = vals >= p.threshold_log
+        binary = np.where(occ, p.clamp_max_log, p.clamp_min_log).astype(np.float32)
+        starts, depths, binary = octomap_io.prune(
+            starts, depths, binary, stop_at_first_unpruned_level=True
+        )
+        return octomap_io.write_bt_bytes(
+            self._resolution, starts, depths, binary >= p.threshold_log
+        )
+
+    @classmethod
+    def from_bytes(
+        cls,
+        data: bytes,
+        params: OccupancyParams = OccupancyParams(),  # noqa: B008 (frozen, immutable)
+        bounds: tuple[ArrayLike, ArrayLike] | None = None,
+    ) -> OccupancyMap:
+        """Map from a ``.bt`` or ``.ot`` buffer (recognised by its first line).
+
+        ``.bt`` leaves get the clamping bounds of ``params`` as log-odds (OctoMap's reader does
+        the same); ``.ot`` leaves keep their stored log-odds.
+
+        Raises
+        ------
+        MapFormatError
+            The buffer is not a valid OctoMap ``OcTree`` file (see
+            :func:`secure3d.mapping.octomap_io.read_bt_bytes`).
+        """
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            raise MapFormatError(f"expected bytes, got {type(data).__name__}")
+        data = bytes(data)
+        if data.startswith(octomap_io.BT_MAGIC):
+            leaves = octomap_io.read_bt_bytes(data)
+            values = np.where(leaves.values > 0, params.clamp_max_log, params.clamp_min_log)
+        elif data.startswith(octomap_io.OT_MAGIC):
+            leaves = octomap_io.read_ot_bytes(data)
+            values = leaves.values
+        else:
+            raise MapFormatError("not an OctoMap file: unknown first line")
+        out = cls(leaves.resolution, params, bounds)
+        out._sensor.set_leaves(leaves.starts, leaves.depths, values.astype(np.float32))
+        return out
+
+    @classmethod
+    def read_bt(
+        cls,
+        path: str | os.PathLike[str],
+        params: OccupancyParams = OccupancyParams(),  # noqa: B008 (frozen, immutable)
+        bounds: tuple[ArrayLike, ArrayLike] | None = None,
+    ) -> OccupancyMap:
+        """Read an OctoMap ``.bt`` (or ``.ot``) file; see :meth:`from_bytes`.
+
+        Raises
+        ------
+        MapFormatError
+            Malformed, truncated or hostile content, or a file larger than ``MAX_FILE_BYTES``.
+        OSError
+            The file cannot be read.
+        """
+        return cls.from_bytes(_read_limited(Path(path)), params, bounds)
+
+    read_ot = read_bt
+
+    def write_bt(self, path: str | os.PathLike[str]) -> None:
+        """Write the sensor layer as ``.bt`` atomically (temporary file, then ``os.replace``)."""
+        _write_atomic(Path(path), self.to_bytes("bt"))
+
+    def write_ot(self, path: str | os.PathLike[str]) -> None:
+        """Write the sensor layer as ``.ot`` (log-odds kept) atomically."""
+        _write_atomic(Path(path), self.to_bytes("ot"))
+
+
+def _box_cells(keys_lo: NDArray[np.int64], keys_hi: NDArray[np.int64]) -> NDArray[np.int64]:
+    """All integer cells of inclusive boxes, ``(N, 3) int64`` (empty boxes contribute nothing)."""
+    ext = np.maximum(keys_hi - keys_lo + 1, 0)
+    counts = np.prod(ext, axis=1)
+    total = int(counts.sum())
+    if total > MAX_CLAIM_VOXELS:
+        raise GeometryError(
+            f"boxes cover {total} voxels (limit {MAX_CLAIM_VOXELS}); check units and resolution"
+        )
+    owner = np.repeat(np.arange(counts.size), counts)
+    local = np.arange(total, dtype=np.int64) - np.repeat(np.cumsum(counts) - counts, counts)
+    e = ext[owner]
+    ix = local % e[:, 0]
+    iy = (local // e[:, 0]) % e[:, 1]
+    iz = local // (e[:, 0] * e[:, 1])
+    return keys_lo[owner] + np.stack([ix, iy, iz], axis=1)
+
+
+def _bounds_walls(
+    lo: NDArray[np.float64], hi: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Six slabs enclosing the box [lo, hi], each as thick as its largest extent."""
+    t = float(np.max(hi - lo))
+    outer_lo, outer_hi = lo - t, hi + t
+    wlo, whi = [], []
+    for axis in range(3):
+        a_lo, a_hi = outer_lo.copy(), outer_hi.copy()
+        a_hi[axis] = lo[axis]
+        wlo.append(a_lo)
+        whi.append(a_hi)
+        b_lo, b_hi = outer_lo.copy(), outer_hi.copy()
+        b_lo[axis] = hi[axis]
+        wlo.append(b_lo)
+        whi.append(b_hi)
+    return np.array(wlo), np.array(whi)
+
+
+def _read_limited(path: Path, limit: int = MAX_FILE_BYTES) -> bytes:
+    size = path.stat().st_size
+    if size > limit:
+        raise MapFormatError(f"{path}: {size} bytes exceeds the {limit}-byte limit")
+    with path.open("rb") as fh:
+        data = fh.read(limit + 1)
+    if len(data) > limit:
+        raise MapFormatError(f"{path}: more than {limit} bytes")
+    return data
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,525 @@
+"""OctoMap ``.bt`` (binary) and ``.ot`` (full) files: hardened readers, OctoMap-identical writers.
+
+Both formats start with a text header (DESIGN.md section 5)::
+
+    # Octomap OcTree binary file          (.ot: "# Octomap OcTree file")
+    # (feel free to add / change comments, but leave the first line as it is!)
+    #
+    id OcTree
+    size N                                 (number of nodes, inner and leaves)
+    res 0.1
+    data
+
+followed by the nodes in depth-first pre-order, children in index order ``x + 2y + 4z``:
+
+- ``.bt``: one 16-bit record per *inner* node, 2 bits per child (bits ``2i, 2i+1`` of the
+  little-endian record): 0 absent, 1 free leaf, 2 occupied leaf, 3 inner node. Only the binary state
+  survives: OctoMap sets read leaves to the clamping bounds (occupied = ``clamp_max``, free =
+  ``clamp_min`` log-odds), so a ``.bt`` never round-trips log-odds.
+- ``.ot``: per node its ``float32`` log-odds and a child-presence byte, so log-odds survive.
+
+Leaves are exchanged with the rest of the package as Morton ranges: the first finest-level code of
+the leaf (``prefix << 3 * (16 - depth)``) and its depth. Sorted by code this is the file order.
+
+Readers never trust the file: the header is bounded, ``size`` is checked against what the body
+can hold *before* allocating, recursion is an explicit stack bounded by the tree depth, and
+truncation, trailing bytes, impossible depths and node-count mismatches all raise
+:class:`MapFormatError` with the reason. Writers reproduce OctoMap's ``writeBinary``
+(max-likelihood conversion, then ``prune()`` including its stop-at-the-first-level-without-pruning
+rule) and ``write``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from secure3d.errors import MapFormatError
+from secure3d.mapping.keys import TREE_DEPTH
+
+BT_MAGIC = b"# Octomap OcTree binary file"
+OT_MAGIC = b"# Octomap OcTree file"
+_COMMENT = b"# (feel free to add / change comments, but leave the first line as it is!)\n#\n"
+#: OctoMap's header is ~130 bytes; anything needing more than this is not a real header.
+MAX_HEADER_BYTES = 4096
+TREE_ID = "OcTree"
+
+# Error codes of the numba parsers.
+_OK, _TRUNCATED, _TOO_DEEP, _TOO_MANY_NODES = 0, 1, 2, 3
+_PARSE_ERRORS = {
+    _TRUNCATED: "data ends in the middle of the tree (truncated file)",
+    _TOO_DEEP: "an inner node sits at the maximum depth 16 (tree deeper than OctoMap's 16 levels)",
+    _TOO_MANY_NODES: "the tree has more nodes than the header's size",
+}
+
+
+class Leaves(NamedTuple):
+    """The leaves of an octree file.
+
+    Attributes
+    ----------
+    resolution : float
+        Voxel edge length (m).
+    starts : (n,) int64
+        First finest-level Morton code of each leaf, sorted.
+    depths : (n,) int8
+        Depth of each leaf (16 = one voxel, d covers ``8**(16-d)`` voxels).
+    values : (n,) float32
+        ``.ot``: the stored log-odds. ``.bt``: +1 for occupied, -1 for free (the reader of a map
+        turns these into its clamping bounds, as OctoMap does).
+    """
+
+    resolution: float
+    starts: NDArray[np.int64]
+    depths: NDArray[np.int8]
+    values: NDArray[np.float32]
+
+
+# --------------------------------------------------------------------------- header
+
+
+def _parse_header(data: bytes, magic: bytes) -> tuple[float, int, int]:
+    """Validate the text header; return (resolution, size, offset of the first data byte)."""
+    head = data[:MAX_HEADER_BYTES]
+    if not head.startswith(magic):
+        raise MapFormatError(f"bad header: first line must start with {magic.decode()!r}")
+    fields: dict[str, str] = {}
+    pos = head.find(b"\n")
+    while True:
+        if pos < 0:
+            raise MapFormatError(f"bad header: no 'data' line within {MAX_HEADER_BYTES} bytes")
+        nxt = head.find(b"\n", pos + 1)
+        if nxt < 0:
+            raise MapFormatError(f"bad header: no 'data' line within {MAX_HEADER_BYTES} bytes")
+        try:
+            line = head[pos + 1 : nxt].decode("ascii")
+        except UnicodeDecodeError:
+            raise MapFormatError("bad header: non-ASCII bytes before the 'data' line") from None
+        pos = nxt
+        tokens = line.split()
+        if not tokens or tokens[0].startswith("#"):
+            continue
+        if tokens[0] == "data":
+            break
+        if tokens[0] in ("id", "size", "res"):
+            if len(tokens) != 2:
+                raise MapFormatError(f"bad header line {line!r}: expected '{tokens[0]} <value>'")
+            if tokens[0] in fields:
+                raise MapFormatError(f"bad header: duplicate {tokens[0]!r} line")
+            fields[tokens[0]] = tokens[1]
+        # OctoMap skips unknown keywords with a warning; so do we.
+    for name in ("id", "size", "res"):
+        if name not in fields:
+            raise MapFormatError(f"bad header: missing {name!r} line")
+    if fields["id"] != TREE_ID:
+        raise MapFormatError(f"unsupported tree type id {fields['id']!r} (only {TREE_ID!r})")
+    try:
+        size = int(fields["size"])
+    except ValueError:
+        raise MapFormatError(f"bad header: size {fields['size']!r} is not an integer") from None
+    if size < 0:
+        raise MapFormatError(f"bad header: negative size {size}")
+    try:
+        res = float(fields["res"])
+    except ValueError:
+        raise MapFormatError(f"bad header: res {fields['res']!r} is not a number") from None
+    if not (math.isfinite(res) and res > 0.0):
+        raise MapFormatError(f"bad header: res must be finite and > 0, got {fields['res']!r}")
+    return res, size, pos + 1
+
+
+def _format_res(resolution: float) -> str:
+    # OctoMap streams doubles with 6 significant digits; keep that when it is exact, else repr so
+    # that our own files round-trip the resolution bit for bit.
+    short = f"{resolution:.6g}"
+    return short if float(short) == resolution else repr(float(resolution))
+
+
+def _header(magic: bytes, size: int, resolution: float) -> bytes:
+    return (
+        magic
+        + b"\n"
+        + _COMMENT
+        + f"id {TREE_ID}\nsize {size}\nres {_format_res(resolution)}\ndata\n".encode()
+    )
+
+
+# --------------------------------------------------------------------------- parsing kernels
+
+
+@numba.njit(cache=True)
+def _parse_bt_body(body: np.ndarray, max_nodes: int) -> tuple:
+    """Walk ``.bt`` records; return (starts, depths, occupied, n_leaves, n_nodes, used, error)."""
+    n = body.shape[0]
+    starts = np.empty(max_nodes, np.int64)
+    depths = np.empty(max_nodes, np.int8)
+    occ = np.empty(max_nodes, np.bool_)
+    stack_prefix = np.empty(TREE_DEPTH + 1, np.int64)
+    stack_rec = np.empty(TREE_DEPTH + 1, np.int64)
+    stack_next = np.empty(TREE_DEPTH + 1, np.int64)
+    if max_nodes < 1:
+        return starts, depths, occ, 0, 0, 0, _TOO_MANY_NODES
+    if n < 2:
+        return starts, depths, occ, 0, 0, 0, _TRUNCATED
+    n_leaves = 0
+    n_nodes = 1
+    pos = 0
+    sp = 0  # stack depth == tree depth of the node on top
+    prefix = 0
+    while True:
+        # ---- read the record of the node (depth sp, prefix) at pos
+        rec = np.int64(body[pos]) | (np.int64(body[pos + 1]) << 8)
+        pos += 2
+        if rec == 0:
+            if sp > 0:
+                # OctoMap reads an inner node without children as a leaf of value -FLT_MAX: free.
+                if n_leaves >= max_nodes:
+                    return starts, depths, occ, n_leaves, n_nodes, pos, _TOO_MANY_NODES
+                starts[n_leaves] = prefix << (3 * (TREE_DEPTH - sp))
+                depths[n_leaves] = sp
+                occ[n_leaves] = False
+                n_leaves += 1
+            else:
+                # A childless root is itself a leaf; OctoMap leaves it at its default, occupied.
+                starts[0] = 0
+                depths[0] = 0
+                occ[0] = True
+                n_leaves = 1
+                return starts, depths, occ, n_leaves, n_nodes, pos, _OK
+        else:
+            for c in range(8):
+                code = (rec >> (2 * c)) & 3
+                if code == 0:
+                    continue
+                n_nodes += 1
+                if n_nodes > max_nodes:
+                    return starts, depths, occ, n_leaves, n_nodes, pos, _TOO_MANY_NODES
+                if code == 3:
+                    if sp + 1 >= TREE_DEPTH:
+                        return starts, depths, occ, n_leaves, n_nodes, pos, _TOO_DEEP
+                    continue
+                starts[n_leaves] = ((prefix << 3) | c) << (3 * (TREE_DEPTH - sp - 1))
+                depths[n_leaves] = sp + 1
+                occ[n_leaves] = code == 2
+                n_leaves += 1
+            stack_prefix[sp] = prefix
+            stack_rec[sp] = rec
+            stack_next[sp] = 0
+            sp += 1
+        # ---- find the next inner child to descend into, popping finished nodes
+        while sp > 0:
+            top = sp - 1
+            r = stack_rec[top]
+            c = stack_next[top]
+            while c < 8 and ((r >> (2 * c)) & 3) != 3:
+                c += 1
+            if c < 8:
+                stack_next[top] = c + 1
+                prefix = (stack_prefix[top] << 3) | c
+                break
+            sp -= 1
+        if sp == 0:
+            return starts, depths, occ, n_leaves, n_nodes, pos, _OK
+        if pos + 2 > n:
+            return starts, depths, occ, n_leaves, n_nodes, pos, _TRUNCATED
+
+
+@numba.njit(cache=True)
+def _parse_ot_body(values: np.ndarray, masks: np.ndarray) -> tuple:
+    """Walk ``.ot`` records; return (starts, depths, values, n_leaves, n_nodes, error).
+
+    ``values``/``masks`` are the per-record log-odds and child masks, one per node in pre-order.
+    """
+    n = masks.shape[0]
+    starts = np.empty(n, np.int64)
+    depths = np.empty(n, np.int8)
+    leaf_vals = np.empty(n, np.float32)
+    stack_prefix = np.empty(TREE_DEPTH + 1, np.int64)
+    stack_mask = np.empty(TREE_DEPTH + 1, np.int64)
+    stack_next = np.empty(TREE_DEPTH + 1, np.int64)
+    n_leaves = 0
+    pos = 0
+    sp = 0
+    prefix = 0
+    while True:
+        if pos >= n:
+            return starts, depths, leaf_vals, n_leaves, pos, _TRUNCATED
+        m = np.int64(masks[pos])
+        v = values[pos]
+        pos += 1
+        if m == 0:
+            starts[n_leaves] = prefix << (3 * (TREE_DEPTH - sp))
+            depths[n_leaves] = sp
+            leaf_vals[n_leaves] = v
+            n_leaves += 1
+        else:
+            if sp >= TREE_DEPTH:
+                return starts, depths, leaf_vals, n_leaves, pos, _TOO_DEEP
+            stack_prefix[sp] = prefix
+            stack_mask[sp] = m
+            stack_next[sp] = 0
+            sp += 1
+        while sp > 0:
+            top = sp - 1
+            c = stack_next[top]
+            while c < 8 and ((stack_mask[top] >> c) & 1) == 0:
+                c += 1
+            if c < 8:
+                stack_next[top] = c + 1
+                prefix = (stack_prefix[top] << 3) | c
+                break
+            sp -= 1
+        if sp == 0:
+            return starts, depths, leaf_vals, n_leaves, pos, _OK
+
+
+def _sorted(starts: np.ndarray, depths: np.ndarray, values: np.ndarray) -> tuple:
+    order = np.argsort(starts, kind="stable")
+    return starts[order], depths[order], values[order]
+
+
+def read_bt_bytes(data: bytes) -> Leaves:
+    """Parse an OctoMap ``.bt`` buffer.
+
+    Parameters
+    ----------
+    data : bytes
+        The whole file.
+
+    Returns
+    -------
+    Leaves
+        ``values`` is +1 (occupied) / -1 (free).
+
+    Raises
+    ------
+    MapFormatError
+        Bad header, wrong tree id, ``res`` not finite and positive, ``size`` impossible for the
+        number of data bytes, truncated data, a tree deeper than 16 levels, node-count mismatch,
+        or trailing bytes after the tree.
+    """
+    res, size, offset = _parse_header(data, BT_MAGIC)
+    body = np.frombuffer(data, dtype=np.uint8, offset=offset)
+    if size == 0:
+        if body.size:
+            raise MapFormatError(f"size 0 but {body.size} data bytes follow the header")
+        empty = np.empty(0, np.int64)
+        return Leaves(res, empty, np.empty(0, np.int8), np.empty(0, np.float32))
+    # Each 2-byte record declares at most 8 children: bound size before allocating anything.
+    max_nodes = 1 + 8 * (body.size // 2)
+    if size > max_nodes:
+        raise MapFormatError(
+            f"size {size} is impossible: {body.size} data bytes hold at most {max_nodes} nodes"
+        )
+    starts, depths, occ, n_leaves, n_nodes, used, err = _parse_bt_body(body, size)
+    if err != _OK:
+        raise MapFormatError(f"corrupt .bt data: {_PARSE_ERRORS[err]}")
+    if used != body.size:
+        raise MapFormatError(f"{body.size - used} trailing bytes after the tree")
+    if n_nodes != size:
+        raise MapFormatError(f"size mismatch: header says {size} nodes, data has {n_nodes}")
+    values = np.where(occ[:n_leaves], np.float32(1.0), np.float32(-1.0))
+    return Leaves(res, *_sorted(starts[:n_leaves], depths[:n_leaves], values))
+
+
+def read_ot_bytes(data: bytes) -> Leaves:
+    """Parse an OctoMap ``.ot`` buffer (``OcTree`` only).
+
+    Returns
+    -------
+    Leaves
+        ``values`` are the stored ``float32`` log-odds.
+
+    Raises
+    ------
+    MapFormatError
+        As :func:`read_bt_bytes`, plus non-finite log-odds.
+    """
+    res, size, offset = _parse_header(data, OT_MAGIC)
+    body = np.frombuffer(data, dtype=np.uint8, offset=offset)
+    # Every node is exactly one 5-byte record (float32 value + child mask).
+    if body.size != 5 * size:
+        if body.size < 5 * size:
+            raise MapFormatError(
+                f"size {size} needs {5 * size} data bytes, file has {body.size} (truncated?)"
+            )
+        raise MapFormatError(f"{body.size - 5 * size} trailing bytes after {size} nodes")
+    if size == 0:
+        empty = np.empty(0, np.int64)
+        return Leaves(res, empty, np.empty(0, np.int8), np.empty(0, np.float32))
+    rec = body.reshape(size, 5)
+    values = np.ascontiguousarray(rec[:, :4]).view("<f4").ravel().astype(np.float32)
+    masks = np.ascontiguousarray(rec[:, 4])
+    starts, depths, leaf_vals, n_leaves, used, err = _parse_ot_body(values, masks)
+    if err != _OK:
+        raise MapFormatError(f"corrupt .ot data: {_PARSE_ERRORS[err]}")
+    if used != size:
+        raise MapFormatError(f"size mismatch: header says {size} nodes, tree has {used}")
+    leaf_vals = leaf_vals[:n_leaves]
+    if not np.all(np.isfinite(leaf_vals)):
+        raise MapFormatError("non-finite log-odds in .ot leaves")
+    return Leaves(res, *_sorted(starts[:n_leaves], depths[:n_leaves], leaf_vals))
+
+
+# --------------------------------------------------------------------------- tree structure
+
+
+def prune(
+    starts: NDArray[np.int64],
+    depths: NDArray[np.int8],
+    values: NDArray[np.float32],
+    *,
+    stop_at_first_unpruned_level: bool = False,
+) -> tuple[NDArray[np.int64], NDArray[np.int8], NDArray[np.float32]]:
+    """Collapse every node whose 8 children are leaves of identical value (OctoMap's pruning).
+
+    Levels are processed bottom-up (nodes at depth 15 first), never the root. With
+    ``stop_at_first_unpruned_level`` this is OctoMap's ``prune()``, which stops at the first level
+    where nothing collapsed; without it, the fully pruned tree that OctoMap maintains while
+    inserting (every update prunes its path).
+
+    Parameters
+    ----------
+    starts : (n,) int64
+        Leaf start codes, sorted.
+    depths : (n,) int8
+    values : (n,) float32
+
+    Returns
+    -------
+    starts, depths, values
+        The pruned leaves, sorted.
+    """
+    for k in range(TREE_DEPTH - 1, 0, -1):
+        child = np.flatnonzero(depths == k + 1)
+        collapsed = 0
+        if child.size >= 8:
+            parent = starts[child] >> (3 * (TREE_DEPTH - k))
+            first = np.flatnonzero(np.r_[True, parent[1:] != parent[:-1]])
+            count = np.diff(np.r_[first, child.size])
+            vals = values[child]
+            same = np.minimum.reduceat(vals, first) == np.maximum.reduceat(vals, first)
+            group_ok = (count == 8) & same
+            collapsed = int(group_ok.sum())
+            if collapsed:
+                # The 8 children are consecutive in code order and the parent starts where its
+                # first child does: turn that child into the parent, drop the other 7.
+                in_group = np.repeat(group_ok, count)
+                is_first = np.zeros(child.size, bool)
+                is_first[first] = True
+                keep = np.ones(starts.size, bool)
+                keep[child[in_group & ~is_first]] = False
+                depths = depths.copy()
+                depths[child[first[group_ok]]] = k
+                starts, depths, values = starts[keep], depths[keep], values[keep]
+        if stop_at_first_unpruned_level and collapsed == 0:
+            break
+    return starts, depths, values
+
+
+def _inner_nodes(starts: NDArray[np.int64], depths: NDArray[np.int8]) -> list[NDArray[np.int64]]:
+    """Prefixes of the inner nodes at each depth 0..15 (sorted): all proper ancestors of leaves."""
+    return [np.unique(starts[depths > k] >> (3 * (TREE_DEPTH - k))) for k in range(TREE_DEPTH)]
+
+
+def _preorder(prefix_by_depth: list[NDArray[np.int64]]) -> tuple[np.ndarray, np.ndarray]:
+    """Depth-first order of nodes: by first finest code, ancestors before descendants."""
+    depth = np.concatenate([np.full(p.size, k, np.int64) for k, p in enumerate(prefix_by_depth)])
+    first = np.concatenate([p << (3 * (TREE_DEPTH - k)) for k, p in enumerate(prefix_by_depth)])
+    return np.lexsort((depth, first)), depth
+
+
+def write_bt_bytes(
+    resolution: float, starts: NDArray[np.int64], depths: NDArray[np.int8], occupied: NDArray
+) -> bytes:
+    """Serialise leaves (already pruned as wanted) into a ``.bt`` buffer.
+
+    Parameters
+    ----------
+    resolution : float
+    starts : (n,) int64
+        Sorted leaf start codes.
+    depths : (n,) int8
+    occupied : (n,) bool
+    """
+    if starts.size == 0:
+        return _header(BT_MAGIC, 0, resolution)
+    if starts.size == 1 and depths[0] == 0:
+        return _header(BT_MAGIC, 1, resolution) + b"\x00\x00"
+    inner = _inner_nodes(starts, depths)
+    offsets = np.cumsum([0] + [p.size for p in inner])
+    rec = np.zeros(int(offsets[-1]), np.int64)
+    occupied = np.asarray(occupied, bool)
+    for k in range(TREE_DEPTH):
+        sel = depths == k + 1
+        q = starts[sel] >> (3 * (TREE_DEPTH - k - 1))
+        code = np.where(occupied[sel], 2, 1)
+        if k + 1 < TREE_DEPTH:
+            qi = inner[k + 1]
+            q = np.concatenate([q, qi])
+            code = np.concatenate([code, np.full(qi.size, 3)])
+        idx = offsets[k] + np.searchsorted(inner[k], q >> 3)
+        rec += np.bincount(idx, weights=code << (2 * (q & 7)), minlength=rec.size).astype(np.int64)
+    order, _ = _preorder(inner)
+    body = rec[order].astype("<u2").tobytes()
+    return _header(BT_MAGIC, rec.size + starts.size, resolution) + body
+
+
+def write_ot_bytes(
+    resolution: float,
+    starts: NDArray[np.int64],
+    depths: NDArray[np.int8],
+    values: NDArray[np.float32],
+) -> bytes:
+    """Serialise leaves into a ``.ot`` buffer; inner nodes carry their children's maximum log-odds
+    (OctoMap's ``updateOccupancyChildren``)."""
+    if starts.size == 0:
+        return _header(OT_MAGIC, 0, resolution)
+    inner = _inner_nodes(starts, depths)
+    leaf_prefix = [starts[depths == k] >> (3 * (TREE_DEPTH - k)) for k in range(TREE_DEPTH + 1)]
+    leaf_value = [values[depths == k] for k in range(TREE_DEPTH + 1)]
+    inner_value = [np.full(p.size, -np.inf, np.float32) for p in inner]
+    inner_mask = [np.zeros(p.size, np.int64) for p in inner]
+    for k in range(TREE_DEPTH - 1, -1, -1):
+        q = leaf_prefix[k + 1]
+        v = leaf_value[k + 1]
+        if k + 1 < TREE_DEPTH:
+            q = np.concatenate([q, inner[k + 1]])
+            v = np.concatenate([v, inner_value[k + 1]])
+        idx = np.searchsorted(inner[k], q >> 3)
+        np.maximum.at(inner_value[k], idx, v)
+        inner_mask[k] += np.bincount(idx, weights=1 << (q & 7), minlength=inner[k].size).astype(
+            np.int64
+        )
+    nodes = [
+        np.concatenate([inner[k] if k < TREE_DEPTH else np.empty(0, np.int64), leaf_prefix[k]])
+        for k in range(TREE_DEPTH + 1)
+    ]
+    node_val = np.concatenate(
+        [
+            np.concatenate(
+                [inner_value[k] if k < TREE_DEPTH else np.empty(0, np.float32), leaf_value[k]]
+            )
+            for k in range(TREE_DEPTH + 1)
+        ]
+    )
+    node_mask = np.concatenate(
+        [
+            np.concatenate(
+                [
+                    inner_mask[k] if k < TREE_DEPTH else np.empty(0, np.int64),
+                    np.zeros(leaf_prefix[k].size, np.int64),
+                ]
+            )
+            for k in range(TREE_DEPTH + 1)
+        ]
+    )
+    order, _ = _preorder(nodes)
+    rec = np.empty((order.size, 5), np.uint8)
+    rec[:, :4] = node_val[order].astype("<f4").view(np.uint8).reshape(-1, 4)
+    rec[:, 4] = node_mask[order]
+    return _header(OT_MAGIC, order.size, resolution) + rec.tobytes()

@@ -1,0 +1,216 @@
+"""The independent safety certificate: does a plan satisfy the paper's definition of *safe*?
+
+A planned path is safe (paper, Definition before Theorem "Safety") if every reactive set S_r(x(t)) was
+observed before t (eq. FullConstraint: S_r(x(t)) ⊂ ∪_{τ<t} S_s(x(τ))) and never meets a known
+obstacle. The NLP enforces a tightened, ellipsoidal version of this at the nodes; this module checks
+the real thing, with none of the NLP's constraint code:
+
+- time is sampled densely, between collocation nodes too (the paper's Prop. 1 is about exactly this);
+- the reactive manoeuvre is *simulated* from every sampled state with the actual controller (not the
+  fitted ellipsoid), and every manoeuvre point, grown by the body radius, is checked;
+- "observed" means: inside the start box, or inside the camera's field of view at an earlier sampled
+  time (tested in the camera frame from the FOV angles and range, not from half-spaces) with a line
+  of sight from that camera that no known obstacle blocks (beyond the paper: walls occlude);
+- "clear" means: outside every known obstacle box and inside the map bounds, by the body radius.
+
+Sampling the union of frusta at discrete earlier times gives an inner approximation of the paper's
+continuous union, so passing here is never easier than passing the paper's condition.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from secure3d.errors import PlanningError
+from secure3d.geometry.polytope import segment_box_intersects
+from secure3d.planning.result import Certificate, PlanResult, Violation
+from secure3d.planning.trajectory import interpolate
+
+#: Candidate earlier views tried per manoeuvre point before the exhaustive pass.
+TOP_VIEWS = 8
+
+
+@dataclass(frozen=True)
+class CertificateSettings:
+    """How densely the certificate samples.
+
+    dt : spacing of the checked trajectory times (s).
+    rollout_dt : integration step of the simulated reactive manoeuvres (s).
+    points_per_manoeuvre : manoeuvre points kept per sampled state (evenly spaced along the rollout,
+        always including the first and last).
+    tolerance : numerical slack on every margin (m).
+    """
+
+    dt: float = 0.02
+    rollout_dt: float = 0.01
+    points_per_manoeuvre: int = 16
+    tolerance: float = 1e-6
+
+    def __post_init__(self) -> None:
+        for name in ("dt", "rollout_dt", "tolerance"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0:
+                raise PlanningError(f"certificate setting {name}: must be > 0, got {v!r}")
+        if self.points_per_manoeuvre < 2:
+            raise PlanningError(
+                f"certificate setting points_per_manoeuvre: must be >= 2, got {self.points_per_manoeuvre}"
+            )
+
+
+def _manoeuvres(controller: object, model: object, X: np.ndarray, dt: float, m: int) -> np.ndarray:
+    """(N, m, 3) positions along the reactive manoeuvre started from each state in X."""
+    out = controller.rollout_batch(X, dt=dt)
+    traj = out[1] if isinstance(out, tuple) else out
+    traj = np.asarray(traj, dtype=float)  # (N, T, nx)
+    idx = np.unique(np.linspace(0, traj.shape[1] - 1, m).round().astype(int))
+    sel = traj[:, idx, :]
+    pos = np.stack([np.stack([np.asarray(model.position(x), float).ravel() for x in row]) for row in sel])
+    # rollouts that stopped early are padded by repeating their final state: harmless duplicates
+    return pos
+
+
+def _view_margins(points: np.ndarray, R: np.ndarray, o: np.ndarray, frustum: object, radius: float) -> np.ndarray:
+    """(n_points, n_cams) signed margin of a ball of ``radius`` at each point inside each camera's
+    field of view, computed in the camera frame from the FOV angles (independent of the NLP's
+    half-space code). Positive: the whole ball is inside."""
+    rel = points[:, None, :] - o[None, :, :]
+    pc = np.einsum("cji,pcj->pci", R, rel)  # camera-frame coordinates (x right, y down, z forward)
+    x, y, z = pc[..., 0], pc[..., 1], pc[..., 2]
+    ah, av = 0.5 * frustum.hfov, 0.5 * frustum.vfov
+    side_h = z * np.sin(ah) - np.abs(x) * np.cos(ah)
+    side_v = z * np.sin(av) - np.abs(y) * np.cos(av)
+    if frustum.far_kind == "range":
+        far = frustum.far - np.linalg.norm(pc, axis=-1)
+    else:
+        far = frustum.far - z
+    return np.minimum(np.minimum(side_h, side_v), far) - radius
+
+
+def certify(
+    plan: PlanResult,
+    problem: object,
+    *,
+    controller: object | None = None,
+    settings: CertificateSettings | None = None,
+    t_from: float = 0.0,
+) -> Certificate:
+    """Check a plan against the paper's safety definition, independently of the planner.
+
+    Parameters
+    ----------
+    plan : the plan to judge (any planner's).
+    problem : a :class:`~secure3d.planning.problem.PlanningProblem` giving the vehicle model, the
+        camera frustum, the start ball and the known obstacles of the belief to judge against (pass
+        an updated problem to re-certify the rest of a plan after the map changed).
+    controller : the reactive controller whose manoeuvres are simulated (default: the problem's).
+    settings : sampling density (:class:`CertificateSettings`).
+    t_from : judge only the part of the plan from this time on (views before it still count): used
+        to re-certify the rest of a plan in flight (Algorithm 1).
+
+    Returns
+    -------
+    Certificate
+        ``ok``, the smallest margins and the first violation (time, point, reason).
+    """
+    settings = settings or CertificateSettings()
+    if len(plan.times) < 2:
+        raise PlanningError("certify: the plan has no trajectory (did planning fail?)")
+    model = problem.model
+    controller = controller if controller is not None else problem.controller
+    if controller is None:
+        raise PlanningError("certify: no reactive controller given")
+    r = model.body_radius
+    tol = settings.tolerance
+    T = plan.final_time
+    t = np.unique(np.concatenate([np.arange(0.0, T, settings.dt), plan.times, [T]]))
+    X, _ = interpolate(model, plan.times, plan.states, plan.controls, t)
+    n_t = len(t)
+
+    pts = _manoeuvres(controller, model, X, settings.rollout_dt, settings.points_per_manoeuvre)
+    m = pts.shape[1]
+    flat = pts.reshape(-1, 3)
+    owner = np.repeat(np.arange(n_t), m)  # sample index each point belongs to
+
+    # ---- clear of known obstacles and inside the map -------------------------------------------
+    lo_b, hi_b = problem.boxes_lo, problem.boxes_hi
+    if len(lo_b):
+        q = np.clip(flat[:, None, :], lo_b[None], hi_b[None])
+        dist = np.linalg.norm(flat[:, None, :] - q, axis=-1).min(axis=1)
+    else:
+        dist = np.full(len(flat), np.inf)
+    in_map = np.minimum(flat - problem.bounds_lo, problem.bounds_hi - flat).min(axis=1)
+    obstacle_margin = np.minimum(dist, in_map) - r
+
+    # ---- observed before: start ball, or an earlier view with a clear line of sight -------------
+    poses = [model.camera_pose(x) for x in X]
+    R = np.stack([np.asarray(p_[0], float) for p_ in poses])
+    o = np.stack([np.asarray(p_[1], float).ravel() for p_ in poses])
+    start_margin = np.minimum(flat - problem.start_region_lo, problem.start_region_hi - flat).min(axis=1) - r
+    view = _view_margins(flat, R, o, problem.frustum, r)
+    earlier = np.arange(n_t)[None, :] < owner[:, None]
+    view = np.where(earlier, view, -np.inf)
+
+    # Boxes grown by the body radius contain the Minkowski sum of box and ball: a segment from the
+    # camera to the point that misses them keeps the whole cone to the ball clear.
+    glo, ghi = lo_b - r, hi_b + r
+    vis_margin = start_margin.copy()
+    unresolved = np.flatnonzero(start_margin < -tol)
+    occluded_only = np.zeros(len(unresolved), bool)
+    if len(unresolved):
+        V = view[unresolved]
+        order = np.argsort(-V, axis=1)
+        found = np.zeros(len(unresolved), bool)
+        best = np.full(len(unresolved), -np.inf)
+        for rank in range(V.shape[1]):
+            cams = order[:, rank]
+            cand = V[np.arange(len(unresolved)), cams]
+            active = ~found & np.isfinite(cand)
+            if rank >= TOP_VIEWS:  # past the best few views only a passing one can change the verdict
+                active &= cand > -tol
+            if not active.any():
+                break
+            idx = np.flatnonzero(active)
+            if len(lo_b):
+                blocked = segment_box_intersects(o[cams[idx]], flat[unresolved[idx]], glo, ghi).any(axis=1)
+            else:
+                blocked = np.zeros(len(idx), bool)
+            ok = idx[~blocked]
+            found[ok] = True
+            best[ok] = cand[ok]
+        raw = V.max(axis=1)
+        occluded_only = ~found & (raw > -tol)
+        # never seen with a clear line of sight: 1 cm worse than the best (blocked) view, or -1 m
+        # when no earlier view exists at all
+        unseen = np.where(np.isfinite(raw), np.minimum(raw, 0.0) - 0.01, -1.0)
+        vis_margin[unresolved] = np.maximum(start_margin[unresolved], np.where(found, best, unseen))
+
+    judged = t[owner] >= t_from - 1e-9
+    vis_margin = np.where(judged, vis_margin, np.inf)
+    obstacle_margin = np.where(judged, obstacle_margin, np.inf)
+    margin = np.minimum(vis_margin, obstacle_margin)
+    bad = margin < -tol
+    first = None
+    if bad.any():
+        k = int(np.flatnonzero(bad)[np.argmin(owner[bad])])
+        if obstacle_margin[k] < -tol:
+            reason = "reactive manoeuvre meets a known obstacle or leaves the map"
+        else:
+            pos = np.searchsorted(unresolved, k)
+            hidden = pos < len(unresolved) and unresolved[pos] == k and occluded_only[pos]
+            reason = (
+                "manoeuvre point inside an earlier field of view but occluded by a known obstacle"
+                if hidden
+                else "manoeuvre point not observed at any earlier time"
+            )
+        first = Violation(time=float(t[owner[k]]), point=flat[k].copy(), reason=reason, margin=float(margin[k]))
+    return Certificate(
+        ok=not bad.any(),
+        min_margin=float(margin.min()),
+        min_visibility_margin=float(vis_margin.min()),
+        min_obstacle_margin=float(obstacle_margin.min()),
+        first_violation=first,
+        n_samples=n_t,
+        n_points=len(flat),
+    )

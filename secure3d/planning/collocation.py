@@ -1,0 +1,395 @@
+"""Direct collocation of the minimum-time problem (the paper's eq. NLP) into a CasADi NLP.
+
+Decision variables, stage by stage: the final time T, states x_k and controls u_k at K nodes
+(Hermite-Simpson adds midpoint controls), and one dual vector lam in R^6 per (node, obstacle slot).
+h = T / (K - 1). Obstacles enter as *parameters* (a fixed number of box slots per node), so one
+compiled NLP serves every replan with the same shape; only the look-back assignment (which earlier
+node's frustum must contain node i's reactive set) changes the structure, and compiled NLPs are
+cached per assignment.
+
+Sections, top to bottom as in CasADi's race_car example: variables, objective, dynamics, path
+constraints, boundary conditions, obstacle and visibility constraints, solver.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from secure3d.planning import constraints as cons
+from secure3d.planning.problem import PlanningProblem
+
+#: Symbol type of the transcription. SX inlines the per-node Functions: building takes ~2x longer
+#: than with MX call nodes, but every solver iteration is ~2x faster (measured on blind_corner, K=40).
+SYM = ca.SX
+
+#: Bounds on the final time (s): below is numerically meaningless, above is a unit error.
+T_MIN, T_MAX = 0.05, 300.0
+
+
+@dataclass
+class NLPLayout:
+    """Where each variable block lives in the NLP's decision vector w."""
+
+    K: int
+    nx: int
+    nu: int
+    slots: int
+    hermite: bool
+    i_T: int = 0
+    i_X: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    i_U: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    i_Um: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    i_L: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    n_w: int = 0
+
+    def __post_init__(self) -> None:
+        K, nx, nu, S = self.K, self.nx, self.nu, self.slots
+        n = 1
+        # Stage-wise order (x0, u0, lam0, x1, ...) keeps the KKT matrix banded.
+        i_X = np.zeros((K, nx), int)
+        i_U = np.zeros((K, nu), int)
+        i_Um = np.zeros((max(K - 1, 0), nu), int) if self.hermite else np.zeros((0, nu), int)
+        i_L = np.zeros((K, S, 6), int)
+        for k in range(K):
+            i_X[k] = np.arange(n, n + nx)
+            n += nx
+            i_U[k] = np.arange(n, n + nu)
+            n += nu
+            i_L[k] = np.arange(n, n + 6 * S).reshape(S, 6)
+            n += 6 * S
+            if self.hermite and k < K - 1:
+                i_Um[k] = np.arange(n, n + nu)
+                n += nu
+        self.i_X, self.i_U, self.i_Um, self.i_L, self.n_w = i_X, i_U, i_Um, i_L, n
+
+    def unpack(self, w: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        w = np.asarray(w, dtype=float).ravel()
+        return float(w[self.i_T]), w[self.i_X], w[self.i_U], w[self.i_L]
+
+    def pack(self, T: float, X: np.ndarray, U: np.ndarray, L: np.ndarray, Um: np.ndarray | None = None) -> np.ndarray:
+        w = np.zeros(self.n_w)
+        w[self.i_T] = T
+        w[self.i_X] = X
+        w[self.i_U] = U
+        w[self.i_L] = L
+        if self.hermite:
+            w[self.i_Um] = 0.5 * (U[:-1] + U[1:]) if Um is None else Um
+        return w
+
+
+@dataclass
+class TranscribedNLP:
+    """A built NLP: the solver, its layout, bounds, and per-family row indices of g."""
+
+    key: tuple
+    layout: NLPLayout
+    solver: ca.Function
+    g_fun: ca.Function
+    lbg: np.ndarray
+    ubg: np.ndarray
+    families: dict[str, np.ndarray]
+    n_p: int
+    build_time: float
+    warm_solver: ca.Function | None = None
+    nlp: dict | None = None
+    solver_name: str = "ipopt"
+    solver_options: dict = field(default_factory=dict)
+
+    def get_warm_solver(self) -> ca.Function:
+        """Same NLP, solver options tuned for a warm start from a primal-dual guess."""
+        if self.warm_solver is None:
+            opts = dict(self.solver_options)
+            if self.solver_name == "ipopt":
+                opts.update(
+                    {
+                        "ipopt.warm_start_init_point": "yes",
+                        "ipopt.warm_start_bound_push": 1e-6,
+                        "ipopt.warm_start_mult_bound_push": 1e-6,
+                        "ipopt.mu_init": 1e-4,
+                    }
+                )
+            self.warm_solver = ca.nlpsol("secure3d_warm", self.solver_name, self.nlp, opts)
+        return self.warm_solver
+
+
+def parameter_vector(problem: PlanningProblem, slot_boxes: np.ndarray) -> np.ndarray:
+    """NLP parameters: start box lo (3), hi (3), goal (3), slot boxes (K*S*6)."""
+    return np.concatenate([problem.start_region_lo, problem.start_region_hi, problem.goal, slot_boxes.ravel()])
+
+
+def _solver_options(problem: PlanningProblem) -> tuple[str, dict]:
+    o = problem.options
+    if o.solver == "fatrop":
+        opts = {
+            "print_time": False,
+            "fatrop.print_level": 5 if o.verbose else 0,
+            "fatrop.max_iter": o.max_iter,
+            "structure_detection": "auto",
+            "expand": True,
+        }
+        return "fatrop", opts
+    opts = {
+        "print_time": False,
+        "ipopt.print_level": 5 if o.verbose else 0,
+        "ipopt.sb": "yes",
+        "ipopt.max_iter": o.max_iter,
+        "ipopt.tol": 1e-6,
+        "ipopt.acceptable_tol": 1e-4,
+        "ipopt.acceptable_iter": 5,
+        "ipopt.acceptable_constr_viol_tol": 1e-5,
+        "ipopt.max_wall_time": float(o.time_limit),
+        "ipopt.mu_strategy": "adaptive",
+        "ipopt.linear_solver": "mumps",
+    }
+    return "ipopt", opts
+
+
+@dataclass
+class NodeKernels:
+    """CasADi Functions for the per-node constraint families, built once per problem shape.
+
+    Calling them on slices of the decision vector (rather than rebuilding expressions in Python for
+    every node) keeps the transcription fast; each carries its rows' family names and bounds.
+    """
+
+    dyn: ca.Function
+    path: ca.Function
+    path_rows: list[tuple[str, float, float]]
+    vis: ca.Function
+    start: ca.Function
+    obs_view: ca.Function
+    obs_start: ca.Function
+    obs_base: ca.Function
+    obs_view_rows: list[tuple[str, float, float]]
+    obs_start_rows: list[tuple[str, float, float]]
+    obs_base_rows: list[tuple[str, float, float]]
+
+
+def _rows_function(name: str, inputs: list[ca.SX], rows: list[cons.Row]) -> tuple[ca.Function, list]:
+    expr = ca.vertcat(*[r[1] for r in rows]) if rows else ca.SX(0, 1)
+    meta = [(r[0], float(r[2]), float(r[3])) for r in rows]
+    return ca.Function(name, inputs, [expr]), meta
+
+
+def node_kernels(problem: PlanningProblem) -> NodeKernels:
+    """Build the per-node constraint Functions of ``problem`` (any look-back assignment)."""
+    model, family, o = problem.model, problem.family, problem.options
+    nx, nu, S = model.nx, model.nu, o.obstacle_slots
+    xi, xj, ui = ca.SX.sym("xi", nx), ca.SX.sym("xj", nx), ca.SX.sym("ui", nu)
+    xk1, uk1, um = ca.SX.sym("xk1", nx), ca.SX.sym("uk1", nu), ca.SX.sym("um", nu)
+    h = ca.SX.sym("h")
+    boxes, lams = ca.SX.sym("boxes", 6, S), ca.SX.sym("lams", 6, S)
+    lo, hi = ca.SX.sym("lo", 3), ca.SX.sym("hi", 3)
+
+    # dynamics defect between nodes k and k+1 (trapezoidal or Hermite-Simpson, compressed form)
+    fk, fk1 = model.f(xi, ui), model.f(xk1, uk1)
+    if o.collocation == "hermite_simpson":
+        xm = 0.5 * (xi + xk1) + h / 8 * (fk - fk1)
+        defect = xk1 - xi - h / 6 * (fk + 4 * model.f(xm, um) + fk1)
+    else:
+        defect = xk1 - xi - h / 2 * (fk + fk1)
+    dyn = ca.Function("dyn", [xi, ui, xk1, uk1, um, h], [defect])
+
+    # model limits and world bounds (only the coordinates that depend on the state)
+    r = model.body_radius
+    path_rows: list[cons.Row] = []
+    g = model.path_constraints(xi, ui)
+    path_rows += [("limits", g[d], -ca.inf, 0.0) for d in range(g.shape[0])]
+    pos = model.position(xi)
+    for d in range(3):
+        if ca.depends_on(pos[d], xi):
+            path_rows.append(("bounds", pos[d], problem.bounds_lo[d] + r, problem.bounds_hi[d] - r))
+    path, path_meta = _rows_function("path", [xi, ui], path_rows)
+
+    c, M = family.ellipsoid(xi)
+    R_cam, o_cam = model.camera_pose(xj)
+    vis, _ = _rows_function("vis", [xi, xj], cons.frustum_rows(c, M, R_cam, o_cam, problem.frustum, o.margin))
+    start, _ = _rows_function("start", [xi, lo, hi], cons.start_region_rows(c, M, lo, hi, o.margin))
+
+    view_rows, start_rows, base_rows = [], [], []
+    for s_ in range(S):
+        box, lam = boxes[:, s_], lams[:, s_]
+        dual = cons.dual_norm_row(lam)
+        clear = cons.ellipsoid_clearance_row(c, M, box, lam, o.margin)
+        view_rows += [dual, clear]
+        if o.occlusion:
+            view_rows.append(cons.point_clearance_row("occlusion", o_cam, 0.0, box, lam, o.margin))
+        start_rows += [dual, clear]
+        base_rows += [dual, cons.point_clearance_row("obstacle", pos, r, box, lam, o.margin)]
+    obs_view, view_meta = _rows_function("obs_view", [xi, xj, boxes, lams], view_rows)
+    obs_start, start_meta = _rows_function("obs_start", [xi, boxes, lams], start_rows)
+    obs_base, base_meta = _rows_function("obs_base", [xi, boxes, lams], base_rows)
+    return NodeKernels(dyn, path, path_meta, vis, start, obs_view, obs_start, obs_base,
+                       view_meta, start_meta, base_meta)
+
+
+def build_nlp(
+    problem: PlanningProblem, planner: str, assignment: tuple[int, ...], kernels: NodeKernels | None = None
+) -> TranscribedNLP:
+    """Transcribe the problem for a given look-back assignment (tuple of K ints, -1 = start region)."""
+    t0 = time.perf_counter()
+    model, o = problem.model, problem.options
+    K, nx, nu, S = o.nodes, model.nx, model.nu, o.obstacle_slots
+    hermite = o.collocation == "hermite_simpson"
+    layout = NLPLayout(K=K, nx=nx, nu=nu, slots=S, hermite=hermite)
+    secure = planner == "secure"
+    kern = kernels if kernels is not None else node_kernels(problem)
+
+    # ---- decision variables and parameters ----------------------------------------------------
+    w = SYM.sym("w", layout.n_w)
+    T = w[layout.i_T]
+    X = [w[layout.i_X[k].tolist()] for k in range(K)]
+    U = [w[layout.i_U[k].tolist()] for k in range(K)]
+    Um = [w[layout.i_Um[k].tolist()] for k in range(K - 1)] if hermite else [SYM.zeros(nu)] * (K - 1)
+    Lam = [ca.reshape(w[layout.i_L[k].ravel().tolist()], 6, S) for k in range(K)]
+    n_p = 9 + K * S * 6
+    p = SYM.sym("p", n_p)
+    start_lo, start_hi, goal = p[0:3], p[3:6], p[6:9]
+    box_par = [ca.reshape(p[9 + k * S * 6 : 9 + (k + 1) * S * 6], 6, S) for k in range(K)]
+    h = T / (K - 1)
+    exprs: list[ca.SX] = []
+    meta: list[tuple[str, float, float]] = []
+
+    def add(expr: ca.SX, rows: list[tuple[str, float, float]]) -> None:
+        exprs.append(expr)
+        meta.extend(rows)
+
+    # ---- objective: minimum time (+ a small normalised effort term) -------------------------------
+    u_mid = 0.5 * (model.u_lo + model.u_hi)
+    u_scale = np.maximum(0.5 * (model.u_hi - model.u_lo), 1e-6)
+    effort = sum(ca.sumsqr((U[k] - u_mid) / u_scale) for k in range(K))
+    J = T + o.effort_weight * h * effort
+
+    # ---- dynamics defects ------------------------------------------------------------------------
+    for k in range(K - 1):
+        add(kern.dyn(X[k], U[k], X[k + 1], U[k + 1], Um[k], h), [("dynamics", 0.0, 0.0)] * nx)
+
+    # ---- path constraints: model limits and world bounds -----------------------------------------
+    for k in range(1, K):
+        add(kern.path(X[k], U[k]), kern.path_rows)
+
+    # ---- boundary conditions: x(0) fixed through variable bounds; at rest at the goal -------------
+    pos_end, vel_end = model.position(X[K - 1]), model.velocity(X[K - 1])
+    for d in range(3):
+        if ca.depends_on(pos_end[d], w):
+            add(pos_end[d] - goal[d], [("terminal", 0.0, 0.0)])
+    for d in range(3):
+        if ca.depends_on(vel_end[d], w):
+            add(vel_end[d], [("terminal", 0.0, 0.0)])
+    for extra in model_terminal_rows(model, X[K - 1]):
+        add(extra, [("terminal", 0.0, 0.0)])
+
+    # ---- obstacles and visibility (eq. NLP: S_r(x_i) inside S_s(x_j), clear of Ĉ_obst) ----------
+    for k in range(1, K):
+        j = assignment[k]
+        if not secure:
+            add(kern.obs_base(X[k], box_par[k], Lam[k]), kern.obs_base_rows)
+        elif j >= 0:
+            add(kern.vis(X[k], X[j]), [("visibility", o.margin, ca.inf)] * 5)
+            add(kern.obs_view(X[k], X[j], box_par[k], Lam[k]), kern.obs_view_rows)
+        else:
+            add(kern.start(X[k], start_lo, start_hi), [("start_region", o.margin, ca.inf)] * 6)
+            add(kern.obs_start(X[k], box_par[k], Lam[k]), kern.obs_start_rows)
+
+    names = [m_[0] for m_ in meta]
+    g_all = ca.vertcat(*exprs)
+    lbg = np.array([m_[1] for m_ in meta])
+    ubg = np.array([m_[2] for m_ in meta])
+    families = {n: np.flatnonzero(np.array(names) == n) for n in dict.fromkeys(names)}
+
+    nlp = {"x": w, "p": p, "f": J, "g": g_all}
+    solver_name, opts = _solver_options(problem)
+    if solver_name == "fatrop":
+        opts = dict(opts)
+        opts["equality"] = [bool(lo == hi) for lo, hi in zip(lbg, ubg, strict=True)]
+    solver = ca.nlpsol(f"secure3d_{planner}", solver_name, nlp, opts)
+    g_fun = ca.Function("g", [w, p], [g_all])
+    key = nlp_key(problem, planner, assignment)
+    return TranscribedNLP(
+        key=key,
+        layout=layout,
+        solver=solver,
+        g_fun=g_fun,
+        lbg=lbg,
+        ubg=ubg,
+        families=families,
+        n_p=n_p,
+        build_time=time.perf_counter() - t0,
+        nlp=nlp,
+        solver_name=solver_name,
+        solver_options=opts,
+    )
+
+
+def model_terminal_rows(model: object, x_end: ca.SX) -> list[ca.SX]:
+    """Extra terminal equalities so the robot is really at rest (angular rates of planar models)."""
+    if getattr(model, "name", "") == "diff_drive":
+        return [x_end[4]]
+    return []
+
+
+def nlp_key(problem: PlanningProblem, planner: str, assignment: tuple[int, ...]) -> tuple:
+    """What determines the NLP's structure: the same key means the compiled NLP can be reused."""
+    o = problem.options
+    return (
+        id(problem.model),
+        id(problem.family),
+        problem.frustum,
+        planner,
+        o.nodes,
+        o.obstacle_slots,
+        o.collocation,
+        o.margin,
+        o.occlusion if planner == "secure" else False,
+        o.effort_weight,
+        o.solver,
+        o.max_iter,
+        o.time_limit,
+        o.verbose,
+        tuple(problem.bounds_lo),
+        tuple(problem.bounds_hi),
+        tuple(assignment) if planner == "secure" else (),
+    )
+
+
+class NLPCache:
+    """Least-recently-used cache of built NLPs, keyed by structure (see :func:`nlp_key`).
+
+    The cache holds the model and family objects its keys refer to (by id), so those ids stay valid.
+    A simulator keeps one cache for a whole flight; :func:`secure3d.plan` uses a shared default.
+    """
+
+    def __init__(self, max_size: int = 24) -> None:
+        self.max_size = max_size
+        self._items: OrderedDict[tuple, tuple[TranscribedNLP, object, object]] = OrderedDict()
+        self._kernels: OrderedDict[tuple, tuple[NodeKernels, object, object]] = OrderedDict()
+        self.hits = 0
+        self.misses = 0
+
+    def get(self, problem: PlanningProblem, planner: str, assignment: tuple[int, ...]) -> tuple[TranscribedNLP, bool]:
+        """The NLP for this structure and whether it came from the cache."""
+        key = nlp_key(problem, planner, assignment)
+        item = self._items.get(key)
+        if item is not None:
+            self._items.move_to_end(key)
+            self.hits += 1
+            return item[0], True
+        self.misses += 1
+        kkey = nlp_key(problem, "kernels", ())
+        if kkey not in self._kernels:
+            self._kernels[kkey] = (node_kernels(problem), problem.model, problem.family)
+            while len(self._kernels) > self.max_size:
+                self._kernels.popitem(last=False)
+        built = build_nlp(problem, planner, assignment, self._kernels[kkey][0])
+        self._items[key] = (built, problem.model, problem.family)
+        while len(self._items) > self.max_size:
+            self._items.popitem(last=False)
+        return built, False
+
+    def __len__(self) -> int:
+        return len(self._items)

@@ -1,0 +1,285 @@
+"""Initial guesses: a graph search on a voxel grid of the belief, then a feasible time scaling.
+
+The paper notes that poor (infeasible) guesses stop convergence; a collision-free path with clearance,
+flown at a moderate speed with a trapezoidal speed profile, is a good start for both planners.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from secure3d.geometry.polytope import min_box_distance
+from secure3d.planning.problem import PlanningProblem
+
+#: Largest number of grid cells the graph search uses; the grid is coarsened to stay below it.
+MAX_GRID_CELLS = 120_000
+
+
+@dataclass(frozen=True)
+class Guess:
+    """A time-parametrised initial trajectory: node times (K,), states (K, nx), controls (K, nu)."""
+
+    times: np.ndarray
+    states: np.ndarray
+    controls: np.ndarray
+    path: np.ndarray
+
+    @property
+    def final_time(self) -> float:
+        return float(self.times[-1])
+
+
+class NoPathError(RuntimeError):
+    """The graph search found no collision-free path (reported as INFEASIBLE by the planner)."""
+
+
+def _planar(problem: PlanningProblem) -> float | None:
+    """Fixed height of a planar model, or None for 3D models."""
+    if problem.model.name == "diff_drive":
+        return float(problem.start_position[2])
+    return None
+
+
+def _clearance_grid(
+    problem: PlanningProblem, resolution: float, height: float | None
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Distance from each grid cell centre to the nearest known obstacle or the bounds (m)."""
+    lo, hi = problem.bounds_lo.copy(), problem.bounds_hi.copy()
+    if height is not None:
+        lo[2] = hi[2] = height
+    ext = np.maximum(hi - lo, 1e-9)
+    dims3 = np.where(ext > 1e-6, ext, 0.0)
+    res = resolution
+    while True:
+        shape = np.maximum(1, np.floor(dims3 / res).astype(int) + 1)
+        if int(np.prod(shape)) <= MAX_GRID_CELLS:
+            break
+        res *= 1.25
+    axes = [np.linspace(lo[d], hi[d], shape[d]) if shape[d] > 1 else np.array([lo[d]]) for d in range(3)]
+    centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    clearance = np.full(len(centres), np.inf)
+    for d in range(3):
+        if shape[d] > 1:
+            clearance = np.minimum(clearance, centres[:, d] - problem.bounds_lo[d])
+            clearance = np.minimum(clearance, problem.bounds_hi[d] - centres[:, d])
+    n = len(problem.boxes_lo)
+    for start in range(0, n, 256):
+        sl = slice(start, start + 256)
+        clearance = np.minimum(clearance, min_box_distance(centres, problem.boxes_lo[sl], problem.boxes_hi[sl]))
+    return centres, clearance.reshape(shape), res
+
+
+def graph_path(problem: PlanningProblem, clearance_pad: float = 0.15) -> np.ndarray:
+    """Collision-free polyline (n, 3) from the start to the goal with clearance, by Dijkstra.
+
+    Cells closer than body radius + margin to a known obstacle are blocked; edge costs grow near
+    obstacles (keeping to the middle of corridors, which the secure planner likes: the paper's
+    secure path "gives wide berth to the known obstacle").
+    """
+    height = _planar(problem)
+    centres, clearance, res = _clearance_grid(problem, problem.options.grid_resolution, height)
+    shape = clearance.shape
+    r = problem.model.body_radius + problem.options.margin
+    free = clearance > r
+    start, goal = problem.start_position, problem.goal
+    lo = problem.bounds_lo.copy()
+    if height is not None:
+        lo[2] = height
+
+    def cell_of(p: np.ndarray) -> int:
+        idx = np.clip(np.round((p - lo) / res).astype(int), 0, np.array(shape) - 1)
+        return int(np.ravel_multi_index(tuple(idx), shape))
+
+    flat_free = free.ravel()
+    flat_clear = clearance.ravel()
+    s_cell, g_cell = cell_of(start), cell_of(goal)
+    # The start/goal cells may be blocked by discretisation: free them and their neighbours.
+    for c in (s_cell, g_cell):
+        flat_free[c] = True
+    idx = np.arange(flat_free.size).reshape(shape)
+    rows, cols, weights = [], [], []
+    offsets = [np.array(o) for o in np.ndindex(3, 3, 3) if o != (1, 1, 1)]
+    for off in offsets:
+        o = off - 1
+        if any(o[d] != 0 and shape[d] == 1 for d in range(3)):
+            continue
+        src = idx[
+            max(0, -o[0]) : shape[0] - max(0, o[0]),
+            max(0, -o[1]) : shape[1] - max(0, o[1]),
+            max(0, -o[2]) : shape[2] - max(0, o[2]),
+        ].ravel()
+        dst = np.ravel_multi_index(tuple((np.array(np.unravel_index(src, shape)).T + o).T), shape)
+        ok = flat_free[src] & flat_free[dst]
+        length = res * float(np.linalg.norm(o))
+        near = np.minimum(flat_clear[src[ok]], flat_clear[dst[ok]])
+        cost = length * (1.0 + 1.0 / (0.25 + np.maximum(near - r, 0.0) / max(clearance_pad, 1e-3)))
+        rows.append(src[ok])
+        cols.append(dst[ok])
+        weights.append(cost)
+    graph = coo_matrix(
+        (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(flat_free.size, flat_free.size),
+    ).tocsr()
+    dist, pred = dijkstra(graph, indices=s_cell, return_predecessors=True)
+    if not np.isfinite(dist[g_cell]):
+        raise NoPathError(
+            f"no collision-free path from {np.round(start, 2)} to {np.round(goal, 2)} in the belief map"
+        )
+    cells = [g_cell]
+    while cells[-1] != s_cell:
+        cells.append(int(pred[cells[-1]]))
+    pts = centres[np.array(cells[::-1])]
+    pts[0], pts[-1] = start, goal
+    return _shortcut(pts, lambda p: _clear_at(p, clearance, lo, res) > r + 0.5 * clearance_pad)
+
+
+def _clear_at(points: np.ndarray, clearance: np.ndarray, lo: np.ndarray, res: float) -> np.ndarray:
+    """Grid clearance looked up at points (nearest cell; trilinear would be overkill here)."""
+    idx = np.clip(np.round((points - lo) / res).astype(int), 0, np.array(clearance.shape) - 1)
+    return clearance[idx[:, 0], idx[:, 1], idx[:, 2]]
+
+
+def _shortcut(points: np.ndarray, is_free: object) -> np.ndarray:
+    """Greedy string pulling: keep a vertex only when the straight shortcut past it is not free."""
+    out = [points[0]]
+    i = 0
+    n = len(points)
+    while i < n - 1:
+        j = n - 1
+        while j > i + 1:
+            seg = np.linspace(points[i], points[j], max(2, int(np.linalg.norm(points[j] - points[i]) / 0.05)))
+            if np.all(is_free(seg[1:-1])) if len(seg) > 2 else True:
+                break
+            j -= 1
+        out.append(points[j])
+        i = j
+    return np.array(out)
+
+
+def _densify(path: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points every ``step`` metres along a polyline and their arc lengths."""
+    seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(seg)])
+    n = max(2, int(np.ceil(arc[-1] / step)) + 1)
+    s = np.linspace(0.0, arc[-1], n)
+    pts = np.stack([np.interp(s, arc, path[:, d]) for d in range(3)], axis=1)
+    return pts, s
+
+
+def look_ahead_yaw(points: np.ndarray, arc: np.ndarray, distance: float, yaw0: float) -> np.ndarray:
+    """Heading toward the path point ``distance`` metres ahead (unwrapped, starting near ``yaw0``):
+    the camera looks into a corner before the body turns."""
+    ahead = np.stack([np.interp(arc + distance, arc, points[:, d]) for d in range(3)], axis=1)
+    d = (ahead - points)[:, :2]
+    tangent = np.gradient(points[:, :2], axis=0)
+    # near the end of the path nothing lies ahead any more: keep looking along the path
+    short = np.linalg.norm(d, axis=1) < 0.5 * max(distance, 1e-6)
+    d[short] = tangent[short]
+    yaw = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    return yaw + np.round((yaw0 - yaw[0]) / (2 * np.pi)) * 2 * np.pi
+
+
+def secure_speed_caps(
+    problem: PlanningProblem, points: np.ndarray, tangents: np.ndarray, yaws: np.ndarray, v_cap: float, levels: int = 12
+) -> np.ndarray:
+    """Largest speed at each path point whose reactive set is already observed: inside the start
+    ball, or inside the frustum of an earlier path point with a clear line of sight (the paper's
+    eq. FullConstraint along a geometric path, before any optimisation)."""
+    from secure3d.geometry.polytope import segment_box_intersects
+    from secure3d.planning.lookback import frustum_margins, start_margins
+
+    model, o = problem.model, problem.options
+    n = len(points)
+    speeds = np.linspace(0.0, v_cap, levels)
+    X = np.stack(
+        [model.initial_state(points[i], speeds[g] * tangents[i], yaws[i]) for i in range(n) for g in range(levels)]
+    )
+    cams = np.stack([model.initial_state(points[i], 0.0 * tangents[i], yaws[i]) for i in range(n)])
+    from secure3d.planning.lookback import node_geometry
+
+    geo_e = node_geometry(problem, X)
+    geo_c = node_geometry(problem, cams)
+    geo = {"C": geo_e["C"], "M": geo_e["M"], "R": geo_c["R"], "o": geo_c["o"]}
+    fm = frustum_margins(problem, geo)  # (n*levels, n)
+    owner = np.repeat(np.arange(n), levels)
+    seen = (fm >= o.margin) & (np.arange(n)[None, :] < owner[:, None])
+    if o.occlusion and len(problem.boxes_lo):
+        rows, cols = np.nonzero(seen)
+        tips = [geo["C"][rows]]
+        for a in range(3):
+            for sign in (1.0, -1.0):
+                tips.append(geo["C"][rows] + sign * 0.9 * geo["M"][rows, :, a])
+        p1 = np.concatenate(tips)
+        p0 = np.tile(geo["o"][cols], (7, 1))
+        hit = segment_box_intersects(p0, p1, problem.boxes_lo, problem.boxes_hi).any(axis=1)
+        blocked = hit.reshape(7, -1).any(axis=0)
+        seen[rows[blocked], cols[blocked]] = False
+    ok = seen.any(axis=1) | (start_margins(problem, geo) >= o.margin)
+    ok = ok.reshape(n, levels)
+    ok[:, 0] = True  # at rest the robot can always wait (its reactive set is its own body)
+    # the largest level such that every slower one is feasible too
+    first_bad = np.where(ok.all(axis=1), levels, np.argmin(ok, axis=1))
+    return speeds[np.maximum(first_bad - 1, 0)]
+
+
+def profile_guess(problem: PlanningProblem, path: np.ndarray, speed_fraction: float, secure: bool) -> Guess:
+    """Time-parametrise ``path``: speed caps (limit, yaw rate, and for the secure planner the
+    visibility of the reactive set), then forward/backward acceleration passes; K nodes equally
+    spaced in time."""
+    model = problem.model
+    K = problem.options.nodes
+    pts, arc = _densify(path, 0.2)
+    tang = np.gradient(pts, arc, axis=0)
+    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
+    v_max = float(getattr(model.limits, "max_speed", 2.0))
+    a_max = 0.6 * float(getattr(model.limits, "max_accel", 3.0))
+    yaw_rate = float(getattr(model.limits, "max_yaw_rate", getattr(model.limits, "max_ang_speed", 2.0)))
+    yaw0 = float(model.yaw(problem.x0))
+    if model.name == "diff_drive":
+        yaw = look_ahead_yaw(pts, arc, 0.0, yaw0)
+    else:
+        yaw = look_ahead_yaw(pts, arc, 1.5, yaw0)
+    cap = np.full(len(pts), speed_fraction * v_max)
+    dyaw = np.abs(np.gradient(yaw, arc))
+    cap = np.minimum(cap, 0.7 * yaw_rate / np.maximum(dyaw, 1e-6))
+    if secure:
+        cap = np.minimum(cap, secure_speed_caps(problem, pts, tang, yaw, speed_fraction * v_max))
+    cap = np.maximum(cap, 0.05)
+    v = cap.copy()
+    ds = np.diff(arc)
+    v[0] = min(float(np.linalg.norm(model.velocity(problem.x0))), v_max)
+    for i in range(1, len(v)):
+        v[i] = min(v[i], np.sqrt(v[i - 1] ** 2 + 2 * a_max * ds[i - 1]))
+    v[-1] = 0.0
+    for i in range(len(v) - 2, 0, -1):
+        v[i] = min(v[i], np.sqrt(v[i + 1] ** 2 + 2 * a_max * ds[i]))
+    dt = 2 * ds / np.maximum(v[:-1] + v[1:], 1e-3)
+    t_arc = np.concatenate([[0.0], np.cumsum(dt)])
+    times = np.linspace(0.0, t_arc[-1], K)
+    s_k = np.interp(times, t_arc, arc)
+    pos = np.stack([np.interp(s_k, arc, pts[:, d]) for d in range(3)], axis=1)
+    vel = np.stack([np.interp(s_k, arc, v * tang[:, d]) for d in range(3)], axis=1)
+    yaw_k = np.interp(s_k, arc, yaw)
+    states = np.stack([model.initial_state(pos[k], vel[k], yaw_k[k]) for k in range(K)])
+    states[0] = problem.x0
+    controls = np.stack([model.nominal_control(states[k]) for k in range(K)])
+    return Guess(times=times, states=states, controls=controls, path=path)
+
+
+def initial_guess(problem: PlanningProblem, secure: bool = False, speed_fraction: float | None = None) -> Guess:
+    """Graph search on the belief, then a time scaling (visibility-aware for the secure planner)."""
+    path = graph_path(problem)
+    frac = problem.options.guess_speed_fraction if speed_fraction is None else speed_fraction
+    return profile_guess(problem, path, frac, secure)
+
+
+def clearance_field(problem: PlanningProblem) -> tuple[np.ndarray, np.ndarray, float]:
+    """The grid behind the graph search (centres, clearance, cell size), for plots and tests."""
+    return _clearance_grid(problem, problem.options.grid_resolution, _planar(problem))
+
+
+__all__ = ["Guess", "NoPathError", "clearance_field", "graph_path", "initial_guess", "profile_guess"]

@@ -1,0 +1,198 @@
+"""Look-back assignment and obstacle-slot selection, evaluated in numpy on the current iterate.
+
+The paper ties node i to node j = i - Δi (eq. NLP) and leaves relaxing this as future work. The
+adaptive rule assigns each node the earlier node whose camera frustum contains its reactive set with
+the largest margin, penalising views blocked by a known obstacle, and the planner re-solves until
+the assignment is stable. Both rules keep the NLP's constraint a *sufficient* condition for the
+paper's eq. FullConstraint, so the certificate judges them equally.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from secure3d.geometry.frustum import frustum_halfspaces
+from secure3d.geometry.polytope import segment_box_intersects
+from secure3d.planning.problem import PlanningProblem
+
+#: Penalty (m) on a candidate camera whose line of sight to the reactive set crosses a known obstacle.
+OCCLUSION_PENALTY = 5.0
+
+
+def node_geometry(problem: PlanningProblem, states: np.ndarray) -> dict[str, np.ndarray]:
+    """Reactive ellipsoids and camera poses at the nodes: centres (K,3), shapes (K,3,3), R (K,3,3), o (K,3)."""
+    model, family = problem.model, problem.family
+    C, M = family.ellipsoid_batch(states)
+    poses = [model.camera_pose(x) for x in states]
+    R = np.stack([np.asarray(p[0], dtype=float) for p in poses])
+    o = np.stack([np.asarray(p[1], dtype=float).ravel() for p in poses])
+    P = np.stack([np.asarray(model.position(x), dtype=float).ravel() for x in states])
+    return {"C": np.asarray(C, float), "M": np.asarray(M, float), "R": R, "o": o, "P": P}
+
+
+def frustum_margins(problem: PlanningProblem, geo: dict[str, np.ndarray]) -> np.ndarray:
+    """(n_ellipsoids, n_cameras) margin of ellipsoid i inside camera j's frustum (min over faces;
+    >= 0 inside)."""
+    n_cam = len(geo["R"])
+    A = np.empty((n_cam, 5, 3))
+    b = np.empty((n_cam, 5))
+    for j in range(n_cam):
+        Aj, bj = frustum_halfspaces(geo["R"][j], geo["o"][j], problem.frustum)
+        A[j], b[j] = np.asarray(Aj, float), np.asarray(bj, float).ravel()
+    # support of E_i along each face normal of frustum j: n.c_i + |M_i n|
+    nc = np.einsum("jfd,id->ijf", A, geo["C"])
+    Mn = np.einsum("iab,jfb->ijfa", geo["M"], A)
+    support = nc + np.linalg.norm(Mn, axis=-1)
+    return (b[None, :, :] - support).min(axis=-1)
+
+
+def start_margins(problem: PlanningProblem, geo: dict[str, np.ndarray]) -> np.ndarray:
+    """(K,) margin of each node's ellipsoid inside the observed start box (exact support test)."""
+    extent = np.linalg.norm(geo["M"], axis=1)  # |M e_d| per axis d
+    up = problem.start_region_hi - geo["C"] - extent
+    down = geo["C"] - problem.start_region_lo - extent
+    return np.minimum(up, down).min(axis=1)
+
+
+def occluded(problem: PlanningProblem, geo: dict[str, np.ndarray]) -> np.ndarray:
+    """(n_ellipsoids, n_cameras) True where a segment from camera j to ellipsoid i (centre or an
+    axis tip) crosses a known obstacle box."""
+    K, n_cam = len(geo["C"]), len(geo["o"])
+    if len(problem.boxes_lo) == 0:
+        return np.zeros((K, n_cam), bool)
+    tips = [geo["C"]]
+    for a in range(3):
+        tips.append(geo["C"] + 0.9 * geo["M"][:, :, a])
+        tips.append(geo["C"] - 0.9 * geo["M"][:, :, a])
+    tips = np.stack(tips, axis=1)  # (K, 7, 3)
+    p0 = np.broadcast_to(geo["o"][None, :, None, :], (K, n_cam, 7, 3)).reshape(-1, 3)
+    p1 = np.broadcast_to(tips[:, None, :, :], (K, n_cam, 7, 3)).reshape(-1, 3)
+    hit = segment_box_intersects(p0, p1, problem.boxes_lo, problem.boxes_hi).any(axis=1)
+    return hit.reshape(K, n_cam, 7).any(axis=2)
+
+
+def fixed_assignment(K: int, steps: int) -> tuple[int, ...]:
+    """The paper's rule j = i - Δi; nodes before Δi must lie in the start region (-1)."""
+    return tuple(i - steps if i - steps >= 0 else -1 for i in range(K))
+
+
+def adaptive_assignment(problem: PlanningProblem, states: np.ndarray) -> tuple[tuple[int, ...], np.ndarray]:
+    """Best earlier view of each node's reactive set on ``states``; returns (assignment, margins)."""
+    geo = node_geometry(problem, states)
+    K = len(states)
+    fm = frustum_margins(problem, geo)
+    if problem.options.occlusion:
+        fm = fm - OCCLUSION_PENALTY * occluded(problem, geo)
+    sm = start_margins(problem, geo)
+    assignment = [-1]
+    best = [float(sm[0])]
+    for i in range(1, K):
+        cand = fm[i, :i]
+        j = int(np.argmax(cand))
+        if sm[i] >= cand[j]:
+            assignment.append(-1)
+            best.append(float(sm[i]))
+        else:
+            assignment.append(j)
+            best.append(float(cand[j]))
+    return tuple(assignment), np.array(best)
+
+
+def refine_assignment(
+    problem: PlanningProblem, states: np.ndarray, current: tuple[int, ...], min_gain: float = 0.05
+) -> tuple[int, ...]:
+    """Adaptive rule between solves: move node i to a better earlier view only where that view
+    already holds on ``states`` with the required margin and beats the current one by ``min_gain``
+    (so the previous solution stays feasible and warm-starts the next solve)."""
+    geo = node_geometry(problem, states)
+    fm = frustum_margins(problem, geo)
+    if problem.options.occlusion:
+        fm = fm - OCCLUSION_PENALTY * occluded(problem, geo)
+    sm = start_margins(problem, geo)
+    out = list(current)
+    for i in range(1, len(states)):
+        cur = sm[i] if current[i] < 0 else fm[i, current[i]]
+        cand = fm[i, :i]
+        j = int(np.argmax(cand))
+        best, best_j = (sm[i], -1) if sm[i] >= cand[j] else (cand[j], j)
+        if best_j != current[i] and best >= problem.options.margin and best >= cur + min_gain:
+            out[i] = best_j
+    return tuple(out)
+
+
+def select_slots(
+    problem: PlanningProblem, planner: str, states: np.ndarray, assignment: tuple[int, ...]
+) -> np.ndarray:
+    """(K, S, 6) boxes [lo, hi] per node slot: the known obstacles nearest to what node k constrains
+    (the body for the baseline; the line-of-sight hull from camera j to E_k for the secure planner).
+    Empty slots hold a small box far outside the world (its constraint is inactive)."""
+    o = problem.options
+    K, S = len(states), o.obstacle_slots
+    far = np.asarray(problem.bounds_hi) + 1e3
+    slots = np.empty((K, S, 6))
+    slots[:, :, 0:3] = far
+    slots[:, :, 3:6] = far + 0.1
+    n = len(problem.boxes_lo)
+    if n == 0:
+        return slots
+    geo = node_geometry(problem, states)
+    if planner == "secure":
+        reach = np.linalg.norm(geo["M"], ord=2, axis=(1, 2))
+        samples = []
+        for k in range(K):
+            j = assignment[k]
+            if o.occlusion and j >= 0:
+                samples.append(np.linspace(geo["o"][j], geo["C"][k], 6))
+            else:
+                samples.append(np.repeat(geo["C"][k][None], 6, axis=0))
+        pts = np.stack(samples)  # (K, 6, 3)
+    else:
+        reach = np.full(K, problem.model.body_radius)
+        pts = geo["P"][:, None, :]
+    d = min_box_distance_all(pts.reshape(-1, 3), problem.boxes_lo, problem.boxes_hi)
+    d = d.reshape(K, -1, n).min(axis=1) - reach[:, None]
+    order = np.argsort(d, axis=1)[:, :S]
+    for k in range(K):
+        for s, idx in enumerate(order[k]):
+            if d[k, idx] <= o.obstacle_radius:
+                slots[k, s, 0:3] = problem.boxes_lo[idx]
+                slots[k, s, 3:6] = problem.boxes_hi[idx]
+    return slots
+
+
+def min_box_distance_all(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(n_points, n_boxes) Euclidean distance from points to boxes (0 inside)."""
+    q = np.clip(points[:, None, :], lo[None], hi[None])
+    return np.linalg.norm(points[:, None, :] - q, axis=-1)
+
+
+def initial_duals(problem: PlanningProblem, planner: str, states: np.ndarray, slots: np.ndarray,
+                  assignment: tuple[int, ...]) -> np.ndarray:
+    """(K, S, 6) dual vectors: the outward normal at the box point nearest to the constrained set,
+    split into its positive face components (so |A^T lam| = 1 and lam.(A c - b) = distance)."""
+    geo = node_geometry(problem, states)
+    K, S = slots.shape[:2]
+    centres = geo["C"] if planner == "secure" else geo["P"]
+    lo, hi = slots[:, :, 0:3], slots[:, :, 3:6]
+    q = np.clip(centres[:, None, :], lo, hi)
+    n = centres[:, None, :] - q
+    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    box_centre = 0.5 * (lo + hi)
+    fallback = centres[:, None, :] - box_centre
+    n = np.where(norm > 1e-9, n, fallback)
+    # choose the dominant axis if the centre is inside the box (degenerate guess)
+    n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    lam = np.concatenate([np.maximum(n, 0.0), np.maximum(-n, 0.0)], axis=-1)
+    return lam
+
+
+__all__ = [
+    "adaptive_assignment",
+    "fixed_assignment",
+    "frustum_margins",
+    "initial_duals",
+    "node_geometry",
+    "occluded",
+    "select_slots",
+    "start_margins",
+]

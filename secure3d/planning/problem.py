@@ -1,0 +1,282 @@
+"""The planning problem: *what* is solved (the paper's problem TightProb), kept apart from *how* it is
+transcribed (:mod:`secure3d.planning.collocation`) and from the solver (:mod:`.solve`).
+
+A :class:`PlanningProblem` is built from a :class:`~secure3d.world.spec.Scenario` and the robot's
+belief map (server claim plus sensor evidence, see :mod:`secure3d.mapping`): the planner only ever
+sees *known* obstacles (eq. NLP: d(S_r(x_i), Ĉ_obst) > 0), never the true world.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+
+from secure3d.errors import ConfigError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from secure3d.dynamics.base import VehicleModel
+    from secure3d.geometry.frustum import PinholeFrustum
+    from secure3d.mapping.occupancy import OccupancyMap
+    from secure3d.reactive.reactive_set import ReactiveSetFamily
+    from secure3d.world.spec import Scenario
+
+PlannerKind = Literal["secure", "baseline"]
+
+
+def _check_positive(name: str, value: float, *, allow_zero: bool = False) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"planner option {name}: expected a finite number, got {value!r}")
+    if value < 0 or (value == 0 and not allow_zero):
+        raise ConfigError(f"planner option {name}: must be {'>= 0' if allow_zero else '> 0'}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class PlannerOptions:
+    """How the NLP is transcribed and solved.
+
+    Attributes
+    ----------
+    nodes : collocation nodes K (the paper's K).
+    collocation : ``"trapezoidal"`` (default) or ``"hermite_simpson"``.
+    lookback : ``"fixed"`` (the paper's constant Δi, eq. NLP) or ``"adaptive"`` (each node i is tied to
+        the earlier node whose frustum contains its reactive set with the largest margin on the
+        current iterate; re-solved until the assignment is stable: the relaxation the paper leaves
+        open).
+    lookback_steps : the paper's Δi for the fixed rule.
+    lookback_rounds : most re-assignments for the adaptive rule.
+    solver : ``"ipopt"`` (MUMPS) or ``"fatrop"``.
+    margin : clearance required of every visibility and obstacle constraint (m): the ε of the
+        paper's Assumption 2, which makes the discrete constraints imply the continuous ones.
+    obstacle_slots : obstacles considered per node (the nearest to that node's line-of-sight hull).
+    obstacle_radius : obstacles farther than this from a node's hull are ignored there (m).
+    occlusion : require the line-of-sight hull conv({o_j} ∪ E_i) to miss known obstacles (beyond the
+        paper, whose frustum sees through walls).
+    start_region_radius : half-size of the box around the start position counted as observed (m).
+    effort_weight : weight of the normalised control effort added to the final time (regularises
+        the bang-bang minimum-time solution; small).
+    max_iter : solver iteration limit per solve; time_limit : wall-clock limit per solve (s).
+    certify : run :func:`secure3d.certify` on secure plans and report NOT_CERTIFIED on failure.
+    grid_resolution : cell size of the graph search that makes the initial guess (m).
+    guess_speed_fraction : cruise speed of the initial guess, as a fraction of the speed limit.
+    verbose : print solver output.
+    """
+
+    nodes: int = 40
+    collocation: Literal["trapezoidal", "hermite_simpson"] = "trapezoidal"
+    lookback: Literal["adaptive", "fixed"] = "adaptive"
+    lookback_steps: int = 3
+    lookback_rounds: int = 2
+    solver: Literal["ipopt", "fatrop"] = "ipopt"
+    margin: float = 0.02
+    obstacle_slots: int = 6
+    obstacle_radius: float = 1.5
+    occlusion: bool = True
+    start_region_radius: float = 1.0
+    effort_weight: float = 1e-3
+    max_iter: int = 500
+    time_limit: float = 60.0
+    certify: bool = True
+    grid_resolution: float = 0.2
+    guess_speed_fraction: float = 0.8
+    verbose: bool = False
+
+    def __post_init__(self) -> None:
+        if isinstance(self.nodes, bool) or not isinstance(self.nodes, int) or not 5 <= self.nodes <= 400:
+            raise ConfigError(f"planner option nodes: must be an integer in [5, 400], got {self.nodes!r}")
+        if self.collocation not in ("trapezoidal", "hermite_simpson"):
+            raise ConfigError(
+                f"planner option collocation: 'trapezoidal' or 'hermite_simpson', got {self.collocation!r}"
+            )
+        if self.lookback not in ("adaptive", "fixed"):
+            raise ConfigError(f"planner option lookback: 'adaptive' or 'fixed', got {self.lookback!r}")
+        if not isinstance(self.lookback_steps, int) or not 1 <= self.lookback_steps < self.nodes:
+            raise ConfigError(
+                f"planner option lookback_steps: must be an integer in [1, nodes), got {self.lookback_steps!r}"
+            )
+        if not isinstance(self.lookback_rounds, int) or self.lookback_rounds < 1:
+            raise ConfigError(f"planner option lookback_rounds: must be >= 1, got {self.lookback_rounds!r}")
+        if self.solver not in ("ipopt", "fatrop"):
+            raise ConfigError(f"planner option solver: 'ipopt' or 'fatrop', got {self.solver!r}")
+        _check_positive("margin", self.margin, allow_zero=True)
+        if not isinstance(self.obstacle_slots, int) or not 1 <= self.obstacle_slots <= 64:
+            raise ConfigError(f"planner option obstacle_slots: integer in [1, 64], got {self.obstacle_slots!r}")
+        _check_positive("obstacle_radius", self.obstacle_radius)
+        _check_positive("start_region_radius", self.start_region_radius, allow_zero=True)
+        _check_positive("effort_weight", self.effort_weight, allow_zero=True)
+        if not isinstance(self.max_iter, int) or self.max_iter < 1:
+            raise ConfigError(f"planner option max_iter: must be a positive integer, got {self.max_iter!r}")
+        _check_positive("time_limit", self.time_limit)
+        _check_positive("grid_resolution", self.grid_resolution)
+        if not 0 < self.guess_speed_fraction <= 1:
+            raise ConfigError(
+                f"planner option guess_speed_fraction: must be in (0, 1], got {self.guess_speed_fraction!r}"
+            )
+
+
+@dataclass(frozen=True, eq=False)
+class PlanningProblem:
+    """Everything the planner needs, in the robot's belief.
+
+    Attributes
+    ----------
+    model : the vehicle model (dynamics, limits, camera pose).
+    family : the reactive-set family S_r(x) (eq. ReactEllipse).
+    frustum : the camera's field of view (eq. SensorModel).
+    x0 : (nx,) initial state. goal : (3,) goal position (reached at rest).
+    bounds_lo, bounds_hi : (3,) plannable region (the server map's extent).
+    boxes_lo, boxes_hi : (n, 3) known obstacles as axis-aligned boxes.
+    start_region_lo, start_region_hi : (3,) axis-aligned box counted as observed (it contains the
+        reactive set of the start state: the paper's safety theorem assumes S_r(x(0)) observed).
+    occupancy : the belief map (used only for the graph-search guess), may be None.
+    options : :class:`PlannerOptions`.
+    """
+
+    model: VehicleModel
+    family: ReactiveSetFamily
+    frustum: PinholeFrustum
+    x0: np.ndarray
+    goal: np.ndarray
+    bounds_lo: np.ndarray
+    bounds_hi: np.ndarray
+    boxes_lo: np.ndarray
+    boxes_hi: np.ndarray
+    start_region_lo: np.ndarray
+    start_region_hi: np.ndarray
+    options: PlannerOptions = field(default_factory=PlannerOptions)
+    controller: object | None = None
+    occupancy: OccupancyMap | None = None
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        for attr in ("x0", "goal", "bounds_lo", "bounds_hi", "boxes_lo", "boxes_hi", "start_region_lo", "start_region_hi"):
+            arr = np.array(getattr(self, attr), dtype=float)
+            arr.flags.writeable = False
+            object.__setattr__(self, attr, arr)
+        if self.x0.shape != (self.model.nx,):
+            raise ConfigError(f"x0: expected shape ({self.model.nx},), got {self.x0.shape}")
+        if not np.all(np.isfinite(self.x0)):
+            raise ConfigError(f"x0: must be finite, got {self.x0}")
+        if self.goal.shape != (3,) or not np.all(np.isfinite(self.goal)):
+            raise ConfigError(f"goal: expected 3 finite numbers, got {self.goal}")
+        if self.boxes_lo.size == 0:
+            object.__setattr__(self, "boxes_lo", np.zeros((0, 3)))
+            object.__setattr__(self, "boxes_hi", np.zeros((0, 3)))
+        if self.boxes_lo.shape != self.boxes_hi.shape or self.boxes_lo.ndim != 2:
+            raise ConfigError(f"boxes: lo/hi shapes differ or are not (n, 3): {self.boxes_lo.shape}")
+
+    @property
+    def start_position(self) -> np.ndarray:
+        return np.asarray(self.model.position(self.x0), dtype=float)
+
+    def with_options(self, **changes: object) -> PlanningProblem:
+        """A copy with some options replaced (validated)."""
+        from dataclasses import replace
+
+        updated = replace(self, options=replace(self.options, **changes))
+        if "start_region_radius" in changes:
+            lo, hi = start_region(self.model, self.family, self.x0, updated.options.start_region_radius)
+            updated = replace(updated, start_region_lo=lo, start_region_hi=hi)
+        return updated
+
+    def with_start(self, x0: np.ndarray, half_size: float | None = None) -> PlanningProblem:
+        """A copy starting from another state (for replanning), keeping the obstacles.
+
+        ``half_size`` is the half-size of the observed box around the new start (default: the
+        option ``start_region_radius``); callers that know what the camera saw (the closed loop)
+        pass the largest box their map has observed.
+        """
+        from dataclasses import replace
+
+        x0 = np.asarray(x0, dtype=float)
+        half = self.options.start_region_radius if half_size is None else half_size
+        lo, hi = start_region(self.model, self.family, x0, half)
+        return replace(self, x0=x0, start_region_lo=lo, start_region_hi=hi)
+
+
+def start_region(
+    model: VehicleModel, family: ReactiveSetFamily, x0: np.ndarray, half_size: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The box counted as observed at the start: a cube of ``half_size`` around the start position,
+    grown to contain the reactive set S_r(x0) (the paper's safety theorem needs S_r(x(0)) observed
+    before the robot moves)."""
+    p0 = np.asarray(model.position(x0), dtype=float)
+    c, M = family.ellipsoid(np.asarray(x0, dtype=float))
+    c, M = np.asarray(c, dtype=float).ravel(), np.asarray(M, dtype=float)
+    extent = np.linalg.norm(M, axis=0)  # support of E along +-e_d is c_d +- |M e_d|
+    lo = np.minimum(p0 - half_size, c - extent)
+    hi = np.maximum(p0 + half_size, c + extent)
+    return lo, hi
+
+
+def problem_from_scenario(
+    scenario: Scenario,
+    belief: OccupancyMap | None = None,
+    x0: np.ndarray | None = None,
+    **options: object,
+) -> PlanningProblem:
+    """Build the planning problem of a scenario in the robot's belief.
+
+    Parameters
+    ----------
+    scenario : the scenario (vehicle, camera, start, goal, planner settings).
+    belief : the robot's map; default: the server's claim only (:func:`secure3d.world.attacks.belief_map`).
+    x0 : start state; default: the scenario's start.
+    **options : :class:`PlannerOptions` fields overriding the scenario's planner settings.
+    """
+    from dataclasses import fields
+
+    from secure3d.dynamics import model_from_spec
+    from secure3d.geometry.frustum import PinholeFrustum
+    from secure3d.reactive.controllers import BrakingController
+    from secure3d.reactive.reactive_set import family_for
+    from secure3d.world.attacks import belief_map
+
+    spec = scenario.planner
+    base = {
+        "nodes": spec.nodes,
+        "lookback": spec.lookback,
+        "lookback_steps": spec.lookback_steps,
+        "solver": spec.solver,
+        "margin": spec.margin,
+        "max_iter": spec.max_iter,
+    }
+    known = {f.name for f in fields(PlannerOptions)}
+    unknown = set(options) - known - {"reactive_family", "controller"}
+    if unknown:
+        raise ConfigError(f"unknown planner option(s): {sorted(unknown)}; known: {sorted(known)}")
+    kind = str(options.pop("reactive_family", spec.reactive_family))
+    controller_name = str(options.pop("controller", spec.controller))
+    base.update(options)
+    opts = PlannerOptions(**base)
+
+    model = model_from_spec(scenario.vehicle, scenario.camera)
+    family = family_for(model, controller=controller_name, kind=kind)
+    cam = scenario.camera
+    frustum = PinholeFrustum(hfov=cam.hfov, vfov=cam.vfov, far=cam.max_range, far_kind=cam.far_kind)
+    if x0 is None:
+        s = scenario.start
+        x0 = model.initial_state(np.array(s.position), np.array(s.velocity), s.yaw)
+    if belief is None:
+        belief = belief_map(scenario)
+    lo, hi = belief.known_obstacle_boxes()
+    start_lo, start_hi = start_region(model, family, x0, opts.start_region_radius)
+    return PlanningProblem(
+        model=model,
+        family=family,
+        frustum=frustum,
+        x0=x0,
+        goal=np.array(scenario.goal.position),
+        bounds_lo=np.array(scenario.world.bounds.lo),
+        bounds_hi=np.array(scenario.world.bounds.hi),
+        boxes_lo=lo,
+        boxes_hi=hi,
+        start_region_lo=start_lo,
+        start_region_hi=start_hi,
+        options=opts,
+        controller=BrakingController(model),
+        occupancy=belief,
+        name=scenario.name,
+    )

@@ -1,0 +1,139 @@
+"""What the planner returns: a status code plus a result record (never an exception for a solver
+failure), in the style of toppra.
+
+A :class:`PlanResult` carries the discretised trajectory of the NLP (the paper's eq. NLP), the camera
+poses and reactive-set ellipsoids at every node (eq. ReactEllipse, E = {c + M z : |z| <= 1}), the
+look-back assignment of the visibility constraint, timings and, for failures, which constraint
+families are violated and by how much.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+class PlanStatus(enum.Enum):
+    """Outcome of a planning call."""
+
+    SUCCESS = "success"
+    INFEASIBLE = "infeasible"
+    ITERATION_LIMIT = "iteration_limit"
+    SOLVER_ERROR = "solver_error"
+    INVALID_INPUT = "invalid_input"
+    NOT_CERTIFIED = "not_certified"
+
+    @property
+    def ok(self) -> bool:
+        return self is PlanStatus.SUCCESS
+
+
+@dataclass(frozen=True)
+class Violation:
+    """The first point where a plan breaks the safety condition (paper's Definition of *safe*)."""
+
+    time: float
+    point: np.ndarray
+    reason: str
+    margin: float
+
+    def __str__(self) -> str:
+        p = np.array2string(np.asarray(self.point), precision=2, separator=", ")
+        return f"t={self.time:.3f}s at {p}: {self.reason} (margin {self.margin:+.3f} m)"
+
+
+@dataclass(frozen=True)
+class Certificate:
+    """Verdict of :func:`secure3d.certify` (independent of the NLP's constraint code).
+
+    Attributes
+    ----------
+    ok : every checked manoeuvre point was observed earlier and clear of known obstacles.
+    min_margin : smallest margin over all checks (m); negative means violated.
+    min_visibility_margin, min_obstacle_margin : the same split by family (m).
+    first_violation : earliest violation in time, or None.
+    n_samples : number of trajectory times checked; n_points : manoeuvre points checked.
+    """
+
+    ok: bool
+    min_margin: float
+    min_visibility_margin: float
+    min_obstacle_margin: float
+    first_violation: Violation | None
+    n_samples: int
+    n_points: int
+
+    def __str__(self) -> str:
+        verdict = "CERTIFIED" if self.ok else "NOT CERTIFIED"
+        s = (
+            f"{verdict}: min margin {self.min_margin:+.3f} m (visibility"
+            f" {self.min_visibility_margin:+.3f}, obstacles {self.min_obstacle_margin:+.3f}),"
+            f" {self.n_samples} times, {self.n_points} manoeuvre points"
+        )
+        if self.first_violation is not None:
+            s += f"; first violation {self.first_violation}"
+        return s
+
+
+@dataclass(frozen=True, eq=False)
+class PlanResult:
+    """A planned trajectory and everything known about how it was obtained.
+
+    Attributes
+    ----------
+    status, message : outcome and a one-line reason.
+    planner : ``"secure"`` or ``"baseline"``.
+    model_name : vehicle model.
+    times : (K,) float, node times (s); states : (K, nx); controls : (K, nu).
+    camera_rotations : (K, 3, 3) world-from-optical; camera_origins : (K, 3).
+    positions : (K, 3) body-centre positions; speeds : (K,) speed (m/s).
+    ellipsoid_centers : (K, 3), ellipsoid_shapes : (K, 3, 3): reactive sets at the nodes.
+    lookback : (K,) int, node j whose frustum must contain node i's reactive set; -1 = the start
+        region. lookback_rule : ``"fixed"`` or ``"adaptive"`` (which one produced the plan).
+    build_time, solve_time : seconds spent building the NLP and inside the solver.
+    iterations : solver iterations (summed over look-back rounds).
+    violations : constraint family -> worst violation (m or unit of the family), for failures.
+    certificate : the independent check of the returned trajectory (None if not run).
+    """
+
+    status: PlanStatus
+    message: str
+    planner: str
+    model_name: str
+    times: np.ndarray
+    states: np.ndarray
+    controls: np.ndarray
+    camera_rotations: np.ndarray
+    camera_origins: np.ndarray
+    ellipsoid_centers: np.ndarray
+    ellipsoid_shapes: np.ndarray
+    positions: np.ndarray
+    speeds: np.ndarray
+    lookback: np.ndarray
+    lookback_rule: str
+    build_time: float
+    solve_time: float
+    iterations: int
+    solver: str = "ipopt"
+    violations: dict[str, float] = field(default_factory=dict)
+    certificate: Certificate | None = None
+    warm: dict | None = field(default=None, repr=False)
+
+    @property
+    def ok(self) -> bool:
+        return self.status.ok
+
+    @property
+    def final_time(self) -> float:
+        return float(self.times[-1]) if len(self.times) else float("nan")
+
+    def summary(self) -> str:
+        """One readable line."""
+        cert = "" if self.certificate is None else ("certified" if self.certificate.ok else "NOT certified")
+        return (
+            f"{self.planner:8s} {self.status.value:15s} T={self.final_time:6.2f}s"
+            f" build={self.build_time * 1e3:7.1f}ms solve={self.solve_time * 1e3:8.1f}ms"
+            f" iters={self.iterations:4d} lookback={self.lookback_rule:8s} {cert}"
+        )

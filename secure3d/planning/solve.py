@@ -1,0 +1,367 @@
+"""``secure3d.plan``: the secure minimum-time planner and its baseline.
+
+Pipeline (each step a function, the problem itself in :mod:`.problem`):
+
+1. guess: graph search on the belief map, time-scaled (:mod:`.guess`), or the rest of a previous
+   plan (warm replan, primal and multipliers);
+2. look-back assignment: the paper's fixed Δi or the adaptive rule (:mod:`.lookback`);
+3. obstacle slots: nearest known boxes per node, as NLP parameters;
+4. solve the NLP (:mod:`.collocation`, compiled once per structure and cached);
+5. adaptive rule only: re-assign on the solution and re-solve warm until stable;
+6. certify the result independently (:mod:`.certificate`); a plan that does not certify is reported
+   as ``NOT_CERTIFIED``, never as success.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from secure3d.errors import ConfigError
+from secure3d.planning import lookback as lb
+from secure3d.planning.collocation import T_MAX, T_MIN, NLPCache, TranscribedNLP, parameter_vector
+from secure3d.planning.guess import Guess, NoPathError, initial_guess
+from secure3d.planning.problem import PlanningProblem, problem_from_scenario
+from secure3d.planning.result import PlanResult, PlanStatus
+from secure3d.planning.trajectory import resample
+
+if TYPE_CHECKING:  # pragma: no cover
+    from secure3d.mapping.occupancy import OccupancyMap
+    from secure3d.world.spec import Scenario
+
+#: Shared by calls that do not pass their own cache (a simulator passes one per flight).
+DEFAULT_CACHE = NLPCache()
+
+#: Largest constraint violation accepted from a solver that reports success.
+FEASIBILITY_TOL = 1e-4
+
+_IPOPT_STATUS = {
+    "Solve_Succeeded": PlanStatus.SUCCESS,
+    "Solved_To_Acceptable_Level": PlanStatus.SUCCESS,
+    "Infeasible_Problem_Detected": PlanStatus.INFEASIBLE,
+    "Maximum_Iterations_Exceeded": PlanStatus.ITERATION_LIMIT,
+    "Maximum_WallTime_Exceeded": PlanStatus.ITERATION_LIMIT,
+    "Maximum_CpuTime_Exceeded": PlanStatus.ITERATION_LIMIT,
+}
+
+
+@dataclass
+class _Solve:
+    """One NLP solve: solution arrays, status and bookkeeping."""
+
+    status: PlanStatus
+    message: str
+    T: float
+    X: np.ndarray
+    U: np.ndarray
+    L: np.ndarray
+    w: np.ndarray
+    lam_x: np.ndarray
+    lam_g: np.ndarray
+    nlp: TranscribedNLP
+    assignment: tuple[int, ...]
+    slots: np.ndarray
+    violations: dict[str, float]
+    solve_time: float
+    iterations: int
+    cached: bool
+
+
+def _variable_bounds(problem: PlanningProblem, nlp: TranscribedNLP) -> tuple[np.ndarray, np.ndarray]:
+    lay, model = nlp.layout, problem.model
+    lbx = np.full(lay.n_w, -np.inf)
+    ubx = np.full(lay.n_w, np.inf)
+    lbx[lay.i_T], ubx[lay.i_T] = T_MIN, T_MAX
+    lbx[lay.i_X] = np.broadcast_to(model.x_lo, lay.i_X.shape)
+    ubx[lay.i_X] = np.broadcast_to(model.x_hi, lay.i_X.shape)
+    lbx[lay.i_X[0]] = problem.x0
+    ubx[lay.i_X[0]] = problem.x0
+    lbx[lay.i_U] = np.broadcast_to(model.u_lo, lay.i_U.shape)
+    ubx[lay.i_U] = np.broadcast_to(model.u_hi, lay.i_U.shape)
+    if lay.hermite:
+        lbx[lay.i_Um] = np.broadcast_to(model.u_lo, lay.i_Um.shape)
+        ubx[lay.i_Um] = np.broadcast_to(model.u_hi, lay.i_Um.shape)
+    lbx[lay.i_L] = 0.0
+    return lbx, ubx
+
+
+def _violations(nlp: TranscribedNLP, w: np.ndarray, p: np.ndarray) -> dict[str, float]:
+    g = np.asarray(nlp.g_fun(w, p)).ravel()
+    excess = np.maximum(np.maximum(nlp.lbg - g, g - nlp.ubg), 0.0)
+    return {name: float(excess[idx].max()) if len(idx) else 0.0 for name, idx in nlp.families.items()}
+
+
+def _solve_once(
+    problem: PlanningProblem,
+    planner: str,
+    assignment: tuple[int, ...],
+    T: float,
+    X: np.ndarray,
+    U: np.ndarray,
+    cache: NLPCache,
+    L: np.ndarray | None = None,
+    multipliers: tuple[tuple, np.ndarray, np.ndarray] | None = None,
+    prev_slots: np.ndarray | None = None,
+) -> _Solve:
+    nlp, cached = cache.get(problem, planner, assignment)
+    lay = nlp.layout
+    X = np.array(X, dtype=float)
+    X[0] = problem.x0
+    U = np.clip(U, problem.model.u_lo, problem.model.u_hi)
+    slots = lb.select_slots(problem, planner, X, assignment)
+    fresh = lb.initial_duals(problem, planner, X, slots, assignment)
+    if L is None or prev_slots is None or L.shape != fresh.shape:
+        L = fresh
+    else:  # keep the previous duals only for slots that still hold the same box
+        same = np.all(np.isclose(prev_slots, slots), axis=-1)
+        L = np.where(same[..., None], L, fresh)
+    w0 = lay.pack(float(np.clip(T, T_MIN, T_MAX)), X, U, L)
+    p = parameter_vector(problem, slots)
+    lbx, ubx = _variable_bounds(problem, nlp)
+    args = {"x0": w0, "p": p, "lbx": lbx, "ubx": ubx, "lbg": nlp.lbg, "ubg": nlp.ubg}
+    solver = nlp.solver
+    if multipliers is not None and multipliers[0] == nlp.key:
+        args["lam_x0"], args["lam_g0"] = multipliers[1], multipliers[2]
+        solver = nlp.get_warm_solver()
+    t0 = time.perf_counter()
+    try:
+        sol = solver(**args)
+    except RuntimeError as exc:  # CasADi raises on evaluation errors (NaN in a function, ...)
+        return _Solve(
+            PlanStatus.SOLVER_ERROR, f"solver error: {exc}".splitlines()[0], T, X, U, L, w0,
+            np.zeros(lay.n_w), np.zeros(len(nlp.lbg)), nlp, assignment, slots, {}, time.perf_counter() - t0, 0,
+            cached,
+        )
+    solve_time = time.perf_counter() - t0
+    stats = solver.stats()
+    w = np.asarray(sol["x"]).ravel()
+    Ts, Xs, Us, Ls = lay.unpack(w)
+    viol = _violations(nlp, w, p)
+    worst = max(viol.values(), default=0.0)
+    rs = str(stats.get("return_status", "unknown"))
+    status = _IPOPT_STATUS.get(rs, PlanStatus.SUCCESS if stats.get("success") else PlanStatus.SOLVER_ERROR)
+    if status is PlanStatus.SUCCESS and worst > FEASIBILITY_TOL:
+        status = PlanStatus.INFEASIBLE
+        rs += f" but constraints violated by {worst:.2e}"
+    return _Solve(
+        status=status,
+        message=rs,
+        T=Ts,
+        X=Xs,
+        U=Us,
+        L=Ls,
+        w=w,
+        lam_x=np.asarray(sol["lam_x"]).ravel(),
+        lam_g=np.asarray(sol["lam_g"]).ravel(),
+        nlp=nlp,
+        assignment=assignment,
+        slots=slots,
+        violations=viol,
+        solve_time=solve_time,
+        iterations=int(stats.get("iter_count", 0)),
+        cached=cached,
+    )
+
+
+def _precheck(problem: PlanningProblem) -> str | None:
+    """Reasons the problem cannot be solved at all (start/goal in obstacles or outside the map)."""
+    r = problem.model.body_radius
+    for label, p in (("start", problem.start_position), ("goal", problem.goal)):
+        if np.any(p < problem.bounds_lo + r - 1e-9) or np.any(p > problem.bounds_hi - r + 1e-9):
+            return f"{label} {np.round(p, 3).tolist()} is outside the map bounds (with the body radius {r} m)"
+        if len(problem.boxes_lo):
+            d = lb.min_box_distance_all(p[None], problem.boxes_lo, problem.boxes_hi)[0]
+            if d.min() < r:
+                k = int(np.argmin(d))
+                return (
+                    f"{label} {np.round(p, 3).tolist()} is inside a known obstacle (box"
+                    f" {np.round(problem.boxes_lo[k], 2).tolist()}..{np.round(problem.boxes_hi[k], 2).tolist()},"
+                    f" distance {d.min():.3f} m < body radius {r} m)"
+                )
+    return None
+
+
+def _failed(problem: PlanningProblem, planner: str, status: PlanStatus, message: str, build: float = 0.0) -> PlanResult:
+    model = problem.model
+    z = np.zeros
+    return PlanResult(
+        status=status, message=message, planner=planner, model_name=model.name,
+        times=z(0), states=z((0, model.nx)), controls=z((0, model.nu)),
+        camera_rotations=z((0, 3, 3)), camera_origins=z((0, 3)), ellipsoid_centers=z((0, 3)),
+        ellipsoid_shapes=z((0, 3, 3)), positions=z((0, 3)), speeds=z(0), lookback=z(0, int),
+        lookback_rule=problem.options.lookback, build_time=build, solve_time=0.0, iterations=0,
+        solver=problem.options.solver,
+    )
+
+
+def _result(problem: PlanningProblem, planner: str, s: _Solve, build: float, solve: float, iters: int) -> PlanResult:
+    model = problem.model
+    K = problem.options.nodes
+    times = np.linspace(0.0, s.T, K)
+    geo = lb.node_geometry(problem, s.X)
+    speeds = np.linalg.norm(np.stack([np.asarray(model.velocity(x), float).ravel() for x in s.X]), axis=1)
+    return PlanResult(
+        status=s.status,
+        message=s.message,
+        planner=planner,
+        model_name=model.name,
+        times=times,
+        states=s.X,
+        controls=s.U,
+        camera_rotations=geo["R"],
+        camera_origins=geo["o"],
+        ellipsoid_centers=geo["C"],
+        ellipsoid_shapes=geo["M"],
+        positions=geo["P"],
+        speeds=speeds,
+        lookback=np.array(s.assignment if planner == "secure" else [-1] * K, dtype=int),
+        lookback_rule=problem.options.lookback if planner == "secure" else "none",
+        build_time=build,
+        solve_time=solve,
+        iterations=iters,
+        solver=problem.options.solver,
+        violations={k: v for k, v in s.violations.items() if v > FEASIBILITY_TOL},
+        warm={"key": s.nlp.key, "w": s.w, "lam_x": s.lam_x, "lam_g": s.lam_g, "L": s.L,
+              "assignment": s.assignment, "slots": s.slots, "T": s.T, "X": s.X, "U": s.U},
+    )
+
+
+def _guess_from_warm(problem: PlanningProblem, warm: PlanResult, t_offset: float) -> Guess:
+    K = problem.options.nodes
+    times, X, U = resample(problem.model, warm.times, warm.states, warm.controls, t_offset, K)
+    X[0] = problem.x0
+    return Guess(times=times, states=X, controls=U, path=X[:, :3])
+
+
+def plan_problem(
+    problem: PlanningProblem,
+    planner: str = "secure",
+    *,
+    warm: PlanResult | None = None,
+    warm_time: float = 0.0,
+    cache: NLPCache | None = None,
+) -> PlanResult:
+    """Solve a :class:`PlanningProblem` (see :func:`plan` for the scenario-level entry point).
+
+    Parameters
+    ----------
+    problem : the problem in the robot's belief.
+    planner : ``"secure"`` (eq. NLP with reactive-set visibility and obstacle constraints) or
+        ``"baseline"`` (dynamics, limits and body-vs-known-obstacle avoidance only).
+    warm : a previous plan to start from (its remainder after ``warm_time`` seconds).
+    cache : compiled NLPs to reuse; default: a module-wide cache.
+    """
+    if planner not in ("secure", "baseline"):
+        raise ConfigError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
+    cache = DEFAULT_CACHE if cache is None else cache
+    o = problem.options
+    reason = _precheck(problem)
+    if reason is not None:
+        return _failed(problem, planner, PlanStatus.INVALID_INPUT, reason)
+    if warm is not None and warm.ok and len(warm.times) == o.nodes and warm.model_name == problem.model.name:
+        guess = _guess_from_warm(problem, warm, warm_time)
+    else:
+        warm = None
+        try:
+            guess = initial_guess(problem, secure=planner == "secure", speed_fraction=1.0 if planner == "baseline" else None)
+        except NoPathError as exc:
+            return _failed(problem, planner, PlanStatus.INFEASIBLE, str(exc))
+
+    K = o.nodes
+    if planner == "baseline":
+        assignment: tuple[int, ...] = (-1,) * K
+    elif o.lookback == "fixed":
+        assignment = lb.fixed_assignment(K, o.lookback_steps)
+    else:
+        assignment, _ = lb.adaptive_assignment(problem, guess.states)
+
+    multipliers = None
+    L0 = None
+    prev_slots = None
+    if warm is not None and warm.warm is not None and warm_time == 0.0:
+        multipliers = (warm.warm["key"], warm.warm["lam_x"], warm.warm["lam_g"])
+        L0 = warm.warm["L"]
+        prev_slots = warm.warm["slots"]
+        if planner == "secure" and o.lookback == "adaptive":
+            assignment = tuple(warm.warm["assignment"])
+
+    build = solve_t = 0.0
+    iters = 0
+    T, X, U = guess.final_time, guess.states, guess.controls
+    rounds = o.lookback_rounds if (planner == "secure" and o.lookback == "adaptive") else 1
+    best: _Solve | None = None
+    for _ in range(rounds):
+        n_before = cache.misses
+        s = _solve_once(problem, planner, assignment, T, X, U, cache, L=L0, multipliers=multipliers,
+                        prev_slots=prev_slots)
+        if cache.misses > n_before:
+            build += s.nlp.build_time
+        solve_t += s.solve_time
+        iters += s.iterations
+        if best is None or (s.status.ok and (not best.status.ok or s.T < best.T)):
+            best = s
+        if not s.status.ok or rounds == 1:
+            break
+        new_assignment = lb.refine_assignment(problem, s.X, assignment)
+        if new_assignment == assignment:
+            break
+        assignment = new_assignment
+        T, X, U, L0, multipliers, prev_slots = s.T, s.X, s.U, s.L, None, s.slots
+    s = best
+    result = _result(problem, planner, s, build, solve_t, iters)
+    if result.ok and planner == "secure" and o.certify:
+        from secure3d.planning.certificate import certify
+
+        cert = certify(result, problem)
+        status = result.status if cert.ok else PlanStatus.NOT_CERTIFIED
+        msg = result.message if cert.ok else f"solver: {result.message}; certificate: {cert}"
+        from dataclasses import replace
+
+        result = replace(result, certificate=cert, status=status, message=msg)
+    return result
+
+
+def plan(
+    scenario_or_problem: Scenario | PlanningProblem | str,
+    planner: str = "secure",
+    *,
+    belief: OccupancyMap | None = None,
+    x0: np.ndarray | None = None,
+    warm: PlanResult | None = None,
+    cache: NLPCache | None = None,
+    **options: object,
+) -> PlanResult:
+    """Plan a minimum-time trajectory in the robot's belief.
+
+    Parameters
+    ----------
+    scenario_or_problem : a :class:`~secure3d.world.spec.Scenario`, a path to a scenario YAML file,
+        or a ready :class:`PlanningProblem`.
+    planner : ``"secure"`` or ``"baseline"``.
+    belief : the robot's map (default: the server's claim, with attacks, and no sensor evidence).
+    x0 : start state (default: the scenario's start).
+    warm : a previous plan from the same start to warm-start from (primal and multipliers).
+    cache : compiled NLPs to reuse across calls.
+    **options : :class:`~secure3d.planning.problem.PlannerOptions` fields, plus ``reactive_family``
+        and ``controller``.
+
+    Returns
+    -------
+    PlanResult
+        With ``status`` SUCCESS only if the solver converged, every constraint holds and, for the
+        secure planner, the independent certificate passed.
+    """
+    from pathlib import Path
+
+    if isinstance(scenario_or_problem, (str, Path)):
+        from secure3d.world.scenario import load_scenario
+
+        scenario_or_problem = load_scenario(scenario_or_problem)
+    if isinstance(scenario_or_problem, PlanningProblem):
+        problem = scenario_or_problem.with_options(**options) if options else scenario_or_problem
+    else:
+        problem = problem_from_scenario(scenario_or_problem, belief=belief, x0=x0, **options)
+    return plan_problem(problem, planner, warm=warm, cache=cache)

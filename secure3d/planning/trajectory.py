@@ -1,0 +1,65 @@
+"""Continuous-time reading of a collocated trajectory.
+
+Trapezoidal collocation implies a quadratic state between nodes, x(t_k + τ) = x_k + τ f_k +
+τ²/(2h) (f_{k+1} - f_k), with controls linear in time (Betts 2009, section 4.6.1); we use the same
+interpolant for Hermite-Simpson plans (a slightly looser but consistent reading). The certificate
+samples it densely between nodes (the paper's Prop. 1), the tracker follows it, replans start from it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from secure3d.errors import PlanningError
+
+
+def _derivatives(model: object, states: np.ndarray, controls: np.ndarray) -> np.ndarray:
+    f_batch = getattr(model, "f_batch", None)
+    if f_batch is not None:
+        return np.asarray(f_batch(states, controls), dtype=float)
+    return np.stack([np.asarray(model.f(x, u), dtype=float).ravel() for x, u in zip(states, controls, strict=True)])
+
+
+def interpolate(
+    model: object, times: np.ndarray, states: np.ndarray, controls: np.ndarray, t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """States (n, nx) and controls (n, nu) at query times ``t`` (clipped to [times[0], times[-1]]).
+
+    Parameters
+    ----------
+    model : vehicle model providing ``f`` (and optionally ``f_batch``).
+    times : (K,) increasing node times; states : (K, nx); controls : (K, nu).
+    t : (n,) query times.
+    """
+    times = np.asarray(times, dtype=float)
+    states = np.asarray(states, dtype=float)
+    controls = np.asarray(controls, dtype=float)
+    if times.ndim != 1 or len(times) < 2 or np.any(np.diff(times) <= 0):
+        raise PlanningError(f"interpolate: node times must be increasing with >= 2 entries, got {times}")
+    t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), times[0], times[-1])
+    k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+    h = times[k + 1] - times[k]
+    tau = (t - times[k])[:, None]
+    F = _derivatives(model, states, controls)
+    x = states[k] + tau * F[k] + tau**2 / (2 * h[:, None]) * (F[k + 1] - F[k])
+    a = tau / h[:, None]
+    u = (1 - a) * controls[k] + a * controls[k + 1]
+    project = getattr(model, "project_state", None)
+    if project is not None:
+        x = np.stack([np.asarray(project(xi), dtype=float) for xi in x])
+    return x, u
+
+
+def resample(
+    model: object, times: np.ndarray, states: np.ndarray, controls: np.ndarray, t_start: float, K: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The remainder of a trajectory from ``t_start``, on K nodes equally spaced in time.
+
+    Returns node times starting at 0, states and controls: the warm start of a replan.
+    """
+    t_end = float(times[-1])
+    t_start = float(np.clip(t_start, times[0], t_end))
+    duration = max(t_end - t_start, 1e-2)
+    new_t = np.linspace(t_start, t_start + duration, K)
+    x, u = interpolate(model, times, states, controls, np.minimum(new_t, t_end))
+    return new_t - t_start, x, u

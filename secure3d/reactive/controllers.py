@@ -1,0 +1,692 @@
+"""Reactive controllers pi(x, O): what the robot does once an unseen obstacle shows up.
+
+The paper (section "The reactive set", Definition 1) only assumes a stabilising law whose
+manoeuvres stay near the take-over point; the reactive set S_r(x) bounds every manoeuvre it can
+produce. Two laws are provided:
+
+- :class:`BrakingController`: stop as hard as the limits allow (point mass: full deceleration
+  against v; quadrotor: an attitude controller turns the thrust against v, then brakes; diff drive:
+  full linear and angular deceleration). It ignores the obstacle, so its reactive set is the
+  stopping manoeuvre.
+- :class:`MPCReactiveController`: the paper's MPC (section "Results"): penalises drift from the
+  take-over point and closeness to the obstacle, within the acceleration bound (point mass).
+
+Every controller returns a control for a state, and rolls out whole manoeuvres, one at a time or
+vectorised over N initial states (``rollout_batch``), which is what makes 10,000-manoeuvre
+containment checks cheap. During the first ``latency`` seconds the held control ``u_hold`` is
+applied (the planner's last command), then the law takes over.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from secure3d.dynamics.base import VehicleModel
+from secure3d.dynamics.diff_drive import DiffDrive
+from secure3d.dynamics.integrate import _check_dt
+from secure3d.dynamics.point_mass import PointMass
+from secure3d.dynamics.quadrotor import Quadrotor
+from secure3d.errors import ConfigError
+
+#: Speed (m/s) and angular speed (rad/s) below which a manoeuvre counts as stopped.
+REST_SPEED = 1e-3
+
+
+class ReactiveController(ABC):
+    """Common interface: ``control(_batch)``, ``at_rest``, ``rollout(_batch)``.
+
+    Attributes
+    ----------
+    model : the vehicle.
+    latency : reaction delay (s) during which the held control is applied.
+    name : ``"braking"`` or ``"mpc"``.
+    """
+
+    name: str
+
+    def __init__(self, model: VehicleModel, latency: float = 0.0):
+        if not isinstance(model, VehicleModel):
+            raise ConfigError(
+                f"{type(self).__name__}.model: expected a VehicleModel, got {model!r}"
+            )
+        lat = float(latency)
+        if not math.isfinite(lat) or lat < 0 or lat > 5.0:
+            raise ConfigError(
+                f"{type(self).__name__}.latency: must be in [0, 5] s, got {latency!r}"
+            )
+        self.model = model
+        self.latency = lat
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.model.name}, latency={self.latency})"
+
+    def config(self) -> dict[str, Any]:
+        """Settings that shape the manoeuvres (stored with a fitted family, compared on load)."""
+        return {"name": self.name, "latency": self.latency}
+
+    @abstractmethod
+    def control_batch(self, X: np.ndarray, dt: float = 0.01, **context: Any) -> np.ndarray:
+        """Controls (N, nu) for states X (N, nx); ``dt`` is the step the control is held for."""
+
+    def control(self, x: np.ndarray, dt: float = 0.01, **context: Any) -> np.ndarray:
+        """Control (nu,) for one state x (nx,)."""
+        batched = {
+            k: (None if v is None else np.asarray(v, dtype=float)[None]) for k, v in context.items()
+        }
+        return self.control_batch(np.asarray(x, dtype=float)[None], dt, **batched)[0]
+
+    @abstractmethod
+    def at_rest(self, X: np.ndarray) -> np.ndarray:
+        """(N,) bool: the manoeuvre has ended (speed and rates ~0)."""
+
+    def default_t_max(self) -> float:
+        """A horizon (s) long enough for every manoeuvre from within the limits to stop."""
+        return self.latency + 8.0
+
+    def _context_for(self, X0: np.ndarray, context: dict[str, Any]) -> dict[str, Any]:
+        return context
+
+    def _hold_controls(self, X0: np.ndarray, u_hold: np.ndarray | None) -> np.ndarray:
+        if u_hold is None:
+            return self.model.nominal_control(X0)
+        U = np.broadcast_to(np.asarray(u_hold, dtype=float), (len(X0), self.model.nu))
+        return np.array(U)
+
+    def rollout_batch(
+        self,
+        X0: np.ndarray,
+        dt: float = 0.01,
+        t_max: float | None = None,
+        u_hold: np.ndarray | None = None,
+        **context: Any,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Roll out N manoeuvres at once.
+
+        Parameters
+        ----------
+        X0 : (N, nx) float, states at the moment the unknown obstacle is detected.
+        dt : integration step (s); controls are held over each step (RK4).
+        t_max : longest manoeuvre (s); default :meth:`default_t_max`.
+        u_hold : (nu,) or (N, nu) float, control held during the latency (default: the model's
+            nominal control, i.e. coast / hover).
+        **context : controller-specific per-manoeuvre data (MPC: ``obstacle_lo``,
+            ``obstacle_hi`` (N, 3)).
+
+        Returns
+        -------
+        t : (T,) float, times from detection (s).
+        X : (N, T, nx) float; rows stop changing once each manoeuvre is at rest. The run ends when
+            all are at rest or at ``t_max``.
+        """
+        dt = _check_dt(dt)
+        X = self.model.project_state(np.array(X0, dtype=float, ndmin=2))
+        if X.shape[1] != self.model.nx:
+            raise ValueError(f"X0: expected (N, {self.model.nx}), got {X.shape}")
+        t_max = self.default_t_max() if t_max is None else float(t_max)
+        n_hold = math.ceil(self.latency / dt - 1e-9)
+        n_max = max(n_hold, math.ceil(t_max / dt - 1e-9))
+        U_hold = self._hold_controls(X, u_hold)
+        context = self._context_for(X, context)
+        states = [X]
+        for k in range(n_max):
+            if k < n_hold:
+                U = U_hold
+            else:
+                rest = self.at_rest(X)
+                if rest.all():
+                    break
+                U = self.control_batch(X, dt, step_index=k - n_hold, **context)
+            X = self.model.step_batch(X, U, dt)
+            states.append(X)
+        traj = np.stack(states, axis=1)
+        return dt * np.arange(traj.shape[1]), traj
+
+    def rollout(
+        self,
+        x0: np.ndarray,
+        dt: float = 0.01,
+        t_max: float | None = None,
+        u_hold: np.ndarray | None = None,
+        **context: Any,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """One manoeuvre: ``t (T,)``, ``X (T, nx)`` (see :meth:`rollout_batch`)."""
+        batched = {
+            k: (None if v is None else np.asarray(v, dtype=float)[None]) for k, v in context.items()
+        }
+        uh = None if u_hold is None else np.asarray(u_hold, dtype=float)[None]
+        t, X = self.rollout_batch(np.asarray(x0, dtype=float)[None], dt, t_max, uh, **batched)
+        return t, X[0]
+
+
+# ------------------------------------------------------------------------------------------------
+# Braking
+# ------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class QuadrotorBrakingGains:
+    """Gains of the quadrotor braking law.
+
+    Attributes
+    ----------
+    decel_fraction : float
+        Fraction of the largest deceleration the thrust range allows in every direction
+        (``min(thrust_max - g, g - thrust_min, g sin(max_tilt))``) that the law demands, in (0, 1];
+        the rest is margin for the attitude error.
+    velocity_time_constant : float
+        Below ``decel * tau`` m/s the demanded deceleration is ``v / tau`` (tau in s): a smooth,
+        chatter-free approach to rest.
+    attitude_gain : float
+        Body rate per radian of thrust-axis error (1/s), saturated at ``max_rate``.
+    """
+
+    decel_fraction: float = 0.9
+    velocity_time_constant: float = 0.25
+    attitude_gain: float = 12.0
+
+    def __post_init__(self) -> None:
+        for name in ("decel_fraction", "velocity_time_constant", "attitude_gain"):
+            v = getattr(self, name)
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float))
+                or not math.isfinite(v)
+                or v <= 0
+            ):
+                raise ConfigError(
+                    f"QuadrotorBrakingGains.{name}: must be finite and > 0, got {v!r}"
+                )
+        if self.decel_fraction > 1:
+            raise ConfigError(
+                f"QuadrotorBrakingGains.decel_fraction: must be <= 1, got {self.decel_fraction}"
+            )
+
+
+class BrakingController(ReactiveController):
+    """Maximum braking for any model (see module docstring); ignores the obstacle.
+
+    Parameters
+    ----------
+    model : PointMass, Quadrotor or DiffDrive.
+    latency : reaction delay (s).
+    gains : quadrotor only, :class:`QuadrotorBrakingGains`.
+
+    Notes
+    -----
+    Point mass: ``a = -min(a_b, s / dt) v_hat`` with ``a_b = max_accel`` (for the box bound too,
+    conservatively). Capping at ``s / dt`` makes the last step land exactly on v = 0 (no
+    chattering); since every step maps v to the proximal point ``prox_{a_b dt |.|}(v)``, the path is
+    the straight stopping segment of length ``s^2 / (2 a_b)`` up to ``a_b dt^2 / 8``.
+    Diff drive: the same law on v (with ``max_accel``) and on omega (with ``max_ang_accel``).
+    Quadrotor: demanded acceleration ``a_des = -min(a_b, s / tau) v_hat`` with ``a_b`` the
+    deceleration available in every direction, thrust vector ``t = a_des + g e3``; body rates turn
+    the thrust axis towards ``t`` (``k * angle`` about ``z_b x t_hat``, saturated at ``max_rate``)
+    and the collective thrust is ``clip(t . z_b, thrust_min, thrust_max)``.
+    """
+
+    name = "braking"
+
+    def __init__(
+        self, model: VehicleModel, latency: float = 0.0, gains: QuadrotorBrakingGains | None = None
+    ):
+        super().__init__(model, latency)
+        if not isinstance(model, (PointMass, Quadrotor, DiffDrive)):
+            raise ConfigError(f"BrakingController.model: unsupported model {model.name!r}")
+        self.gains = QuadrotorBrakingGains() if gains is None else gains
+        if isinstance(model, Quadrotor):
+            lim = model.limits
+            g = lim.gravity
+            avail = min(lim.thrust_max - g, g - lim.thrust_min, g * math.sin(lim.max_tilt))
+            self.deceleration = self.gains.decel_fraction * avail
+        elif isinstance(model, DiffDrive):
+            self.deceleration = model.limits.max_accel
+        else:
+            self.deceleration = model.limits.max_accel
+
+    def config(self) -> dict[str, Any]:
+        """Name, latency and (quadrotor) the gains."""
+        out = super().config()
+        if isinstance(self.model, Quadrotor):
+            out["gains"] = dataclasses.asdict(self.gains)
+        return out
+
+    def default_t_max(self) -> float:
+        """Latency + twice the braking time from the top speed + settling (s)."""
+        lim = self.model.limits
+        t_brake = 2.0 * lim.max_speed / self.deceleration
+        if isinstance(self.model, DiffDrive):
+            t_brake = max(t_brake, 2.0 * lim.max_ang_speed / lim.max_ang_accel)
+        settle = (
+            12.0 * self.gains.velocity_time_constant if isinstance(self.model, Quadrotor) else 0.5
+        )
+        return self.latency + t_brake + settle
+
+    # -- laws ------------------------------------------------------------------------------------
+    def control_batch(self, X: np.ndarray, dt: float = 0.01, **context: Any) -> np.ndarray:
+        """Braking controls (N, nu) for states X (N, nx) held for ``dt`` seconds."""
+        X = np.asarray(X, dtype=float)
+        if isinstance(self.model, Quadrotor):
+            return self._quadrotor(X)[0]
+        if isinstance(self.model, DiffDrive):
+            v, w = X[:, 3], X[:, 4]
+            lim = self.model.limits
+            a = -np.sign(v) * np.minimum(lim.max_accel, np.abs(v) / dt)
+            alpha = -np.sign(w) * np.minimum(lim.max_ang_accel, np.abs(w) / dt)
+            return np.stack([a, alpha], axis=1)
+        v = X[:, 3:6]
+        s = np.linalg.norm(v, axis=1)
+        scale = np.minimum(self.deceleration, s / dt) / np.maximum(s, 1e-300)
+        return np.concatenate([-scale[:, None] * v, np.zeros((len(X), 1))], axis=1)
+
+    def _quadrotor(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Controls (N, 4) and the thrust-axis error angle (N,) of the quadrotor law."""
+        model: Quadrotor = self.model  # type: ignore[assignment]
+        lim, gains = model.limits, self.gains
+        v = X[:, 3:6]
+        s = np.linalg.norm(v, axis=1)
+        k = np.minimum(
+            self.deceleration / np.maximum(s, 1e-300), 1.0 / gains.velocity_time_constant
+        )
+        t_des = -k[:, None] * v
+        t_des[:, 2] += lim.gravity
+        d = t_des / np.linalg.norm(t_des, axis=1, keepdims=True)
+        R = model.body_rotation(X)
+        z_b = R[:, :, 2]
+        cross = np.cross(z_b, d)
+        sin_e = np.linalg.norm(cross, axis=1)
+        angle = np.arctan2(sin_e, np.einsum("ij,ij->i", z_b, d))
+        # angle / sin(angle) -> 1 as the error vanishes; the axis is then irrelevant.
+        ratio = np.where(sin_e > 1e-12, angle / np.maximum(sin_e, 1e-300), 1.0)
+        w_world = (gains.attitude_gain * ratio)[:, None] * cross
+        w_body = np.einsum("nji,nj->ni", R, w_world)
+        rate = np.linalg.norm(w_body[:, :2], axis=1)
+        w_body *= np.minimum(1.0, lim.max_rate / np.maximum(rate, 1e-300))[:, None]
+        w_body[:, 2] = 0.0
+        thrust = np.clip(np.einsum("ij,ij->i", t_des, z_b), lim.thrust_min, lim.thrust_max)
+        return np.concatenate([thrust[:, None], w_body], axis=1), angle
+
+    def at_rest(self, X: np.ndarray) -> np.ndarray:
+        """Stopped: speed < 1e-3 m/s (and |omega| < 1e-3 rad/s, attitude settled to 1e-3 rad)."""
+        X = np.asarray(X, dtype=float)
+        if isinstance(self.model, DiffDrive):
+            return (np.abs(X[:, 3]) < REST_SPEED) & (np.abs(X[:, 4]) < REST_SPEED)
+        rest = np.linalg.norm(X[:, 3:6], axis=1) < REST_SPEED
+        if isinstance(self.model, Quadrotor):
+            rest &= self._quadrotor(X)[1] < REST_SPEED
+        return rest
+
+
+# ------------------------------------------------------------------------------------------------
+# MPC (paper section "Results")
+# ------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class MPCWeights:
+    """Weights of the MPC reactive controller's cost (units make each term m^2 or m^2/s^2).
+
+    Attributes
+    ----------
+    drift : weight of ``|p_k - p_takeover|^2``: stay near the take-over point.
+    velocity : weight of ``|v_k|^2``: come to rest.
+    terminal_velocity : weight of ``|v_N|^2``.
+    effort : weight of ``|u_k|^2``.
+    repulsion : weight of ``-n . (p_k - p_takeover)``, n the unit vector from the obstacle's
+        nearest point to the vehicle: reward distance from the obstacle. At rest the vehicle
+        settles ``repulsion / (2 drift)`` metres from the take-over point, away from the obstacle.
+    """
+
+    drift: float = 1.0
+    velocity: float = 0.5
+    terminal_velocity: float = 10.0
+    effort: float = 0.02
+    repulsion: float = 0.3
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            if not ok or v < 0 or (f.name in ("drift", "effort") and v == 0):
+                raise ConfigError(
+                    f"MPCWeights.{f.name}: must be finite and >= 0 (> 0 for drift and "
+                    f"effort), got {v!r}"
+                )
+
+
+def obstacle_direction(
+    p: np.ndarray, lo: np.ndarray, hi: np.ndarray, fallback: np.ndarray
+) -> np.ndarray:
+    """Unit vectors (N, 3) from the nearest point of boxes [lo, hi] to points p (N, 3).
+
+    ``fallback`` (N, 3) is used where a point lies inside its box.
+    """
+    d = p - np.clip(p, lo, hi)
+    n = np.linalg.norm(d, axis=1, keepdims=True)
+    return np.where(n > 1e-9, d / np.maximum(n, 1e-300), fallback)
+
+
+class MPCReactiveController(ReactiveController):
+    """The paper's MPC reactive controller, for the point mass.
+
+    Every ``step`` seconds it solves, from the current state (p0, v0), over ``horizon`` steps of the
+    exact zero-order-hold double integrator::
+
+        min_u  sum_k w_d |p_k - p_to|^2 - w_r n . (p_k - p_to) + w_v |v_k|^2
+               + w_T |v_N|^2 + w_u sum_k |u_k|^2        s.t.  u_k in the acceleration bound
+
+    (p_to: the take-over point, n: unit vector from the obstacle to the vehicle), and applies u_0
+    until the next solve. The problem is a strictly convex QP with a ball (or box) constraint per
+    step. :meth:`control` solves it with CasADi/IPOPT (built once, warm-started);
+    :meth:`rollout_batch` solves it for all manoeuvres at once with accelerated projected gradient
+    (FISTA) in numpy, which the tests check against the CasADi solution.
+
+    Parameters
+    ----------
+    model : a PointMass.
+    horizon : number of MPC steps N.
+    step : MPC step and control period (s).
+    weights : :class:`MPCWeights`.
+    latency : reaction delay (s).
+    tol : FISTA stopping tolerance on the control change (m/s^2).
+    max_iter : FISTA iteration cap per solve.
+    """
+
+    name = "mpc"
+
+    def __init__(
+        self,
+        model: VehicleModel,
+        horizon: int = 15,
+        step: float = 0.1,
+        weights: MPCWeights | None = None,
+        latency: float = 0.0,
+        tol: float = 1e-7,
+        max_iter: int = 2000,
+    ):
+        super().__init__(model, latency)
+        if not isinstance(model, PointMass):
+            raise ConfigError(
+                f"MPCReactiveController.model: implemented for point_mass, got {model.name!r}"
+            )
+        if isinstance(horizon, bool) or not isinstance(horizon, int) or not 2 <= horizon <= 200:
+            raise ConfigError(
+                f"MPCReactiveController.horizon: must be an integer in [2, 200], got {horizon!r}"
+            )
+        step = float(step)
+        if not math.isfinite(step) or not 0.005 <= step <= 1.0:
+            raise ConfigError(f"MPCReactiveController.step: must be in [0.005, 1] s, got {step!r}")
+        self.horizon, self.step = horizon, step
+        self.weights = MPCWeights() if weights is None else weights
+        self.tol, self.max_iter = float(tol), int(max_iter)
+        self._build_qp()
+        self._nlp: Any = None
+        self._warm: np.ndarray | None = None
+
+    def config(self) -> dict[str, Any]:
+        """Name, latency, horizon, step and weights."""
+        return {
+            **super().config(),
+            "horizon": self.horizon,
+            "step": self.step,
+            "weights": dataclasses.asdict(self.weights),
+        }
+
+    def default_t_max(self) -> float:
+        """Latency + 8 s: braking plus the return to the settling point."""
+        return self.latency + 8.0
+
+    # -- the QP, per axis --------------------------------------------------------------------------
+    def _build_qp(self) -> None:
+        N, h, w = self.horizon, self.step, self.weights
+        k = np.arange(1, N + 1)[:, None]
+        j = np.arange(N)[None, :]
+        Gp = np.where(j < k, h * h * (k - j - 0.5), 0.0)
+        Gv = np.where(j < k, h, 0.0)
+        gN = Gv[-1]
+        H = 2 * (
+            w.drift * Gp.T @ Gp + w.velocity * Gv.T @ Gv + w.terminal_velocity * np.outer(gN, gN)
+        )
+        H += 2 * w.effort * np.eye(N)
+        one = np.ones(N)
+        self._Gp, self._Gv, self._H = Gp, Gv, H
+        # Linear term b = bp * (p0 - p_to) + bv * v0 + bn * n, per axis.
+        self._bp = 2 * w.drift * Gp.T @ one
+        self._bv = (
+            2 * w.drift * Gp.T @ (h * k[:, 0])
+            + 2 * w.velocity * Gv.T @ one
+            + 2 * w.terminal_velocity * gN
+        )
+        self._bn = -w.repulsion * Gp.T @ one
+        self._lipschitz = float(np.linalg.eigvalsh(H).max())
+        self._Hinv = np.linalg.inv(H)
+
+    def _project(self, U: np.ndarray) -> np.ndarray:
+        a = self.model.limits.max_accel
+        if self.model.limits.accel_norm == "box":
+            return np.clip(U, -a, a)
+        n = np.sqrt(U[..., 0] ** 2 + U[..., 1] ** 2 + U[..., 2] ** 2)[..., None]
+        return U * np.minimum(1.0, a / np.maximum(n, 1e-300))
+
+    def _feasible(self, U: np.ndarray) -> np.ndarray:
+        a = self.model.limits.max_accel * (1 + 1e-12)
+        if self.model.limits.accel_norm == "box":
+            return np.abs(U).max(axis=(1, 2)) <= a
+        return (U[..., 0] ** 2 + U[..., 1] ** 2 + U[..., 2] ** 2).max(axis=1) <= a * a
+
+    def solve_batch(
+        self,
+        X: np.ndarray,
+        takeover: np.ndarray,
+        normal: np.ndarray,
+        warm: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, int]:
+        """Solve the MPC QP for N states at once.
+
+        The QP is strictly convex, so where the unconstrained minimiser ``-H^-1 b`` satisfies the
+        acceleration bound it is the answer (one matrix product); the others are solved by FISTA
+        (accelerated projected gradient) from ``warm``.
+
+        Parameters
+        ----------
+        X : (N, 7) states. takeover : (N, 3) take-over points. normal : (N, 3) unit vectors from
+            the obstacle to the vehicle.
+        warm : (N, horizon, 3) initial guess (e.g. the previous plan shifted).
+
+        Returns
+        -------
+        U : (N, horizon, 3) optimal accelerations. iterations : FISTA iterations used (0 if none).
+        """
+        p0, v0 = X[:, 0:3], X[:, 3:6]
+        b = (
+            self._bp[None, :, None] * (p0 - takeover)[:, None, :]
+            + self._bv[None, :, None] * v0[:, None, :]
+            + self._bn[None, :, None] * normal[:, None, :]
+        )
+        U = -np.matmul(self._Hinv, b)
+        active = np.flatnonzero(~self._feasible(U))
+        if active.size == 0:
+            return U, 0
+        start = U[active] if warm is None else warm[active]
+        U[active], iterations = self._fista(b[active], self._project(start))
+        return U, iterations
+
+    def _fista(self, b: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, int]:
+        Y, t = U.copy(), 1.0
+        step = 1.0 / self._lipschitz
+        for it in range(1, self.max_iter + 1):
+            U_new = self._project(Y - step * (np.matmul(self._H, Y) + b))
+            change = float(np.abs(U_new - U).max(initial=0.0))
+            t_new = 0.5 * (1 + math.sqrt(1 + 4 * t * t))
+            Y = U_new + ((t - 1) / t_new) * (U_new - U)
+            U, t = U_new, t_new
+            if change < self.tol:
+                return U, it
+        return U, self.max_iter
+
+    # -- CasADi ------------------------------------------------------------------------------------
+    def _casadi_solver(self) -> Any:
+        if self._nlp is None:
+            N, a = self.horizon, self.model.limits.max_accel
+            u = ca.SX.sym("u", N, 3)
+            par = ca.SX.sym("par", 12)
+            p0, v0, pto, n = par[0:3].T, par[3:6].T, par[6:9].T, par[9:12].T
+            k = ca.DM(np.arange(1, N + 1))
+            w = self.weights
+            P = ca.repmat(p0, N, 1) + self.step * ca.mtimes(k, v0) + ca.mtimes(ca.DM(self._Gp), u)
+            V = ca.repmat(v0, N, 1) + ca.mtimes(ca.DM(self._Gv), u)
+            E = P - ca.repmat(pto, N, 1)
+            cost = (
+                w.drift * ca.sumsqr(E)
+                - w.repulsion * ca.sum1(ca.mtimes(E, n.T))
+                + w.velocity * ca.sumsqr(V)
+                + w.terminal_velocity * ca.sumsqr(V[N - 1, :])
+                + w.effort * ca.sumsqr(u)
+            )
+            x = ca.reshape(u, -1, 1)
+            opts = {
+                "ipopt.print_level": 0,
+                "print_time": False,
+                "ipopt.tol": 1e-12,
+                "ipopt.sb": "yes",
+            }
+            if self.model.limits.accel_norm == "ball":
+                g = ca.sum2(u * u) - a * a
+                self._nlp = (
+                    ca.nlpsol("mpc", "ipopt", {"x": x, "p": par, "f": cost, "g": g}, opts),
+                    True,
+                )
+            else:
+                self._nlp = (ca.nlpsol("mpc", "ipopt", {"x": x, "p": par, "f": cost}, opts), False)
+        return self._nlp
+
+    def solve(self, x: np.ndarray, takeover: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """Solve the MPC for one state with CasADi/IPOPT: (horizon, 3) accelerations."""
+        solver, has_g = self._casadi_solver()
+        N, a = self.horizon, self.model.limits.max_accel
+        par = np.concatenate([x[0:3], x[3:6], takeover, normal])
+        args: dict[str, Any] = {
+            "p": par,
+            "x0": np.zeros(3 * N) if self._warm is None else self._warm,
+        }
+        if has_g:
+            args.update(lbg=-np.inf, ubg=0.0)
+        else:
+            args.update(lbx=-a, ubx=a)
+        sol = solver(**args)
+        self._warm = np.array(sol["x"]).ravel()
+        return self._warm.reshape(3, N).T
+
+    def control_batch(self, X: np.ndarray, dt: float = 0.01, **context: Any) -> np.ndarray:
+        """MPC controls (N, 4) (yaw rate 0), solved batched; context: ``obstacle_lo``,
+        ``obstacle_hi`` (N, 3) and ``takeover`` (N, 3) (default: the current positions)."""
+        X = np.asarray(X, dtype=float)
+        lo, hi = context["obstacle_lo"], context["obstacle_hi"]
+        takeover = context.get("takeover")
+        takeover = X[:, 0:3] if takeover is None else takeover
+        n = obstacle_direction(X[:, 0:3], lo, hi, -_unit(X[:, 3:6]))
+        U, _ = self.solve_batch(X, takeover, n)
+        return np.concatenate([U[:, 0, :], np.zeros((len(X), 1))], axis=1)
+
+    def control(
+        self,
+        x: np.ndarray,
+        dt: float = 0.01,
+        obstacle: Any = None,
+        takeover_point: Any = None,
+        **_: Any,
+    ) -> np.ndarray:
+        """The MPC control (4,) for one state, solved with CasADi.
+
+        Parameters
+        ----------
+        x : (7,) state.
+        obstacle : (3,) point, or a pair/array ``(lo, hi)`` of box corners (2, 3).
+        takeover_point : (3,) the take-over point (default: the current position).
+        """
+        x = np.asarray(x, dtype=float)
+        lo, hi = _obstacle_box(obstacle)
+        to = x[0:3] if takeover_point is None else np.asarray(takeover_point, dtype=float)
+        n = obstacle_direction(x[None, 0:3], lo[None], hi[None], -_unit(x[None, 3:6]))[0]
+        u = self.solve(x, to, n)[0]
+        return np.concatenate([u, [0.0]])
+
+    def at_rest(self, X: np.ndarray) -> np.ndarray:
+        """Speed below 1e-3 m/s (the rollout also requires the applied control to vanish)."""
+        return np.linalg.norm(np.asarray(X, dtype=float)[:, 3:6], axis=1) < REST_SPEED
+
+    def rollout_batch(
+        self,
+        X0: np.ndarray,
+        dt: float = 0.01,
+        t_max: float | None = None,
+        u_hold: np.ndarray | None = None,
+        **context: Any,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Roll out N MPC manoeuvres (see :meth:`ReactiveController.rollout_batch`).
+
+        Context: ``obstacle_lo``, ``obstacle_hi`` (N, 3) (required) and ``takeover`` (N, 3)
+        (default: the initial positions, where the obstacle was detected). The MPC is re-solved
+        every ``step`` seconds (rounded to whole ``dt``), warm-started from its shifted previous
+        plan; a manoeuvre ends when its speed and its control both vanish.
+        """
+        dt = _check_dt(dt)
+        X = np.array(X0, dtype=float, ndmin=2)
+        if "obstacle_lo" not in context or "obstacle_hi" not in context:
+            raise ConfigError(
+                "MPCReactiveController.rollout_batch: needs obstacle_lo and obstacle_hi (N, 3)"
+            )
+        lo = np.broadcast_to(np.asarray(context["obstacle_lo"], dtype=float), X[:, 0:3].shape)
+        hi = np.broadcast_to(np.asarray(context["obstacle_hi"], dtype=float), X[:, 0:3].shape)
+        takeover = context.get("takeover")
+        takeover = X[:, 0:3].copy() if takeover is None else np.asarray(takeover, dtype=float)
+        t_max = self.default_t_max() if t_max is None else float(t_max)
+        n_hold = math.ceil(self.latency / dt - 1e-9)
+        n_max = max(n_hold, math.ceil(t_max / dt - 1e-9))
+        period = max(1, round(self.step / dt))
+        U_hold = self._hold_controls(X, u_hold)
+        states, plan, U = [X], None, U_hold
+        for k in range(n_max):
+            if k >= n_hold and (k - n_hold) % period == 0:
+                if (
+                    plan is not None
+                    and (self.at_rest(X) & (np.abs(U[:, :3]).max(axis=1) < REST_SPEED)).all()
+                ):
+                    break
+                n = obstacle_direction(X[:, 0:3], lo, hi, -_unit(X[:, 3:6]))
+                warm = None if plan is None else np.concatenate([plan[:, 1:], plan[:, -1:]], axis=1)
+                plan, _ = self.solve_batch(X, takeover, n, warm)
+                U = np.concatenate([plan[:, 0, :], np.zeros((len(X), 1))], axis=1)
+            elif k < n_hold:
+                U = U_hold
+            X = self.model.step_batch(X, U, dt)
+            states.append(X)
+        traj = np.stack(states, axis=1)
+        return dt * np.arange(traj.shape[1]), traj
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.where(n > 1e-12, v / np.maximum(n, 1e-300), 0.0)
+
+
+def _obstacle_box(obstacle: Any) -> tuple[np.ndarray, np.ndarray]:
+    if obstacle is None:
+        raise ConfigError(
+            "MPCReactiveController.control: an obstacle (point or (lo, hi) box) is required"
+        )
+    arr = np.asarray(obstacle, dtype=float)
+    if arr.shape == (3,):
+        return arr, arr
+    if arr.shape == (2, 3) and np.all(arr[0] <= arr[1]):
+        return arr[0], arr[1]
+    raise ConfigError(
+        "obstacle: expected a point (3,) or box corners (2, 3) with lo <= hi, "
+        f"got shape {arr.shape}"
+    )

@@ -1,0 +1,444 @@
+"""``secure3d.simulate``: the paper's Algorithm 1 in closed loop, against the true world.
+
+Reads like the block diagram::
+
+    plan  <- solve(belief)                               # line 1 of Algorithm 1
+    loop:  u <- tracker(x, plan(t))                       # follow the plan
+           x <- vehicle.step(x, u)                        # RK4, fixed step
+           at each camera frame: depth <- ray cast(truth); belief <- insert(depth)
+           if the frame revealed an unknown obstacle and the rest of the plan is no longer safe:
+               u <- reactive controller pi(x, O) until at rest  # the evasive manoeuvre
+               plan <- solve(belief) from the current state     # "go to line 1"
+    collisions: swept body capsule between steps vs the true world (python-fcl)
+
+A solver failure is never a reason to continue on an uncertified plan: the robot brakes and retries.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from secure3d.errors import SimulationError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from secure3d.planning.result import PlanResult
+    from secure3d.world.spec import Scenario
+
+#: Pixels of a frame that must land in voxels the robot did not know as obstacles before the frame
+#: for it to count as revealing something new (a few, against depth noise).
+NEW_EVIDENCE_PIXELS = 3
+#: The robot counts as stopped below this speed (m/s) before it replans.
+STOP_SPEED = 0.05
+#: Goal reached: within the goal tolerance and slower than this (m/s).
+ARRIVAL_SPEED = 0.25
+#: Seconds between retries of a failed replan (the robot holds still meanwhile).
+REPLAN_RETRY = 0.5
+
+
+@dataclass(frozen=True)
+class SimEvent:
+    """Something that happened during a run, at simulation time ``time`` (s)."""
+
+    time: float
+    kind: str
+    detail: str = ""
+
+    def __str__(self) -> str:
+        return f"[{self.time:6.2f}s] {self.kind}: {self.detail}"
+
+
+@dataclass(frozen=True, eq=False)
+class SimResult:
+    """Outcome of one closed-loop run.
+
+    Attributes
+    ----------
+    collided, collision_time, collision_obstacles : whether and when the body touched the true world.
+    reached_goal, time_to_goal : arrival at rest within the goal tolerance.
+    min_clearance : smallest body-to-world distance over the run (m).
+    times (T,), states (T, nx), positions (T, 3), speeds (T,) : the realised motion.
+    events : frames with detections, take-overs, replans, failures, in order.
+    plans : (time, PlanResult) of every plan followed.
+    detection_time, detection_point : first frame that saw a hidden obstacle, and where the robot was.
+    frames, takeovers, replans : counts. solve_times : wall time of every plan call (s).
+    wall_time : the whole run's wall time (s); real_time_factor = simulated / wall time.
+    """
+
+    scenario: str
+    planner: str
+    seed: int
+    collided: bool
+    collision_time: float | None
+    collision_obstacles: tuple[str, ...]
+    reached_goal: bool
+    time_to_goal: float | None
+    min_clearance: float
+    times: np.ndarray
+    states: np.ndarray
+    positions: np.ndarray
+    speeds: np.ndarray
+    events: tuple[SimEvent, ...]
+    plans: tuple[tuple[float, PlanResult], ...]
+    detection_time: float | None
+    detection_point: np.ndarray | None
+    frames: int
+    takeovers: int
+    replans: int
+    solve_times: tuple[float, ...]
+    wall_time: float
+    outputs: dict[str, Path] = field(default_factory=dict)
+
+    @property
+    def sim_time(self) -> float:
+        return float(self.times[-1]) if len(self.times) else 0.0
+
+    @property
+    def real_time_factor(self) -> float:
+        return self.sim_time / max(self.wall_time, 1e-9)
+
+    @property
+    def outcome(self) -> str:
+        if self.collided:
+            return "collided"
+        if self.reached_goal:
+            return "reached goal"
+        if not self.plans:
+            return "no plan"
+        return "did not arrive"
+
+    def summary(self) -> str:
+        """A few readable lines."""
+        goal = f"{self.time_to_goal:.2f} s" if self.time_to_goal is not None else "-"
+        det = f"{self.detection_time:.2f} s" if self.detection_time is not None else "never"
+        solve = f"{1e3 * np.median(self.solve_times):.0f} ms median" if self.solve_times else "-"
+        return (
+            f"{self.scenario} / {self.planner}: {self.outcome.upper()}"
+            + (f" with {', '.join(self.collision_obstacles)} at t={self.collision_time:.2f} s" if self.collided else "")
+            + f"\n  time to goal {goal}, min clearance {self.min_clearance:.3f} m, hidden obstacle seen {det}"
+            + f"\n  frames {self.frames}, take-overs {self.takeovers}, replans {self.replans}, solves {solve}"
+            + f"\n  simulated {self.sim_time:.2f} s in {self.wall_time:.2f} s wall ({self.real_time_factor:.1f}x real time)"
+        )
+
+
+class _Loop:
+    """State of one closed-loop run (kept out of SimResult so the result stays plain data)."""
+
+    def __init__(self, scenario: Scenario, planner: str, seed: int, options: dict, cache: object) -> None:
+        from secure3d.planning.collocation import NLPCache
+        from secure3d.planning.problem import problem_from_scenario
+        from secure3d.reactive.controllers import BrakingController
+        from secure3d.simulation.camera import DepthCamera
+        from secure3d.simulation.collision import CollisionWorld
+        from secure3d.simulation.scene import world_trimesh
+        from secure3d.simulation.tracking import make_tracker
+        from secure3d.world.attacks import belief_map, true_obstacles
+
+        self.scenario = scenario
+        self.planner = planner
+        self.truth = true_obstacles(scenario)
+        try:
+            mesh = world_trimesh(self.truth.boxes, self.truth.meshes, self.truth.voxel_boxes)
+            self.camera = DepthCamera(scenario.camera, mesh, rng=np.random.default_rng(seed))
+            self.collision = CollisionWorld(self.truth.boxes, self.truth.meshes, self.truth.voxel_boxes)
+        except (ValueError, RuntimeError) as exc:
+            raise SimulationError(f"{scenario.name}: cannot build the true world: {exc}") from exc
+        self.belief = belief_map(scenario)
+        self.problem = problem_from_scenario(scenario, belief=self.belief, **options)
+        self.model = self.problem.model
+        self.brake = BrakingController(self.model)
+        self.tracker = make_tracker(self.model)
+        self.cache = cache if cache is not None else NLPCache()
+        self.hidden = set(scenario.hidden_obstacles)
+
+    def refresh_obstacles(self) -> None:
+        lo, hi = self.belief.known_obstacle_boxes()
+        self.problem = dataclasses.replace(self.problem, boxes_lo=lo, boxes_hi=hi)
+
+
+def _unexplained_hits(belief: object, points: np.ndarray) -> np.ndarray:
+    """Hits not explained by a known obstacle within one voxel: evidence of something new.
+
+    A surface lying exactly on a voxel boundary (a wall at x = 8.0 m with 0.1 m voxels) is reported
+    in the voxel in front of it half of the time; that is not a new obstacle.
+    """
+    unexplained = ~belief.is_known_obstacle(points)
+    idx = np.flatnonzero(unexplained)
+    if len(idx):
+        res = belief.resolution
+        offsets = res * np.array([o for o in np.ndindex(3, 3, 3)], dtype=float) - res
+        near = belief.is_known_obstacle((points[idx, None, :] + offsets[None]).reshape(-1, 3))
+        unexplained[idx] = ~near.reshape(len(idx), -1).any(axis=1)
+    return unexplained
+
+
+def _path_clearance(loop: _Loop, plan: PlanResult, t_rel: float, lo: np.ndarray, hi: np.ndarray) -> float:
+    """Smallest distance from the rest of the planned body path to the boxes, minus the body radius."""
+    from secure3d.planning.trajectory import interpolate
+
+    t = np.arange(t_rel, plan.final_time, 0.02)
+    if len(t) == 0 or len(lo) == 0:
+        return float("inf")
+    X, _ = interpolate(loop.model, plan.times, plan.states, plan.controls, t)
+    P = np.stack([np.asarray(loop.model.position(x), float).ravel() for x in X])
+    q = np.clip(P[:, None, :], lo[None], hi[None])
+    return float(np.linalg.norm(P[:, None, :] - q, axis=-1).min() - loop.model.body_radius)
+
+
+def _plan_unsafe(loop: _Loop, plan: PlanResult, plan_problem_: object, t_rel: float) -> str | None:
+    """Why the rest of ``plan`` (from ``t_rel`` on) is no longer safe in the updated belief, or None."""
+    from secure3d.planning.certificate import certify
+
+    if loop.planner == "secure":
+        judged = dataclasses.replace(
+            plan_problem_, boxes_lo=loop.problem.boxes_lo, boxes_hi=loop.problem.boxes_hi
+        )
+        cert = certify(plan, judged, t_from=t_rel)
+        return None if cert.ok else str(cert.first_violation)
+    # The baseline only promises a collision-free path: react when the new evidence brings an obstacle
+    # into the body's planned path.
+    after = _path_clearance(loop, plan, t_rel, loop.problem.boxes_lo, loop.problem.boxes_hi)
+    before = _path_clearance(loop, plan, t_rel, plan_problem_.boxes_lo, plan_problem_.boxes_hi)
+    if after < 0.0 and after < before - 1e-3:
+        return f"an obstacle seen in flight blocks the planned path (clearance {after:+.3f} m)"
+    return None
+
+
+def simulate(
+    scenario: Scenario | str | Path,
+    planner: str = "secure",
+    seed: int = 0,
+    rrd: str | Path | None = None,
+    png: str | Path | None = None,
+    *,
+    cache: object | None = None,
+    max_replans: int = 8,
+    frame_log_every: int = 2,
+    belief_log_every: int = 5,
+    **options: object,
+) -> SimResult:
+    """Fly a scenario in closed loop (the paper's Algorithm 1) and report what happened.
+
+    Parameters
+    ----------
+    scenario : a Scenario or the path of a scenario YAML file.
+    planner : ``"secure"`` or ``"baseline"``.
+    seed : seeds the camera noise and dropout (runs are deterministic for a seed).
+    rrd : write a Rerun recording of the run there (atomically); replay with ``rerun FILE.rrd``.
+    png : write the top-down figure of the run there (atomically).
+    cache : an :class:`~secure3d.planning.collocation.NLPCache` shared across runs.
+    max_replans : give up (robot holds still) after this many failed or successful replans.
+    frame_log_every, belief_log_every : decimation of camera frames and belief voxels in the recording.
+    **options : planner options (see :class:`~secure3d.planning.problem.PlannerOptions`).
+    """
+    from secure3d.planning.solve import plan_problem
+    from secure3d.planning.trajectory import interpolate
+
+    if isinstance(scenario, (str, Path)):
+        from secure3d.world.scenario import load_scenario
+
+        scenario = load_scenario(scenario)
+    if planner not in ("secure", "baseline"):
+        raise SimulationError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
+    wall0 = time.perf_counter()
+    loop = _Loop(scenario, planner, seed, dict(options), cache)
+    model, spec = loop.model, scenario.simulation
+    dt = spec.dt
+    frame_period = 1.0 / scenario.camera.rate_hz
+    r = model.body_radius
+    goal = np.asarray(scenario.goal.position)
+
+    recorder = None
+    if rrd is not None:
+        from secure3d.viz.rerun_log import RerunRecorder, recording_id
+
+        recorder = RerunRecorder(rrd, recording_id=recording_id(f"{scenario.name}-{planner}", seed))
+    try:
+        result = _run(loop, recorder, dt, frame_period, r, goal, spec.time_limit, max_replans,
+                      frame_log_every, belief_log_every, seed, plan_problem, interpolate, wall0)
+    except BaseException:
+        if recorder is not None:
+            recorder.abort()
+        raise
+    outputs: dict[str, Path] = {}
+    if recorder is not None:
+        outputs["rrd"] = recorder.close()
+    if png is not None:
+        from secure3d.viz.figures import top_down_figure
+
+        outputs["png"] = top_down_figure(
+            scenario.world.bounds,
+            scenario.world.boxes,
+            true_meshes=scenario.world.meshes,
+            out_path=png,
+            hidden_names=scenario.hidden_obstacles,
+            plans=[p for _, p in result.plans[:1]],
+            realised_paths={planner: result.positions},
+            detection_points=[result.detection_point] if result.detection_point is not None else None,
+            start=np.asarray(scenario.start.position),
+            goal=goal,
+            collision_points=[result.positions[-1]] if result.collided else (),
+            title=f"{scenario.name}: {planner} ({result.outcome})",
+        )
+    return dataclasses.replace(result, outputs=outputs)
+
+
+def _run(loop, rec, dt, frame_period, r, goal, time_limit, max_replans, frame_log_every,
+         belief_log_every, seed, plan_problem, interpolate, wall0) -> SimResult:
+    scenario, model = loop.scenario, loop.model
+    events: list[SimEvent] = []
+    plans: list[tuple[float, PlanResult]] = []
+    solve_times: list[float] = []
+
+    def event(t: float, kind: str, detail: str = "", level: str = "INFO") -> None:
+        events.append(SimEvent(t, kind, detail))
+        if rec is not None:
+            rec.log_event(t, f"{kind}: {detail}", level)
+
+    def sense(t: float, x: np.ndarray, frame_no: int) -> tuple[bool, set[str]]:
+        """Capture a frame, insert it, return (new obstacle evidence?, hidden obstacles seen)."""
+        R, o = model.camera_pose(x)
+        R, o = np.asarray(R, float), np.asarray(o, float).ravel()
+        frame = loop.camera.render(R, o)
+        pts = frame.points_world()
+        new = False
+        if len(pts):
+            new = int(_unexplained_hits(loop.belief, pts).sum()) >= NEW_EVIDENCE_PIXELS
+        cam = loop.camera
+        loop.belief.insert_depth_image(
+            frame.depth, (cam.fx, cam.fy, cam.cx, cam.cy), R, o, scenario.camera.max_range
+        )
+        if rec is not None and frame_no % frame_log_every == 0:
+            rec.log_camera(t, R, o, cam.fx, cam.fy, scenario.camera.width, scenario.camera.height, frame.depth)
+        if rec is not None and frame_no % belief_log_every == 0:
+            occ = loop.belief.known_obstacle_voxels()
+            if len(occ):
+                rec.log_belief(t, occ, loop.belief.trust(occ), loop.belief.resolution)
+        return new, set(frame.hit_names()) & loop.hidden
+
+    def make_plan(t: float, x: np.ndarray) -> PlanResult | None:
+        loop.refresh_obstacles()
+        problem = loop.problem if t == 0.0 else loop.problem.with_start(x)
+        t0 = time.perf_counter()
+        result = plan_problem(problem, loop.planner, cache=loop.cache)
+        solve_times.append(time.perf_counter() - t0)
+        if not result.ok:
+            event(t, "plan failed", f"{result.status.value}: {result.message}", "WARN")
+            return None
+        plans.append((t, result))
+        event(t, "plan", f"T={result.final_time:.2f}s solve={1e3 * solve_times[-1]:.0f}ms")
+        if rec is not None:
+            rec.log_plan(t, result, label=loop.planner)
+            rec.log_scalar(t, "solve_time_ms", 1e3 * solve_times[-1])
+        return result
+
+    if rec is not None:
+        from secure3d.world.attacks import server_claim
+
+        claim = server_claim(scenario)
+        rec.log_world(
+            true_boxes=loop.truth.boxes, true_meshes=loop.truth.meshes,
+            claimed_boxes=claim.boxes, claimed_meshes=claim.meshes,
+            hidden_names=tuple(loop.hidden), bounds=scenario.world.bounds,
+        )
+
+    x = np.asarray(loop.problem.x0, dtype=float)
+    t = 0.0
+    frame_no = 0
+    sense(t, x, frame_no)
+    next_frame = frame_period
+    current = make_plan(0.0, x)
+    plan_start = 0.0
+    plan_problem_snapshot = loop.problem
+    mode = "follow" if current is not None else "hold"
+    last_attempt = 0.0
+    replans = takeovers = 0
+    detection_time = None
+    detection_point = None
+    collided = False
+    collision_time = None
+    collision_names: tuple[str, ...] = ()
+    reached = False
+    time_to_goal = None
+    min_clear = float(loop.collision.clearance(model.position(x), r))
+    T_log: list[float] = [t]
+    X_log: list[np.ndarray] = [x.copy()]
+
+    n_steps = int(np.ceil(time_limit / dt))
+    for _ in range(n_steps):
+        # ---- sense ---------------------------------------------------------------------------
+        if t + 1e-9 >= next_frame:
+            frame_no += 1
+            next_frame += frame_period
+            new, hidden_seen = sense(t, x, frame_no)
+            if hidden_seen and detection_time is None:
+                detection_time, detection_point = t, np.asarray(model.position(x), float).copy()
+                event(t, "hidden obstacle seen", ", ".join(sorted(hidden_seen)), "WARN")
+            if new and mode == "follow" and current is not None:
+                loop.refresh_obstacles()
+                why = _plan_unsafe(loop, current, plan_problem_snapshot, t - plan_start)
+                if why is not None:
+                    mode = "brake"
+                    takeovers += 1
+                    event(t, "take-over", why, "WARN")
+        # ---- act -----------------------------------------------------------------------------
+        if mode == "follow":
+            x_ref, u_ref = interpolate(model, current.times, current.states, current.controls,
+                                       np.array([t - plan_start]))
+            u = loop.tracker.control(x, x_ref[0], u_ref[0])
+        elif mode == "brake":
+            u = loop.brake.control(x)
+            if float(np.linalg.norm(model.velocity(x))) < STOP_SPEED:
+                mode = "hold"
+                event(t, "stopped", "reactive manoeuvre complete")
+                last_attempt = -np.inf
+        if mode == "hold":
+            u = loop.brake.control(x)
+            if replans < max_replans and t - last_attempt >= REPLAN_RETRY:
+                last_attempt = t
+                replans += 1
+                new_plan = make_plan(t, x)
+                if new_plan is not None:
+                    current, plan_start, mode = new_plan, t, "follow"
+                    plan_problem_snapshot = loop.problem.with_start(x)
+        # ---- integrate and check against the truth ---------------------------------------------
+        p_prev = np.asarray(model.position(x), float).ravel()
+        x = np.asarray(model.step(x, u, dt), dtype=float)
+        t += dt
+        p_new = np.asarray(model.position(x), float).ravel()
+        T_log.append(t)
+        X_log.append(x.copy())
+        if loop.collision.swept_collides(p_prev, p_new, r):
+            collided, collision_time = True, t
+            collision_names = loop.collision.contact_obstacles(p_prev, p_new, r)
+            event(t, "collision", ", ".join(collision_names), "ERROR")
+            break
+        clear = float(loop.collision.clearance(p_new, r))
+        min_clear = min(min_clear, clear)
+        speed = float(np.linalg.norm(model.velocity(x)))
+        if rec is not None and len(T_log) % 5 == 0:
+            rec.log_state(t, p_new, np.asarray(model.velocity(x), float).ravel(), speed, clear)
+        if np.linalg.norm(p_new - goal) <= scenario.goal.tolerance and speed <= ARRIVAL_SPEED:
+            reached, time_to_goal = True, t
+            event(t, "goal reached", f"{t:.2f} s")
+            break
+    else:
+        event(t, "time limit", f"{time_limit:.1f} s without reaching the goal", "WARN")
+
+    states = np.array(X_log)
+    positions = np.stack([np.asarray(model.position(s_), float).ravel() for s_ in states])
+    speeds = np.linalg.norm(np.stack([np.asarray(model.velocity(s_), float).ravel() for s_ in states]), axis=1)
+    return SimResult(
+        scenario=scenario.name, planner=loop.planner, seed=seed, collided=collided,
+        collision_time=collision_time, collision_obstacles=tuple(collision_names), reached_goal=reached,
+        time_to_goal=time_to_goal, min_clearance=min_clear, times=np.array(T_log), states=states,
+        positions=positions, speeds=speeds, events=tuple(events), plans=tuple(plans),
+        detection_time=detection_time, detection_point=detection_point, frames=frame_no + 1,
+        takeovers=takeovers, replans=replans, solve_times=tuple(solve_times),
+        wall_time=time.perf_counter() - wall0,
+    )

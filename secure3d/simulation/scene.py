@@ -1,0 +1,158 @@
+"""The true world as triangle meshes, for the simulator's camera and figures.
+
+Boxes, mesh obstacles and (optionally) occupied voxels of an OctoMap become one labelled
+:class:`trimesh.Trimesh`: ``mesh.face_attributes["obstacle"][i]`` is the index into
+``mesh.metadata["obstacle_names"]`` of the obstacle that face ``i`` belongs to. The depth camera
+uses the label of the triangle a ray hits to tell which obstacle it saw (DESIGN.md section 2: only
+the simulator sees the truth).
+
+Voxel boxes are passed as one ``(n, 2, 3)`` array of ``[lo, hi]`` corners and share the single name
+:data:`VOXEL_NAME`: an OctoMap has no per-voxel identity worth reporting.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import trimesh
+
+from secure3d.errors import GeometryError
+from secure3d.world.spec import Box, MeshObstacle
+
+#: Name under which all voxel boxes of a world are reported.
+VOXEL_NAME = "voxels"
+
+#: Unit cube centred at the origin (8 vertices, 12 outward-wound triangles), taken from trimesh so
+#: every box mesh has the same winding as ``trimesh.creation.box``.
+_UNIT_BOX = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+_UNIT_BOX_VERTICES = np.asarray(_UNIT_BOX.vertices, dtype=float)
+_UNIT_BOX_FACES = np.asarray(_UNIT_BOX.faces, dtype=np.int64)
+
+
+def check_voxel_boxes(voxel_boxes: object) -> np.ndarray:
+    """Return ``voxel_boxes`` as a ``(n, 2, 3)`` float array of ``[lo, hi]`` corners.
+
+    Raises
+    ------
+    GeometryError
+        Wrong shape, non-finite values or a box with ``hi <= lo`` on some axis.
+    """
+    arr = np.asarray(voxel_boxes, dtype=float)
+    if arr.size == 0:
+        return np.zeros((0, 2, 3))
+    if arr.ndim != 3 or arr.shape[1:] != (2, 3):
+        raise GeometryError(f"voxel_boxes: expected shape (n, 2, 3) of [lo, hi], got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise GeometryError("voxel_boxes: contains NaN or inf")
+    bad = np.flatnonzero(np.any(arr[:, 1] <= arr[:, 0], axis=1))
+    if bad.size:
+        k = int(bad[0])
+        raise GeometryError(
+            f"voxel_boxes: hi must exceed lo on every axis; box {k} is {arr[k].tolist()}"
+        )
+    return arr
+
+
+def voxel_boxes_from_centres(centres: np.ndarray, size: float) -> np.ndarray:
+    """Cubes of edge ``size`` (m) around ``centres`` (n, 3) float, as ``(n, 2, 3)`` [lo, hi]."""
+    c = np.asarray(centres, dtype=float).reshape(-1, 3)
+    if not size > 0:
+        raise GeometryError(f"voxel size must be > 0, got {size!r}")
+    half = 0.5 * float(size)
+    return np.stack([c - half, c + half], axis=1)
+
+
+def box_arrays(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and faces of many axis-aligned boxes at once.
+
+    Parameters
+    ----------
+    lo, hi : (n, 3) float
+        Box corners.
+
+    Returns
+    -------
+    vertices : (8 n, 3) float
+    faces : (12 n, 3) int64
+        Faces of box ``k`` are rows ``12 k .. 12 k + 11``, wound outwards.
+    """
+    lo = np.asarray(lo, dtype=float).reshape(-1, 3)
+    hi = np.asarray(hi, dtype=float).reshape(-1, 3)
+    centre, extent = 0.5 * (lo + hi), hi - lo
+    vertices = centre[:, None, :] + _UNIT_BOX_VERTICES[None, :, :] * extent[:, None, :]
+    faces = _UNIT_BOX_FACES[None, :, :] + 8 * np.arange(len(lo))[:, None, None]
+    return vertices.reshape(-1, 3), faces.reshape(-1, 3)
+
+
+def box_trimesh(box: Box) -> trimesh.Trimesh:
+    """A closed 12-triangle mesh of ``box`` (via :func:`trimesh.creation.box`)."""
+    lo, hi = np.asarray(box.lo), np.asarray(box.hi)
+    return trimesh.creation.box(bounds=np.stack([lo, hi]))
+
+
+def obstacle_meshes(
+    boxes: Sequence[Box] = (),
+    meshes: Sequence[MeshObstacle] = (),
+    voxel_boxes: np.ndarray | None = None,
+) -> list[tuple[str, trimesh.Trimesh]]:
+    """One ``(name, mesh)`` pair per obstacle, in the order boxes, meshes, voxels.
+
+    Parameters
+    ----------
+    boxes : sequence of :class:`~secure3d.world.spec.Box`
+    meshes : sequence of :class:`~secure3d.world.spec.MeshObstacle`
+    voxel_boxes : (n, 2, 3) float, optional
+        ``[lo, hi]`` of occupied voxels; all of them form one mesh named :data:`VOXEL_NAME`.
+    """
+    out = [(b.name, box_trimesh(b)) for b in boxes]
+    out += [
+        (m.name, trimesh.Trimesh(np.array(m.vertices), np.array(m.faces), process=False))
+        for m in meshes
+    ]
+    if voxel_boxes is not None:
+        vb = check_voxel_boxes(voxel_boxes)
+        if len(vb):
+            v, f = box_arrays(vb[:, 0], vb[:, 1])
+            out.append((VOXEL_NAME, trimesh.Trimesh(v, f, process=False)))
+    return out
+
+
+def labelled_union(parts: Sequence[tuple[str, trimesh.Trimesh]]) -> trimesh.Trimesh:
+    """Join ``(name, mesh)`` pairs into one unprocessed mesh that remembers the parts.
+
+    Returns
+    -------
+    trimesh.Trimesh
+        Faces keep their order. ``face_attributes["obstacle"]`` : (m,) int32 index into
+        ``metadata["obstacle_names"]`` (tuple of str). No parts give a mesh with no faces.
+    """
+    names = tuple(name for name, _ in parts)
+    if not parts:
+        mesh = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), process=False)
+        mesh.face_attributes["obstacle"] = np.zeros(0, dtype=np.int32)
+        mesh.metadata["obstacle_names"] = names
+        return mesh
+    counts = np.array([len(m.vertices) for _, m in parts])
+    offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    vertices = np.concatenate([np.asarray(m.vertices, dtype=float) for _, m in parts])
+    faces = np.concatenate(
+        [np.asarray(m.faces) + off for (_, m), off in zip(parts, offsets, strict=True)]
+    )
+    labels = np.repeat(np.arange(len(parts), dtype=np.int32), [len(m.faces) for _, m in parts])
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    mesh.face_attributes["obstacle"] = labels
+    mesh.metadata["obstacle_names"] = names
+    return mesh
+
+
+def world_trimesh(
+    boxes: Sequence[Box] = (),
+    meshes: Sequence[MeshObstacle] = (),
+    voxel_boxes: np.ndarray | None = None,
+) -> trimesh.Trimesh:
+    """All obstacles as one labelled triangle mesh (see :func:`labelled_union`).
+
+    Parameters are those of :func:`obstacle_meshes`.
+    """
+    return labelled_union(obstacle_meshes(boxes, meshes, voxel_boxes))

@@ -1,0 +1,485 @@
+"""Matplotlib figures of a run: the paper-style top-down view and speed profiles.
+
+The top-down view follows the paper's figures (Ivanov & Campbell, Figs. BasePlanner / Gplanner):
+known obstacles filled, the obstacle the server hid in black, the planned path dashed and the
+realised one solid, the reactive sets S_r(x) at the plan nodes as ellipses (eq. ReactEllipse; the
+xy shadow of each 3D ellipsoid), the detection point as a red X, and camera frusta as translucent
+wedges. Obstacles the server invented (phantoms) or moved are outlined dashed where it claims them.
+
+Figures are built on a :class:`matplotlib.figure.Figure` (no pyplot state, no GUI backend) and
+written atomically: a temporary file in the target folder is renamed onto ``out_path``, so an
+interrupted run never leaves a truncated PNG.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.collections import EllipseCollection, PolyCollection
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch, Polygon, Rectangle
+from scipy.spatial import ConvexHull, QhullError
+
+from secure3d.errors import ConfigError, GeometryError
+from secure3d.world.spec import Bounds, Box, MeshObstacle
+
+#: Colours by planner label; other labels cycle through matplotlib's default palette.
+PLANNER_COLORS = {"secure": "tab:blue", "baseline": "tab:orange"}
+KNOWN_COLOR = "firebrick"
+HIDDEN_COLOR = "black"
+PHANTOM_COLOR = "darkmagenta"
+FRUSTUM_COLOR = "limegreen"
+_CYCLE = ("tab:green", "tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan")
+_DPI = 150
+
+
+def save_figure(fig: Figure, out_path: str | os.PathLike[str]) -> Path:
+    """Write ``fig`` to ``out_path`` atomically (temporary file in the same folder + rename).
+
+    The format follows the suffix of ``out_path`` (``.png`` for the project's figures).
+    """
+    out = Path(out_path)
+    if not out.parent.is_dir():
+        raise ConfigError(f"out_path: folder {str(out.parent)!r} does not exist")
+    fmt = out.suffix.lstrip(".").lower() or "png"
+    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".part")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fig.savefig(fh, format=fmt, dpi=_DPI, bbox_inches="tight")
+        os.replace(tmp, out)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+    return out
+
+
+def ellipse_shadows(shapes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """xy projections of ellipsoids ``E = {c + M z : |z| <= 1}`` (paper eq. ReactEllipse).
+
+    The shadow of E on the xy plane is the ellipse ``{c_xy + P M z}`` with ``P = [I_2 0]``, i.e.
+    the ellipse of shape matrix ``S = P M M^T P^T``, the top-left 2x2 block of ``M M^T``.
+
+    Parameters
+    ----------
+    shapes : (K, 3, 3) float
+
+    Returns
+    -------
+    widths, heights : (K,) float
+        Full axis lengths ``2 sqrt(eig(S))`` (major first).
+    angles : (K,) float
+        Angle of the major axis from the x axis (degrees).
+    """
+    M = np.asarray(shapes, dtype=float).reshape(-1, 3, 3)
+    S = (M @ np.swapaxes(M, -1, -2))[:, :2, :2]
+    lam, V = np.linalg.eigh(S)  # ascending
+    lam = np.clip(lam, 0.0, None)
+    major = V[:, :, 1]
+    angles = np.degrees(np.arctan2(major[:, 1], major[:, 0]))
+    return 2 * np.sqrt(lam[:, 1]), 2 * np.sqrt(lam[:, 0]), angles
+
+
+def _color_for(label: str, index: int) -> str:
+    for key, color in PLANNER_COLORS.items():
+        if key in label.lower():
+            return color
+    return _CYCLE[index % len(_CYCLE)]
+
+
+def _footprint(o: Box | MeshObstacle) -> np.ndarray:
+    """xy outline (n, 2) of an obstacle: a box's rectangle, a mesh's convex hull."""
+    if isinstance(o, Box):
+        (x0, y0, _), (x1, y1, _) = o.lo, o.hi
+        return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    xy = np.asarray(o.vertices, dtype=float)[:, :2]
+    try:
+        return xy[ConvexHull(xy).vertices]
+    except QhullError:  # a mesh seen edge-on from above (flat in xy): fall back to its bounds
+        (x0, y0), (x1, y1) = xy.min(axis=0), xy.max(axis=0)
+        return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+
+
+def _same_geometry(a: Box | MeshObstacle, b: Box | MeshObstacle) -> bool:
+    return type(a) is type(b) and np.allclose(a.lo, b.lo) and np.allclose(a.hi, b.hi)
+
+
+def _frustum_polygons(frusta: Iterable[tuple[Any, Any, Any]]) -> list[np.ndarray]:
+    from secure3d.geometry.frustum import frustum_corners
+
+    polys = []
+    for R, origin, frustum in frusta:
+        xy = frustum_corners(R, origin, frustum)[:, :2]
+        try:
+            polys.append(xy[ConvexHull(xy).vertices])
+        except QhullError:  # a camera looking straight up or down: no area from above
+            continue
+    return polys
+
+
+def top_down_figure(
+    bounds: Bounds,
+    true_boxes: Sequence[Box],
+    *,
+    out_path: str | os.PathLike[str],
+    **kwargs: Any,
+) -> Path:
+    """The paper-style top view of a run (:func:`draw_top_down`), saved atomically as an image.
+
+    Parameters
+    ----------
+    bounds, true_boxes, **kwargs
+        As for :func:`draw_top_down`.
+    out_path : str or Path
+        Image file to write; the format follows its suffix.
+
+    Returns
+    -------
+    Path
+        ``out_path``.
+    """
+    fig = Figure(figsize=(7.5, 7.5 * _aspect(bounds)))
+    draw_top_down(fig.add_subplot(1, 1, 1), bounds, true_boxes, **kwargs)
+    return save_figure(fig, out_path)
+
+
+def draw_top_down(
+    ax: Axes,
+    bounds: Bounds,
+    true_boxes: Sequence[Box],
+    *,
+    hidden_names: Sequence[str] = (),
+    claimed_boxes: Sequence[Box] | None = None,
+    plans: Sequence[Any] = (),
+    realised_paths: Mapping[str, np.ndarray] | None = None,
+    detection_points: Mapping[str, np.ndarray] | Sequence[np.ndarray] | None = None,
+    frusta: Sequence[tuple[Any, Any, Any]] = (),
+    true_meshes: Sequence[MeshObstacle] = (),
+    claimed_meshes: Sequence[MeshObstacle] = (),
+    start: np.ndarray | None = None,
+    goal: np.ndarray | None = None,
+    collision_points: Sequence[np.ndarray] = (),
+    ellipse_every: int = 1,
+    z_slice: float | None = None,
+    title: str | None = None,
+) -> None:
+    """Draw the paper-style top view of a run on ``ax``.
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+    bounds : Bounds
+        World bounds; the axes show their xy extent.
+    true_boxes, true_meshes : obstacles of the true world (filled; ``hidden_names`` black and
+        hatched: the ones the server deleted).
+    claimed_boxes, claimed_meshes : the server's claim. Claimed obstacles that are not in the
+        truth with the same geometry (phantoms, shifted ones) are outlined dashed. ``None``: the
+        server reports the truth minus the hidden obstacles.
+    plans : sequence of plan-like objects
+        With ``planner``, ``positions (K, 3)``, ``ellipsoid_centers (K, 3)``, ``ellipsoid_shapes
+        (K, 3, 3)``: drawn dashed with their reactive ellipses (every ``ellipse_every``-th node).
+    realised_paths : mapping label -> (T, 3) float
+        Flown paths, drawn solid (colour by label: "secure" blue, "baseline" orange).
+    detection_points : mapping label -> (3,) float, or sequence of (3,) float
+        Where the hidden obstacle was first seen: red X.
+    frusta : sequence of (R_world_from_optical (3, 3), origin (3,), PinholeFrustum)
+        Camera fields of view, drawn as translucent wedges (the xy shadow of each pyramid).
+    start, goal : (3,) float, optional
+        Blue triangle and green circle, as in the paper.
+    collision_points : sequence of (3,) float
+        Where a realised path hit an obstacle: red star.
+    z_slice : float, optional
+        Height (m) of the horizontal section shown: only obstacles whose z-extent contains it are
+        drawn, so floors and ceilings do not cover the map. Default: the start's height, else the
+        median height of the plans and paths, else the middle of the bounds.
+    """
+    if isinstance(ellipse_every, bool) or not isinstance(ellipse_every, int) or ellipse_every < 1:
+        raise ConfigError(f"ellipse_every: must be a positive integer, got {ellipse_every!r}")
+    hidden = set(hidden_names)
+    truth = [*true_boxes, *true_meshes]
+    if claimed_boxes is None and not claimed_meshes:
+        claimed = [o for o in truth if o.name not in hidden]
+    else:
+        claimed = [*(claimed_boxes or ()), *claimed_meshes]
+    true_by_name = {o.name: o for o in truth}
+    z = _slice_height(z_slice, bounds, start, plans, realised_paths)
+    truth = [o for o in truth if o.lo[2] <= z <= o.hi[2]]
+    claimed = [o for o in claimed if o.lo[2] <= z <= o.hi[2]]
+    handles: list[Any] = []
+
+    if frusta:
+        polys = _frustum_polygons(frusta)
+        ax.add_collection(
+            PolyCollection(polys, facecolors=FRUSTUM_COLOR, edgecolors="none", alpha=0.12, zorder=1)
+        )
+        handles.append(Patch(facecolor=FRUSTUM_COLOR, alpha=0.3, label="camera field of view"))
+
+    for o in truth:
+        is_hidden = o.name in hidden
+        ax.add_patch(
+            Polygon(
+                _footprint(o),
+                closed=True,
+                facecolor=HIDDEN_COLOR if is_hidden else KNOWN_COLOR,
+                # Hatch lines take the edge colour: grey keeps them visible on black.
+                edgecolor="0.6" if is_hidden else "black",
+                hatch="////" if is_hidden else None,
+                alpha=0.9 if is_hidden else 0.75,
+                zorder=3,
+            )
+        )
+    if any(o.name not in hidden for o in truth):
+        handles.append(Patch(facecolor=KNOWN_COLOR, alpha=0.75, label="known obstacle"))
+    if any(o.name in hidden for o in truth):
+        handles.append(Patch(facecolor=HIDDEN_COLOR, hatch="////", label="hidden obstacle"))
+
+    fake = [o for o in claimed if o.name not in true_by_name]
+    moved = [
+        o for o in claimed if o.name in true_by_name and not _same_geometry(o, true_by_name[o.name])
+    ]
+    for group, color, label in (
+        (fake, PHANTOM_COLOR, "phantom (claimed)"),
+        (moved, KNOWN_COLOR, "claimed position (moved)"),
+    ):
+        for o in group:
+            ax.add_patch(
+                Polygon(
+                    _footprint(o),
+                    closed=True,
+                    fill=False,
+                    edgecolor=color,
+                    linestyle="--",
+                    linewidth=1.5,
+                    zorder=3,
+                )
+            )
+        if group:
+            handles.append(Line2D([], [], color=color, linestyle="--", label=label))
+
+    for i, plan in enumerate(plans):
+        label = str(getattr(plan, "planner", f"plan {i}"))
+        color = _color_for(label, i)
+        pos = np.asarray(plan.positions, dtype=float).reshape(-1, 3)
+        ax.plot(pos[:, 0], pos[:, 1], "--", color=color, linewidth=1.6, zorder=5)
+        handles.append(Line2D([], [], color=color, linestyle="--", label=f"{label} plan"))
+        centres = np.asarray(plan.ellipsoid_centers, dtype=float).reshape(-1, 3)[::ellipse_every]
+        if len(centres):
+            shapes = np.asarray(plan.ellipsoid_shapes, dtype=float)[::ellipse_every]
+            w, h, ang = ellipse_shadows(shapes)
+            ax.add_collection(
+                EllipseCollection(
+                    w,
+                    h,
+                    ang,
+                    units="xy",
+                    offsets=centres[:, :2],
+                    offset_transform=ax.transData,
+                    facecolors=color,
+                    edgecolors=color,
+                    alpha=0.15,
+                    linewidths=0.8,
+                    zorder=4,
+                )
+            )
+            handles.append(Patch(facecolor=color, alpha=0.3, label=f"{label} reactive sets"))
+
+    for i, (label, path) in enumerate((realised_paths or {}).items()):
+        p = np.asarray(path, dtype=float).reshape(-1, 3)
+        color = _color_for(label, i)
+        ax.plot(p[:, 0], p[:, 1], "-", color=color, linewidth=2.2, zorder=6)
+        handles.append(Line2D([], [], color=color, linewidth=2.2, label=f"{label} realised"))
+
+    det = _points(detection_points)
+    if len(det):
+        ax.plot(det[:, 0], det[:, 1], "x", color="red", markersize=13, markeredgewidth=3, zorder=8)
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color="red",
+                marker="x",
+                linestyle="none",
+                markersize=10,
+                markeredgewidth=3,
+                label="detection point",
+            )
+        )
+    hits = _points(collision_points)
+    if len(hits):
+        ax.plot(
+            hits[:, 0],
+            hits[:, 1],
+            "*",
+            color="red",
+            markeredgecolor="black",
+            markersize=18,
+            zorder=9,
+        )
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color="red",
+                marker="*",
+                markeredgecolor="black",
+                linestyle="none",
+                markersize=12,
+                label="collision",
+            )
+        )
+    if start is not None:
+        s = np.asarray(start, dtype=float)
+        ax.plot(s[0], s[1], "^", color="tab:blue", markeredgecolor="black", markersize=12, zorder=9)
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color="tab:blue",
+                marker="^",
+                markeredgecolor="black",
+                linestyle="none",
+                markersize=10,
+                label="start",
+            )
+        )
+    if goal is not None:
+        g = np.asarray(goal, dtype=float)
+        ax.plot(
+            g[0], g[1], "o", color="tab:green", markeredgecolor="black", markersize=12, zorder=9
+        )
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color="tab:green",
+                marker="o",
+                markeredgecolor="black",
+                linestyle="none",
+                markersize=10,
+                label="goal",
+            )
+        )
+
+    ax.add_patch(
+        Rectangle(
+            bounds.lo[:2],
+            bounds.hi[0] - bounds.lo[0],
+            bounds.hi[1] - bounds.lo[1],
+            fill=False,
+            edgecolor="0.4",
+            linewidth=1.0,
+            zorder=2,
+        )
+    )
+    margin = 0.02 * max(bounds.hi[0] - bounds.lo[0], bounds.hi[1] - bounds.lo[1])
+    ax.set_xlim(bounds.lo[0] - margin, bounds.hi[0] + margin)
+    ax.set_ylim(bounds.lo[1] - margin, bounds.hi[1] + margin)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.grid(True, linewidth=0.4, alpha=0.5)
+    if title:
+        ax.set_title(title)
+    if handles:
+        ax.legend(
+            handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False
+        )
+
+
+def speed_profile_figure(
+    series: Mapping[str, tuple[np.ndarray, np.ndarray]],
+    out_path: str | os.PathLike[str],
+    *,
+    markers: Mapping[str, Sequence[tuple[float, str]]] | None = None,
+    speed_limit: float | None = None,
+    title: str | None = None,
+) -> Path:
+    """Speed over time of several runs (e.g. secure vs baseline), saved as an image.
+
+    Parameters
+    ----------
+    series : mapping label -> (t (T,) float, speed (T,) float)
+        Time (s) and speed (m/s) of each run; the legend shows each run's duration.
+    out_path : str or Path
+        Image file to write (atomically).
+    markers : mapping label -> sequence of (t, text), optional
+        Events to mark on a run's curve (e.g. ``(2.1, "hidden obstacle seen")``).
+    speed_limit : float, optional
+        Drawn as a dotted horizontal line (m/s).
+    """
+    if not series:
+        raise ConfigError("series: need at least one (t, speed) series")
+    fig = Figure(figsize=(8.0, 3.6))
+    ax = fig.add_subplot(1, 1, 1)
+    for i, (label, (t, v)) in enumerate(series.items()):
+        t = np.asarray(t, dtype=float).reshape(-1)
+        v = np.asarray(v, dtype=float).reshape(-1)
+        if t.shape != v.shape or len(t) == 0:
+            raise GeometryError(
+                f"series[{label!r}]: need equal, non-empty t and speed, got {t.shape} and {v.shape}"
+            )
+        color = _color_for(label, i)
+        duration = t[-1] - t[0]
+        ax.plot(t, v, color=color, linewidth=2.0, label=f"{label} ({duration:.2f} s)")
+        for tm, text in (markers or {}).get(label, ()):
+            vm = np.interp(tm, t, v)
+            ax.plot([tm], [vm], "x", color="red", markersize=10, markeredgewidth=2.5, zorder=5)
+            ax.annotate(
+                text, (tm, vm), textcoords="offset points", xytext=(6, 8), fontsize=8, color=color
+            )
+    if speed_limit is not None:
+        ax.axhline(speed_limit, color="0.4", linestyle=":", linewidth=1.2, label="speed limit")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("speed (m/s)")
+    top = max([float(np.nanmax(np.asarray(v, dtype=float))) for _, v in series.values()] + [0.0])
+    top = max(top, speed_limit or 0.0)
+    ax.set_ylim(0.0, 1.08 * top if top > 0 else 1.0)
+    ax.grid(True, linewidth=0.4, alpha=0.5)
+    ax.legend(fontsize=9, frameon=False)
+    if title:
+        ax.set_title(title)
+    return save_figure(fig, out_path)
+
+
+def _points(points: Mapping[str, np.ndarray] | Sequence[np.ndarray] | None) -> np.ndarray:
+    if points is None:
+        return np.zeros((0, 3))
+    values = list(points.values()) if isinstance(points, Mapping) else list(points)
+    if not values:
+        return np.zeros((0, 3))
+    return np.asarray(values, dtype=float).reshape(-1, 3)
+
+
+def _slice_height(
+    z_slice: float | None,
+    bounds: Bounds,
+    start: np.ndarray | None,
+    plans: Sequence[Any],
+    paths: Mapping[str, np.ndarray] | None,
+) -> float:
+    if z_slice is not None:
+        z = float(z_slice)
+        if not np.isfinite(z):
+            raise ConfigError(f"z_slice: must be finite, got {z_slice!r}")
+        return z
+    if start is not None:
+        return float(np.asarray(start, dtype=float).reshape(3)[2])
+    heights = [np.asarray(p.positions, dtype=float).reshape(-1, 3)[:, 2] for p in plans]
+    heights += [np.asarray(p, dtype=float).reshape(-1, 3)[:, 2] for p in (paths or {}).values()]
+    if heights and sum(len(h) for h in heights):
+        return float(np.median(np.concatenate(heights)))
+    return 0.5 * (bounds.lo[2] + bounds.hi[2])
+
+
+def _aspect(bounds: Bounds) -> float:
+    """Height/width of the plot area, clipped so a long corridor still gets a readable figure."""
+    ext = np.subtract(bounds.hi, bounds.lo)
+    return float(np.clip(ext[1] / ext[0], 0.35, 1.6))

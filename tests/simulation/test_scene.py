@@ -1,0 +1,79 @@
+"""World -> meshes: geometry and labels of the union mesh."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from secure3d.errors import GeometryError
+from secure3d.simulation.scene import (
+    VOXEL_NAME,
+    box_arrays,
+    check_voxel_boxes,
+    obstacle_meshes,
+    voxel_boxes_from_centres,
+    world_trimesh,
+)
+from secure3d.world.spec import Box, MeshObstacle
+
+
+def _tetra(name: str, offset) -> MeshObstacle:
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float) + offset
+    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    return MeshObstacle(name, v, f)
+
+
+def test_box_arrays_are_closed_boxes_with_the_right_volume(rng):
+    lo = rng.uniform(-5, 5, (6, 3))
+    hi = lo + rng.uniform(0.1, 2, (6, 3))
+    v, f = box_arrays(lo, hi)
+    assert v.shape == (48, 3) and f.shape == (72, 3)
+    for k in range(6):
+        m = trimesh.Trimesh(v, f[12 * k : 12 * k + 12], process=True)
+        assert m.is_watertight and m.is_winding_consistent
+        np.testing.assert_allclose(m.volume, np.prod(hi[k] - lo[k]), rtol=1e-12, err_msg=f"box {k}")
+        np.testing.assert_allclose(m.bounds, [lo[k], hi[k]], atol=1e-12)
+
+
+def test_world_trimesh_labels_every_face_with_its_obstacle():
+    boxes = [Box("a", (0, 0, 0), (1, 1, 1)), Box("b", (3, 0, 0), (4, 2, 1))]
+    meshes = [_tetra("t", (10, 0, 0))]
+    voxels = voxel_boxes_from_centres(np.array([[20.0, 0, 0], [20.1, 0, 0]]), 0.1)
+    mesh = world_trimesh(boxes, meshes, voxels)
+    names = mesh.metadata["obstacle_names"]
+    assert names == ("a", "b", "t", VOXEL_NAME)
+    labels = mesh.face_attributes["obstacle"]
+    assert labels.shape == (len(mesh.faces),)
+    # Independent check: each labelled face's centroid lies inside that obstacle's bounds.
+    centroids = mesh.vertices[mesh.faces].mean(axis=1)
+    bounds = {
+        "a": ([0, 0, 0], [1, 1, 1]),
+        "b": ([3, 0, 0], [4, 2, 1]),
+        "t": ([10, 0, 0], [11, 1, 1]),
+        VOXEL_NAME: ([19.95, -0.05, -0.05], [20.15, 0.05, 0.05]),
+    }
+    for i, name in enumerate(names):
+        lo, hi = (np.array(b) for b in bounds[name])
+        c = centroids[labels == i]
+        assert len(c) > 0, name
+        assert np.all((c >= lo - 1e-9) & (c <= hi + 1e-9)), name
+    assert np.bincount(labels).tolist() == [12, 12, 4, 24]
+
+
+def test_obstacle_meshes_pairs_and_empty_world():
+    parts = obstacle_meshes([Box("a", (0, 0, 0), (1, 2, 3))])
+    assert [n for n, _ in parts] == ["a"]
+    np.testing.assert_allclose(parts[0][1].volume, 6.0, rtol=1e-12)
+    empty = world_trimesh()
+    assert len(empty.faces) == 0 and empty.metadata["obstacle_names"] == ()
+
+
+def test_check_voxel_boxes_rejects_bad_input():
+    with pytest.raises(GeometryError, match="shape"):
+        check_voxel_boxes(np.zeros((3, 3)))
+    with pytest.raises(GeometryError, match="hi must exceed lo"):
+        check_voxel_boxes(np.array([[[0, 0, 0], [1, 1, 1]], [[0, 0, 0], [1, 0, 1]]]))
+    with pytest.raises(GeometryError, match="NaN"):
+        check_voxel_boxes(np.array([[[0, 0, np.nan], [1, 1, 1]]]))
+    assert check_voxel_boxes([]).shape == (0, 2, 3)

@@ -1,0 +1,165 @@
+"""Plan interpolation and feedback trackers: each model follows a feasible reference closely."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from secure3d.dynamics import make_model
+from secure3d.dynamics.integrate import rollout
+from secure3d.errors import ConfigError, GeometryError
+from secure3d.simulation.tracking import (
+    Reference,
+    TrackerGains,
+    make_tracker,
+    reference_at,
+    track,
+)
+
+FINE_DT = 1e-3
+
+
+def feasible_plan(model, x0, controls_of_t, duration, nodes=40):
+    """Integrate known controls finely; return plan nodes and the dense truth.
+
+    Returns (node times, node states, node controls, dense times, dense states).
+    """
+    n = int(round(duration / FINE_DT))
+    t = FINE_DT * np.arange(n + 1)
+    U = controls_of_t(t)
+    X = rollout(model.f, x0, U[:-1], FINE_DT, project=model.project_state)
+    idx = np.round(np.linspace(0, n, nodes)).astype(int)
+    return t[idx], X[idx], U[idx], t, X
+
+
+def pm_controls(t):
+    return np.column_stack([1.5 * np.cos(t), np.sin(1.3 * t), 0.3 * np.cos(2 * t), 0.5 * np.cos(t)])
+
+
+def quad_controls(t):
+    # Small oscillating roll and pitch with the thrust that holds altitude: speed stays < 3.5 m/s.
+    roll, pitch = 0.2 * np.sin(1.5 * t), 0.15 * np.sin(1.1 * t)
+    return np.column_stack(
+        [
+            9.81 / (np.cos(roll) * np.cos(pitch)),
+            0.3 * np.cos(1.5 * t),
+            0.165 * np.cos(1.1 * t),
+            np.full_like(t, 0.2),
+        ]
+    )
+
+
+def dd_controls(t):
+    return np.column_stack([0.6 * np.cos(0.8 * t), 1.5 * np.sin(1.2 * t)])
+
+
+def test_hermite_reference_is_exact_for_a_point_mass_under_linear_controls(rng):
+    model = make_model("point_mass")
+    a0, a1 = rng.normal(size=4), rng.normal(size=4)  # u(t) = a0 + a1 t
+    x0 = rng.normal(size=7)
+    times = np.sort(rng.uniform(0, 3, 6))
+    times[0] = 0.0
+
+    def exact(t):
+        t = np.asarray(t)[:, None]
+        p = x0[:3] + x0[3:6] * t + a0[:3] * t**2 / 2 + a1[:3] * t**3 / 6
+        v = x0[3:6] + a0[:3] * t + a1[:3] * t**2 / 2
+        yaw = x0[6] + a0[3] * t + a1[3] * t**2 / 2
+        return np.hstack([p, v, yaw])
+
+    states, controls = exact(times), a0 + a1 * times[:, None]
+    tq = rng.uniform(0, times[-1], 50)
+    x, u = reference_at(times, states, controls, tq, model)
+    np.testing.assert_allclose(x, exact(tq), atol=1e-10, err_msg="cubic Hermite on a cubic")
+    np.testing.assert_allclose(u, a0 + a1 * tq[:, None], atol=1e-12)
+    # Without a model: linear interpolation, exact at the nodes only; clamped outside.
+    x_lin, _ = reference_at(times, states, controls, times)
+    np.testing.assert_allclose(x_lin, states, atol=1e-12)
+    x_before, u_before = Reference(times, states, controls)(-1.0)
+    np.testing.assert_array_equal(x_before, states[0])
+    np.testing.assert_array_equal(u_before, controls[0])
+
+
+def test_quadrotor_reference_follows_the_dense_truth_and_ignores_quaternion_signs():
+    model = make_model("quadrotor")
+    tk, Xk, Uk, t, X = feasible_plan(model, model.initial_state([0, 0, 2]), quad_controls, 4.0)
+    ref = Reference(tk, Xk, Uk, model)
+    x, _ = ref(t[::7])
+    np.testing.assert_allclose(x[:, :6], X[::7, :6], atol=2e-3, err_msg="Hermite vs integration")
+    np.testing.assert_allclose(np.linalg.norm(x[:, 6:10], axis=1), 1.0, atol=1e-12)
+    flipped = Xk.copy()
+    flipped[1::2, 6:10] *= -1
+    x_flip, _ = Reference(tk, flipped, Uk, model)(t[::7])
+    np.testing.assert_allclose(
+        model.body_rotation(x_flip), model.body_rotation(x), atol=1e-9, err_msg="q and -q"
+    )
+
+
+CASES = {
+    "point_mass": (pm_controls, [0, 0, 1], (0, 0, 0), 6.0, [0.15, -0.1, 0.05, 0, 0, 0, 0.3]),
+    "quadrotor": (quad_controls, [0, 0, 2], (0, 0, 0), 5.0, [0.15, -0.1, 0.05] + [0] * 7),
+    "diff_drive": (dd_controls, [0, 0, 0], (0.5, 0, 0), 6.0, [0.08, -0.1, 0.15, 0, 0]),
+}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_tracker_follows_a_feasible_reference_from_a_perturbed_start(name):
+    controls_of_t, p0, v0, duration, offset = CASES[name]
+    model = make_model(name)
+    tk, Xk, Uk, t, X = feasible_plan(model, model.initial_state(p0, v0), controls_of_t, duration)
+    assert np.linalg.norm(model.velocity(X), axis=1).max() < model.limits.max_speed
+    x0 = model.project_state(Xk[0] + np.array(offset, dtype=float))
+    ts, Xs, Us = track(make_tracker(model), Reference(tk, Xk, Uk, model), x0, dt=0.01)
+    truth = X[np.round(ts / FINE_DT).astype(int)]
+    err = np.linalg.norm(model.position(Xs) - model.position(truth), axis=1)
+    assert err[0] > 0.1
+    assert err[-1] < 0.02, f"{name}: final position error {err[-1]:.4f} m"
+    assert err[ts >= 2.0].max() < 0.03, f"{name}: error after 2 s {err[ts >= 2.0].max():.4f} m"
+    assert np.all(Us >= model.u_lo - 1e-12) and np.all(Us <= model.u_hi + 1e-12)
+
+
+@pytest.mark.parametrize("name", ["point_mass", "quadrotor", "diff_drive"])
+def test_controls_respect_limits_for_large_errors(name, rng):
+    model = make_model(name)
+    tracker = make_tracker(model)
+    for _ in range(50):
+        x = model.project_state(rng.normal(size=model.nx) * 3)
+        x_ref = model.project_state(rng.normal(size=model.nx) * 3)
+        u_ref = rng.uniform(model.u_lo, model.u_hi)
+        u = tracker.control(x, x_ref, u_ref)
+        assert np.all(u >= model.u_lo) and np.all(u <= model.u_hi)
+        if name == "point_mass":
+            assert np.linalg.norm(u[:3]) <= model.limits.max_accel + 1e-9
+
+
+def test_speed_and_tilt_limits():
+    pm = make_model("point_mass", max_speed=2.0)
+    x = pm.initial_state([0, 0, 0], [2.0, 0, 0])
+    x_ref = pm.initial_state([5, 0, 0], [2.0, 0, 0])
+    u = make_tracker(pm).control(x, x_ref, np.zeros(4))
+    assert u[0] <= 1e-12, "no acceleration beyond the speed limit"
+    quad = make_model("quadrotor", max_tilt=np.radians(20), max_speed=3.0)
+    x = quad.initial_state([0, 0, 0])
+    far = quad.initial_state([50, 0, 0])
+    tracker = make_tracker(quad)
+    tilt, speed = [], []
+    for _ in range(400):
+        x = quad.step(x, tracker.control(x, far, quad.nominal_control(far)), 0.01)
+        tilt.append(np.degrees(np.arccos(quad.thrust_axis(x)[2])))
+        speed.append(np.linalg.norm(x[3:6]))
+    assert 19.0 < max(tilt) < 20.5, "the tilt limit is reached, not exceeded"
+    assert 2.9 < max(speed) < 3.0 * 1.02, "the speed limit is reached, barely exceeded"
+
+
+def test_bad_input_is_rejected():
+    pm = make_model("point_mass")
+    with pytest.raises(ConfigError, match="kp"):
+        TrackerGains(kp=-1.0)
+    with pytest.raises(ConfigError, match="point_mass"):
+        make_tracker(make_model("quadrotor")).__class__(pm)
+    with pytest.raises(GeometryError, match="x_ref"):
+        make_tracker(pm).control(np.zeros(7), np.zeros(6), np.zeros(4))
+    with pytest.raises(GeometryError, match="increasing"):
+        Reference([0.0, 0.0], np.zeros((2, 7)), np.zeros((2, 4)))
+    with pytest.raises(GeometryError, match="point_mass"):
+        Reference([0.0, 1.0], np.zeros((2, 5)), np.zeros((2, 2)), pm)
