@@ -90,21 +90,14 @@ class DiffDrive(VehicleModel):
     def initial_state(
         self, position: Any, velocity: Any = (0.0, 0.0, 0.0), yaw: float = 0.0
     ) -> np.ndarray:
-        """State (5,) at ``position`` (its z is ignored) heading ``yaw``.
+        """State (5,) at ``position`` (its z is ignored) heading ``yaw``, at rest in rotation.
 
-        ``velocity`` must point along the heading (or against it, for reversing): a wheeled robot
-        cannot move sideways, so a lateral component raises :class:`ConfigError`.
+        The signed speed is the component of ``velocity`` along the heading: a wheeled robot cannot
+        move sideways or vertically, so the rest of ``velocity`` is dropped.
         """
         p, v = vec3(position, "position"), vec3(velocity, "velocity")
         yaw = float(yaw)
         if not np.isfinite(yaw):
             raise ConfigError(f"DiffDrive.initial_state: yaw must be finite, got {yaw!r}")
-        heading = np.array([np.cos(yaw), np.sin(yaw)])
-        speed = float(v[:2] @ heading)
-        lateral = float(np.hypot(*(v[:2] - speed * heading)))
-        if lateral > 1e-9 * (1.0 + abs(speed)) or v[2] != 0.0:
-            raise ConfigError(
-                f"DiffDrive.initial_state: velocity {tuple(v)} is not along the heading yaw={yaw} "
-                "(a differential drive cannot move sideways or vertically)"
-            )
+        speed = float(v[0] * np.cos(yaw) + v[1] * np.sin(yaw))
         return np.array([p[0], p[1], yaw, speed, 0.0])

@@ -157,8 +157,9 @@ def min_box_distance(points: object, lo: object, hi: object) -> np.ndarray:
     -------
     (n,) float
     """
-    d = box_signed_distance(points, lo, hi)
-    return np.min(d, axis=1, initial=np.inf)
+    p = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 3))
+    lo, hi = _boxes(lo, hi)
+    return _kernels().min_signed_distance(p, np.ascontiguousarray(lo.reshape(-1, 3)), np.ascontiguousarray(hi.reshape(-1, 3)))
 
 
 def segment_box_intersects(p0: object, p1: object, lo: object, hi: object) -> np.ndarray:
@@ -178,22 +179,56 @@ def segment_box_intersects(p0: object, p1: object, lo: object, hi: object) -> np
     if p0.shape != p1.shape:
         raise GeometryError(f"segments: p0 and p1 shapes differ, {p0.shape} vs {p1.shape}")
     lo, hi = _boxes(lo, hi)
-    lo, hi = lo.reshape(-1, 3)[None], hi.reshape(-1, 3)[None]
-    start = p0[:, None, :]
-    delta = (p1 - p0)[:, None, :]
-    parallel = delta == 0.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_a = (lo - start) / delta
-        t_b = (hi - start) / delta
-    t_enter = np.minimum(t_a, t_b)
-    t_exit = np.maximum(t_a, t_b)
-    # A segment parallel to a slab is inside it for all t, or for none.
-    inside = (start >= lo) & (start <= hi)
-    t_enter = np.where(parallel, np.where(inside, -np.inf, np.inf), t_enter)
-    t_exit = np.where(parallel, np.where(inside, np.inf, -np.inf), t_exit)
-    t0 = np.maximum(t_enter.max(axis=-1), 0.0)
-    t1 = np.minimum(t_exit.min(axis=-1), 1.0)
-    return t0 <= t1
+    lo = np.ascontiguousarray(lo.reshape(-1, 3))
+    hi = np.ascontiguousarray(hi.reshape(-1, 3))
+    return _kernels().segment_box_matrix(np.ascontiguousarray(p0), np.ascontiguousarray(p1), lo, hi)
+
+
+def segments_blocked(p0: object, p1: object, lo: object, hi: object) -> np.ndarray:
+    """Whether each segment ``[p0_i, p1_i]`` touches any of the boxes: ``segment_box_intersects(...)
+    .any(axis=1)`` with an early exit per segment.
+
+    Returns
+    -------
+    (n,) bool
+    """
+    p0 = np.asarray(p0, dtype=float).reshape(-1, 3)
+    p1 = np.asarray(p1, dtype=float).reshape(-1, 3)
+    if p0.shape != p1.shape:
+        raise GeometryError(f"segments: p0 and p1 shapes differ, {p0.shape} vs {p1.shape}")
+    lo, hi = _boxes(lo, hi)
+    lo = np.ascontiguousarray(lo.reshape(-1, 3))
+    hi = np.ascontiguousarray(hi.reshape(-1, 3))
+    return _kernels().segment_box_any(np.ascontiguousarray(p0), np.ascontiguousarray(p1), lo, hi)
+
+
+def cones_blocked(apex: object, centre: object, lo: object, hi: object, radius: float) -> np.ndarray:
+    """Whether some box meets each sight cone conv({apex_i} ∪ B(centre_i, radius)): the lines of
+    sight from a camera at ``apex`` to every point of a ball (exact, via the convex gap
+    dist(apex + t (centre - apex), box) - t radius over t in [0, 1]).
+
+    Returns
+    -------
+    (n,) bool
+    """
+    apex = np.asarray(apex, dtype=float).reshape(-1, 3)
+    centre = np.asarray(centre, dtype=float).reshape(-1, 3)
+    if apex.shape != centre.shape:
+        raise GeometryError(f"cones: apex and centre shapes differ, {apex.shape} vs {centre.shape}")
+    if not np.isfinite(radius) or radius < 0:
+        raise GeometryError(f"radius: must be finite and >= 0, got {radius!r}")
+    lo, hi = _boxes(lo, hi)
+    return _kernels().cone_box_blocked_any(
+        np.ascontiguousarray(apex), np.ascontiguousarray(centre),
+        np.ascontiguousarray(lo.reshape(-1, 3)), np.ascontiguousarray(hi.reshape(-1, 3)), float(radius),
+    )
+
+
+@functools.cache
+def _kernels():
+    from secure3d.geometry import _box_kernels
+
+    return _box_kernels
 
 
 # --------------------------------------------------------------------------------------------

@@ -648,7 +648,9 @@ class OccupancyMap:
         hi = verts.max(axis=0) + half_diag
         klo = np.floor(lo / self._resolution).astype(np.int64) + TREE_MAX_VAL
         khi = np.floor(hi / self._resolution).astype(np.int64) + TREE_MAX_VAL
-        keys = _box_cells(np.clip(klo, 0, KEY_LIMIT - 1), np.clip(khi, 0, KEY_LIMIT - 1))
+        keys = _box_cells(
+            np.clip(klo, 0, KEY_LIMIT - 1)[None], np.clip(khi, 0, KEY_LIMIT - 1)[None]
+        )
         centres = ((keys - TREE_MAX_VAL) + 0.5) * self._resolution
         o3d = open3d()
         scene = o3d.t.geometry.RaycastingScene()
@@ -824,7 +826,10 @@ class OccupancyMap:
             leaves = octomap_io.read_ot_bytes(data)
             values = leaves.values
         else:
-            raise MapFormatError("not an OctoMap file: unknown first line")
+            raise MapFormatError(
+                "bad header: not an OctoMap file (first line is neither "
+                f"{octomap_io.BT_MAGIC.decode()!r} nor {octomap_io.OT_MAGIC.decode()!r})"
+            )
         out = cls(leaves.resolution, params, bounds)
         out._sensor.set_leaves(leaves.starts, leaves.depths, values.astype(np.float32))
         return out
@@ -856,6 +861,74 @@ class OccupancyMap:
     def write_ot(self, path: str | os.PathLike[str]) -> None:
         """Write the sensor layer as ``.ot`` (log-odds kept) atomically."""
         _write_atomic(Path(path), self.to_bytes("ot"))
+
+
+def depth_image_points(
+    depth: ArrayLike,
+    intrinsics: ArrayLike,
+    cam2world: ArrayLike,
+    origin: ArrayLike,
+    max_range: float | None,
+) -> NDArray[np.float64]:
+    """World points of a z-depth image, ready for :meth:`OccupancyMap.insert_point_cloud`.
+
+    Pixel ``(u, v)`` (column, row) looks along ``((u + 0.5 - cx) / fx, (v + 0.5 - cy) / fy, 1)``
+    in the camera frame (OpenCV axes: x right, y down, z forward; pixel centres, as Open3D's
+    ``RaycastingScene.create_rays_pinhole``), rotated to the world by ``cam2world``.
+
+    Parameters
+    ----------
+    depth : (H, W) float
+        z-depth (m). Finite ``d > 0``: a hit at ``d`` times the pixel's ray. ``inf``: no return,
+        mapped to a point beyond ``max_range`` on the ray (so OctoMap's rule clears exactly up to
+        ``max_range``). NaN, ``d <= 0``, or ``inf`` without ``max_range``: NaN (skipped).
+    intrinsics : (3, 3) float or (4,) float
+        Camera matrix K, or ``(fx, fy, cx, cy)`` in pixels.
+    cam2world : (3, 3) float
+        Rotation from camera to world frame.
+    origin : (3,) float
+        Camera centre in the world (m).
+    max_range : float or None
+        Maximum sensing range (m).
+
+    Returns
+    -------
+    (H * W, 3) float64
+        Row-major over pixels.
+    """
+    d = np.asarray(depth, dtype=np.float64)
+    if d.ndim != 2:
+        raise GeometryError(f"depth: expected an (H, W) image, got shape {d.shape}")
+    k = np.asarray(intrinsics, dtype=np.float64)
+    if k.shape == (3, 3):
+        fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+    elif k.shape == (4,):
+        fx, fy, cx, cy = k
+    else:
+        raise GeometryError(f"intrinsics: expected K (3, 3) or (fx, fy, cx, cy), got {k.shape}")
+    if not (np.isfinite([fx, fy, cx, cy]).all() and fx > 0 and fy > 0):
+        raise GeometryError(f"intrinsics: need finite fx, fy > 0, got {k.tolist()}")
+    rot = np.asarray(cam2world, dtype=np.float64)
+    if rot.shape != (3, 3) or not np.all(np.isfinite(rot)):
+        raise GeometryError(f"cam2world: expected a finite (3, 3) rotation, got shape {rot.shape}")
+    if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
+        raise GeometryError("cam2world: not a rotation matrix (R^T R != I or det < 0)")
+    o = np.asarray(origin, dtype=np.float64)
+    if o.shape != (3,):
+        raise GeometryError(f"origin: expected 3 numbers, got shape {o.shape}")
+    h, w = d.shape
+    ray_cam = np.empty((h, w, 3))
+    ray_cam[..., 0] = ((np.arange(w) + 0.5 - cx) / fx)[None, :]
+    ray_cam[..., 1] = ((np.arange(h) + 0.5 - cy) / fy)[:, None]
+    ray_cam[..., 2] = 1.0
+    scale = d.copy()
+    no_return = np.isposinf(d)
+    invalid = np.isnan(d) | (d <= 0.0) | (no_return & (max_range is None))
+    if max_range is not None:
+        # Any point beyond max_range on the ray: OctoMap then clears exactly up to max_range.
+        scale[no_return] = 2.0 * max_range + 1.0
+    scale[invalid] = np.nan
+    return o + (ray_cam * scale[..., None]).reshape(-1, 3) @ rot.T
 
 
 def _box_cells(keys_lo: NDArray[np.int64], keys_hi: NDArray[np.int64]) -> NDArray[np.int64]:

@@ -31,7 +31,10 @@ rule) and ``write``.
 
 from __future__ import annotations
 
+import bz2
 import math
+import os
+from pathlib import Path
 from typing import NamedTuple
 
 import numba
@@ -523,3 +526,37 @@ def write_ot_bytes(
     rec[:, :4] = node_val[order].astype("<f4").view(np.uint8).reshape(-1, 4)
     rec[:, 4] = node_mask[order]
     return _header(OT_MAGIC, order.size, resolution) + rec.tobytes()
+
+
+def read_scan_dat(path: str | os.PathLike[str], max_bytes: int = 1 << 30) -> NDArray[np.float64]:
+    """Read an OctoMap point file: whitespace-separated ``x y z`` per line (``.bz2`` accepted).
+
+    Parameters
+    ----------
+    path : path
+        ``scan.dat`` or ``scan.dat.bz2`` (decompressed by suffix).
+    max_bytes : int
+        Refuse more (decompressed) text than this.
+
+    Returns
+    -------
+    (n, 3) float64
+
+    Raises
+    ------
+    MapFormatError
+        Non-numeric tokens, a token count not divisible by 3, or too much data.
+    """
+    p = Path(path)
+    opener = bz2.open if p.suffix == ".bz2" else open
+    with opener(p, "rb") as fh:
+        raw = fh.read(max_bytes + 1)
+    if len(raw) > max_bytes:
+        raise MapFormatError(f"{p}: more than {max_bytes} bytes of text")
+    try:
+        values = np.array(raw.split(), dtype=np.float64)
+    except ValueError:
+        raise MapFormatError(f"{p}: non-numeric token in a point file") from None
+    if values.size % 3:
+        raise MapFormatError(f"{p}: {values.size} numbers is not a multiple of 3")
+    return values.reshape(-1, 3)

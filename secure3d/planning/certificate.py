@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from secure3d.errors import PlanningError
-from secure3d.geometry.polytope import segment_box_intersects
+from secure3d.geometry.polytope import cones_blocked
 from secure3d.planning.result import Certificate, PlanResult, Violation
 from secure3d.planning.trajectory import interpolate
 
@@ -152,9 +152,7 @@ def certify(
     earlier = np.arange(n_t)[None, :] < owner[:, None]
     view = np.where(earlier, view, -np.inf)
 
-    # Boxes grown by the body radius contain the Minkowski sum of box and ball: a segment from the
-    # camera to the point that misses them keeps the whole cone to the ball clear.
-    glo, ghi = lo_b - r, hi_b + r
+    # The body ball is seen only if the whole cone of sight lines from the camera to it is clear.
     vis_margin = start_margin.copy()
     unresolved = np.flatnonzero(start_margin < -tol)
     occluded_only = np.zeros(len(unresolved), bool)
@@ -173,7 +171,7 @@ def certify(
                 break
             idx = np.flatnonzero(active)
             if len(lo_b):
-                blocked = segment_box_intersects(o[cams[idx]], flat[unresolved[idx]], glo, ghi).any(axis=1)
+                blocked = cones_blocked(o[cams[idx]], flat[unresolved[idx]], lo_b, hi_b, r)
             else:
                 blocked = np.zeros(len(idx), bool)
             ok = idx[~blocked]

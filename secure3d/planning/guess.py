@@ -189,7 +189,7 @@ def secure_speed_caps(
     """Largest speed at each path point whose reactive set is already observed: inside the start
     ball, or inside the frustum of an earlier path point with a clear line of sight (the paper's
     eq. FullConstraint along a geometric path, before any optimisation)."""
-    from secure3d.geometry.polytope import segment_box_intersects
+    from secure3d.geometry.polytope import segments_blocked
     from secure3d.planning.lookback import frustum_margins, start_margins
 
     model, o = problem.model, problem.options
@@ -215,7 +215,7 @@ def secure_speed_caps(
                 tips.append(geo["C"][rows] + sign * 0.9 * geo["M"][rows, :, a])
         p1 = np.concatenate(tips)
         p0 = np.tile(geo["o"][cols], (7, 1))
-        hit = segment_box_intersects(p0, p1, problem.boxes_lo, problem.boxes_hi).any(axis=1)
+        hit = segments_blocked(p0, p1, problem.boxes_lo, problem.boxes_hi)
         blocked = hit.reshape(7, -1).any(axis=0)
         seen[rows[blocked], cols[blocked]] = False
     ok = seen.any(axis=1) | (start_margins(problem, geo) >= o.margin)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from secure3d.geometry.frustum import frustum_halfspaces
-from secure3d.geometry.polytope import segment_box_intersects
+from secure3d.geometry.polytope import segments_blocked
 from secure3d.planning.problem import PlanningProblem
 
 #: Penalty (m) on a candidate camera whose line of sight to the reactive set crosses a known obstacle.
@@ -67,7 +67,7 @@ def occluded(problem: PlanningProblem, geo: dict[str, np.ndarray]) -> np.ndarray
     tips = np.stack(tips, axis=1)  # (K, 7, 3)
     p0 = np.broadcast_to(geo["o"][None, :, None, :], (K, n_cam, 7, 3)).reshape(-1, 3)
     p1 = np.broadcast_to(tips[:, None, :, :], (K, n_cam, 7, 3)).reshape(-1, 3)
-    hit = segment_box_intersects(p0, p1, problem.boxes_lo, problem.boxes_hi).any(axis=1)
+    hit = segments_blocked(p0, p1, problem.boxes_lo, problem.boxes_hi)
     return hit.reshape(K, n_cam, 7).any(axis=2)
 
 

@@ -292,6 +292,8 @@ def plan_problem(
     iters = 0
     T, X, U = guess.final_time, guess.states, guess.controls
     rounds = o.lookback_rounds if (planner == "secure" and o.lookback == "adaptive") else 1
+    if multipliers is not None:
+        rounds = 1  # a warm replan keeps the previous, already refined, assignment
     best: _Solve | None = None
     for _ in range(rounds):
         n_before = cache.misses

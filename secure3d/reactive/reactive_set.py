@@ -49,7 +49,7 @@ FAMILY_KINDS = ("closed_form", "fitted")
 CONTROLLERS = ("braking", "mpc")
 FORMAT_VERSION = 1
 
-#: Smoothing speed of the closed forms (m/s); its effect is covered by ``_SMOOTHING_SLACK``.
+#: Smoothing speed of the closed forms (m/s); the error it makes is added to the capsule radius.
 CLOSED_FORM_EPS = 1e-2
 #: Points whose cheap clearance bound exceeds the body radius by this much (m) are not searched
 #: exactly in :func:`check_containment` (they are inside by a wide margin).
@@ -275,9 +275,14 @@ def _quadrotor_bound(model: Quadrotor, latency: float, controller: Any | None) -
     # Largest angle between the thrust axis (tilt <= max_tilt, plus what the held rates add during
     # the latency) and any braking thrust direction (tilt <= brake_tilt).
     turn = min(math.pi, lim.max_tilt + lim.max_rate * latency + brake_tilt)
+    # Saturated turn at max_rate, then one attitude time constant to settle.
     t_turn = latency + turn / lim.max_rate + 1.0 / ctrl.gains.attitude_gain
-    thrust = lim.thrust_max if latency > 0 else g + a_b
-    err = thrust * math.sin(min(turn, math.pi / 2)) + (a_b if latency > 0 else 0.0)
+    # The law's thrust error is |t| sin(angle) <= (g + a_b) sin(angle); a held command during the
+    # latency may use up to thrust_max and differs from the braking reference by a_b more.
+    if latency > 0:
+        err = lim.thrust_max * math.sin(min(turn, math.pi / 2)) + a_b
+    else:
+        err = (g + a_b) * math.sin(min(turn, math.pi / 2))
     tau = ctrl.gains.velocity_time_constant
     return CapsuleBound(
         decel=a_b, coast=0.0, error_accel=err, error_time=t_turn, extra=0.5 * a_b * tau * tau

@@ -432,8 +432,8 @@ def _server_map(data: object, folder: Path, world: World) -> ServerMapSpec:
 def _check_vehicle_model(scenario: Scenario) -> None:
     """Build the dynamics model (as the planner will) so that its own checks judge the limits.
 
-    Also checks that the start state is one the model can be in (a differential drive cannot start
-    moving sideways) and that a differential drive's start and goal lie at its fixed height.
+    Also checks that the model accepts the start state, that a differential drive does not start
+    moving sideways or vertically, and that its start and goal lie at its fixed height.
     """
     from secure3d.dynamics import model_from_spec
 
@@ -455,6 +455,15 @@ def _check_vehicle_model(scenario: Scenario) -> None:
             f"not a valid initial state for {v.model}: {problem}",
             list(st.velocity),
         ) from None
+    if v.model == "diff_drive":
+        heading = np.array([math.cos(st.yaw), math.sin(st.yaw), 0.0])
+        lateral = np.subtract(st.velocity, np.dot(st.velocity, heading) * heading)
+        if np.linalg.norm(lateral) > 1e-9 * (1.0 + np.linalg.norm(st.velocity)):
+            raise _FieldError(
+                "start.velocity",
+                f"a diff_drive can only move along its heading yaw = {st.yaw:g} rad",
+                list(st.velocity),
+            )
     height = getattr(model.limits, "height", None)
     if v.model == "diff_drive" and height is not None:
         for what, p in (("start", st.position), ("goal", scenario.goal.position)):

@@ -18,7 +18,11 @@ from secure3d.dynamics import (
 from secure3d.errors import ConfigError
 from secure3d.world.spec import CameraSpec, VehicleSpec
 
-LIMITS = {"point_mass": PointMassLimits, "quadrotor": QuadrotorLimits, "diff_drive": DiffDriveLimits}
+LIMITS = {
+    "point_mass": PointMassLimits,
+    "quadrotor": QuadrotorLimits,
+    "diff_drive": DiffDriveLimits,
+}
 FLOAT_FIELDS = [
     (name, f.name)
     for name, cls in LIMITS.items()
@@ -88,7 +92,9 @@ def test_bad_mount(kwargs, field):
 
 
 def test_model_from_spec_uses_vehicle_and_camera():
-    vehicle = VehicleSpec(model="quadrotor", body_radius=0.3, limits={"max_speed": 3, "thrust_max": 15})
+    vehicle = VehicleSpec(
+        model="quadrotor", body_radius=0.3, limits={"max_speed": 3, "thrust_max": 15}
+    )
     camera = CameraSpec(mount_pitch_deg=20.0, mount_offset=(0.1, 0.0, -0.05))
     model = model_from_spec(vehicle, camera)
     assert model.name == "quadrotor" and model.body_radius == 0.3

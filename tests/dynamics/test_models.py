@@ -43,10 +43,16 @@ def test_casadi_and_numpy_dynamics_agree(name, rng):
     f_sym, g_sym = _casadi_fn(model, "f"), _casadi_fn(model, "path_constraints")
     for x, u in zip(X, U, strict=True):
         np.testing.assert_allclose(
-            np.array(f_sym(x, u)).ravel(), model.f(x, u), rtol=1e-12, atol=1e-12, err_msg=f"{name} f"
+            np.array(f_sym(x, u)).ravel(),
+            model.f(x, u),
+            rtol=1e-12,
+            atol=1e-12,
+            err_msg=f"{name} f",
         )
         g = model.path_constraints(x, u)
-        np.testing.assert_allclose(np.array(g_sym(x, u)).ravel(), g, atol=1e-12, err_msg=f"{name} g")
+        np.testing.assert_allclose(
+            np.array(g_sym(x, u)).ravel(), g, atol=1e-12, err_msg=f"{name} g"
+        )
 
 
 @pytest.mark.parametrize("name", MODELS)
@@ -64,7 +70,9 @@ def test_casadi_and_numpy_geometry_agree(name, rng):
         R_sym, o_sym = cam(x)
         R, o = model.camera_pose(x)
         np.testing.assert_allclose(np.array(R_sym), R, atol=1e-12, err_msg=f"{name} camera R")
-        np.testing.assert_allclose(np.array(o_sym).ravel(), o, atol=1e-12, err_msg=f"{name} camera o")
+        np.testing.assert_allclose(
+            np.array(o_sym).ravel(), o, atol=1e-12, err_msg=f"{name} camera o"
+        )
 
 
 @pytest.mark.parametrize("name", MODELS)
@@ -90,7 +98,9 @@ def test_rotations_are_proper(name, rng):
     R = model.body_rotation(X)
     Rc, _ = model.camera_pose(X)
     for A in (R, Rc):
-        np.testing.assert_allclose(np.swapaxes(A, 1, 2) @ A, np.broadcast_to(np.eye(3), A.shape), atol=1e-12)
+        np.testing.assert_allclose(
+            np.swapaxes(A, 1, 2) @ A, np.broadcast_to(np.eye(3), A.shape), atol=1e-12
+        )
         np.testing.assert_allclose(np.linalg.det(A), 1.0, atol=1e-12)
 
 
@@ -100,7 +110,9 @@ def test_camera_conventions_level_and_pitched():
     x = model.initial_state((1.0, 2.0, 3.0), yaw=math.pi / 2)  # facing world +y
     R, o = model.camera_pose(x)
     np.testing.assert_allclose(R[:, 2], [0, 1, 0], atol=1e-12, err_msg="optical z = heading")
-    np.testing.assert_allclose(R[:, 0], [1, 0, 0], atol=1e-12, err_msg="optical x = right of heading")
+    np.testing.assert_allclose(
+        R[:, 0], [1, 0, 0], atol=1e-12, err_msg="optical x = right of heading"
+    )
     np.testing.assert_allclose(R[:, 1], [0, 0, -1], atol=1e-12, err_msg="optical y = down")
     np.testing.assert_allclose(o, [1.0, 2.5, 3.1], atol=1e-12, err_msg="offset rotates with yaw")
     pitched = make_model("point_mass", mount=CameraMount(pitch=0.4))
@@ -150,6 +162,8 @@ def test_point_mass_and_diff_drive_physics():
     np.testing.assert_allclose(x, [1, 1, math.pi / 2, 2, 0], atol=1e-15)
     np.testing.assert_allclose(dd.position(x), [1, 1, 0.3], atol=1e-15)
     np.testing.assert_allclose(dd.velocity(x), [0, 2, 0], atol=1e-12)
+    # No sideways motion: only the component along the heading is kept.
+    assert dd.initial_state((0, 0, 0), (1.0, 3.0, 2.0), 0.0)[3] == 1.0
     # Constant turn: an arc of radius v / omega.
     x = np.array([0.0, 0.0, 0.0, 1.0, 0.5])
     for _ in range(100):
@@ -180,7 +194,11 @@ def test_bounds_and_constraints_reflect_limits():
 
 
 def test_types_and_names():
-    for name, cls in (("point_mass", PointMass), ("quadrotor", Quadrotor), ("diff_drive", DiffDrive)):
+    for name, cls in (
+        ("point_mass", PointMass),
+        ("quadrotor", Quadrotor),
+        ("diff_drive", DiffDrive),
+    ):
         model = make_model(name)
         assert isinstance(model, cls) and model.name == name
         assert model.nx == len(model.state_names) and model.nu == len(model.control_names)
@@ -197,4 +215,6 @@ def test_rk4_step_works_symbolically():
     X = sample_states(model, 5, rng)
     U = sample_hold_controls(model, 5, rng)
     for xi, ui in zip(X, U, strict=True):
-        np.testing.assert_allclose(np.array(step(xi, ui)).ravel(), rk4_step(model.f, xi, ui, 0.05), atol=1e-12)
+        np.testing.assert_allclose(
+            np.array(step(xi, ui)).ravel(), rk4_step(model.f, xi, ui, 0.05), atol=1e-12
+        )

@@ -39,7 +39,12 @@ def test_clearance_on_axisymmetric_degenerate_cases():
     P = np.array([[0.0, 0, 0], [1.0, 0, 0], [2.5, 0, 0], [0.0, 0.5, 0]])
     cl = clearance(P, np.arange(4), np.zeros((4, 3)), M)
     # Closed form: nearest point (x, rho) on x^2/9 + rho^2 = 1 to (a, 0): x = 9a/8.
-    expect = [1.0, np.sqrt(1 - 8 / 64), np.sqrt((9 * 2.5 / 8 - 2.5) ** 2 + 1 - (9 * 2.5 / 8) ** 2 / 9), 0.5]
+    expect = [
+        1.0,
+        np.sqrt(1 - 8 / 64),
+        np.sqrt((9 * 2.5 / 8 - 2.5) ** 2 + 1 - (9 * 2.5 / 8) ** 2 / 9),
+        0.5,
+    ]
     np.testing.assert_allclose(cl, expect, atol=1e-9)
 
 

@@ -33,7 +33,9 @@ def test_point_mass_brakes_along_a_straight_segment(norm, rng):
     travel = X[:, -1, :3] - X0[:, :3]
     # Continuous stopping distance s^2 / (2 a); the capped last step adds at most a dt^2 / 8.
     a = model.limits.max_accel
-    np.testing.assert_allclose(np.linalg.norm(travel, axis=1), s0**2 / (2 * a), atol=a * DT**2 / 8 + 1e-12)
+    np.testing.assert_allclose(
+        np.linalg.norm(travel, axis=1), s0**2 / (2 * a), atol=a * DT**2 / 8 + 1e-12
+    )
     # Straight: the velocity stays a non-negative multiple of v0 (no chattering through zero).
     along = np.einsum("ntj,nj->nt", X[:, :, 3:6], v0)
     cross = np.linalg.norm(np.cross(X[:, :, 3:6], v0[:, None, :]), axis=2)
@@ -72,7 +74,9 @@ def test_diff_drive_braking(rng):
     assert ctrl.at_rest(X[:, -1]).all()
     lim = model.limits
     np.testing.assert_allclose(
-        np.abs(X[:, -1, 2] - X0[:, 2]), X0[:, 4] ** 2 / (2 * lim.max_ang_accel), atol=lim.max_ang_accel * DT**2 / 8
+        np.abs(X[:, -1, 2] - X0[:, 2]),
+        X0[:, 4] ** 2 / (2 * lim.max_ang_accel),
+        atol=lim.max_ang_accel * DT**2 / 8,
     )
     assert np.all(X[:, :, 3] * np.sign(X0[:, 3])[:, None] >= -1e-12), "no reversing"
     U = ctrl.control_batch(X0, DT)
@@ -121,7 +125,9 @@ def test_mpc_batched_solver_matches_casadi(norm, rng):
     U, _ = mpc.solve_batch(X, takeover, n)
     for i in range(6):
         mpc._warm = None
-        np.testing.assert_allclose(mpc.solve(X[i], takeover[i], n[i]), U[i], atol=2e-5, err_msg=f"state {i}")
+        np.testing.assert_allclose(
+            mpc.solve(X[i], takeover[i], n[i]), U[i], atol=2e-5, err_msg=f"state {i}"
+        )
         u = mpc.control(X[i], obstacle=np.stack([lo[i], hi[i]]), takeover_point=takeover[i])
         np.testing.assert_allclose(u[:3], U[i, 0], atol=2e-5)
     a = model.limits.max_accel
@@ -139,7 +145,9 @@ def test_mpc_stops_and_settles_away_from_the_obstacle():
     t, X = mpc.rollout(x0, obstacle_lo=lo, obstacle_hi=hi)
     assert X[:, 0].max() < 3.0 - model.body_radius, "stopped short of the obstacle"
     offset = mpc.weights.repulsion / (2 * mpc.weights.drift)
-    np.testing.assert_allclose(X[-1, :3], [-offset, 0, 0], atol=5e-3, err_msg="settles away from it")
+    np.testing.assert_allclose(
+        X[-1, :3], [-offset, 0, 0], atol=5e-3, err_msg="settles away from it"
+    )
     assert np.linalg.norm(X[-1, 3:6]) < 1e-3 and t[-1] < mpc.default_t_max()
 
 

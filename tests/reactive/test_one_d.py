@@ -47,5 +47,7 @@ def test_paper_law_taken_literally_coasts_away_from_an_obstacle_behind():
     x0 = np.array([[0.0, 1.0], [0.0, -2.0]])
     behind = -np.sign(x0[:, 1]) * 3.0
     X = one_d.rollout(x0, behind, "paper", DT, t_max=2.0)
-    np.testing.assert_allclose(X[:, -1, 1], x0[:, 1], err_msg="no braking: the law's 'otherwise' case")
+    np.testing.assert_allclose(
+        X[:, -1, 1], x0[:, 1], err_msg="no braking: the law's 'otherwise' case"
+    )
     np.testing.assert_allclose(X[:, -1, 0], 2.0 * x0[:, 1], atol=1e-9)

@@ -308,7 +308,8 @@ def test_bad_corner_file_names_file_field_and_problem(
 
 
 BAD_DIFF_DRIVE = [
-    ("sideways start", _set("start.velocity", [0.0, 1.0, 0.0]), "start.velocity", "diff_drive"),
+    ("sideways start", _set("start.velocity", [0.0, 1.0, 0.0]), "start.velocity", "heading"),
+    ("climbing start", _set("start.velocity", [1.0, 0.0, 0.5]), "start.velocity", "heading"),
     ("wrong height", _set("goal.position", [4.5, 0.0, 0.8]), "goal.position", "fixed height"),
 ]
 

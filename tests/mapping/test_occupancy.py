@@ -1,0 +1,224 @@
+"""The sensor layer of OccupancyMap against octomap-python, voxel for voxel and byte for byte."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import octomap
+import pytest
+
+from secure3d._deps import open3d
+from secure3d.errors import ConfigError, GeometryError
+from secure3d.mapping import OccupancyMap, OccupancyParams
+from secure3d.mapping.keys import codes_to_coords
+from secure3d.mapping.occupancy import depth_image_points
+from secure3d.mapping.octomap_io import read_ot_bytes, read_scan_dat
+from secure3d.mapping.store import expand_ranges
+
+
+@pytest.fixture(scope="module")
+def scan(octomap_dir) -> np.ndarray:
+    return read_scan_dat(octomap_dir / "scan.dat.bz2")
+
+
+def octree_voxels(tree: octomap.OcTree) -> np.ndarray:
+    """Centres of every finest voxel of an octree (from OctoMap's own .ot serialisation)."""
+    leaves = read_ot_bytes(tree.write())
+    codes, _ = expand_ranges(leaves.starts, leaves.depths)
+    return codes_to_coords(codes, leaves.resolution)
+
+
+def assert_same_states(ours: OccupancyMap, tree: octomap.OcTree) -> None:
+    union = np.unique(
+        np.concatenate([ours.occupied_voxels(), ours.free_voxels(), octree_voxels(tree)]), axis=0
+    )
+    labels = tree.getLabels(union)
+    assert (labels != -1).all()
+    np.testing.assert_array_equal(ours.classify(union), labels)
+
+
+@pytest.mark.parametrize(("resolution", "max_range"), [(0.1, None), (0.2, None), (0.1, 5.0)])
+def test_real_scan_matches_octomap_voxel_for_voxel(scan, resolution, max_range):
+    ours = OccupancyMap(resolution)
+    stats = ours.insert_point_cloud(scan, np.zeros(3), max_range)
+    tree = octomap.OcTree(resolution)
+    tree.insertPointCloud(scan, np.zeros(3), maxrange=-1.0 if max_range is None else max_range)
+    assert stats.points_used == scan.shape[0]
+    assert_same_states(ours, tree)
+    # Same log-odds and same pruned tree: OctoMap's own serialisations are byte-identical.
+    assert ours.to_bytes("ot") == tree.write()
+    assert ours.to_bytes("bt") == tree.writeBinary()
+
+
+def test_repeated_scans_accumulate_log_odds_like_octomap(scan, rng):
+    """Hits, misses, clamping and occupied-wins over several overlapping scans: identical .ot."""
+    res, max_range = 0.2, 6.0
+    ours = OccupancyMap(res)
+    tree = octomap.OcTree(res)
+    for _ in range(6):
+        origin = rng.normal(0.0, 0.4, 3)
+        sub = scan[rng.random(scan.shape[0]) < 0.3]
+        ours.insert_point_cloud(sub, origin, max_range)
+        tree.insertPointCloud(sub, origin, maxrange=max_range)
+    assert ours.to_bytes("ot") == tree.write()
+    assert_same_states(ours, tree)
+
+
+def test_custom_sensor_model_matches_octomap(scan):
+    params = OccupancyParams(
+        prob_hit=0.9, prob_miss=0.3, occupancy_threshold=0.6, clamp_min=0.2, clamp_max=0.9
+    )
+    ours = OccupancyMap(0.2, params)
+    tree = octomap.OcTree(0.2)
+    tree.setProbHit(0.9)
+    tree.setProbMiss(0.3)
+    tree.setOccupancyThres(0.6)
+    tree.setClampingThresMin(0.2)
+    tree.setClampingThresMax(0.9)
+    for origin in (np.zeros(3), np.array([0.3, -0.2, 0.1])):
+        ours.insert_point_cloud(scan[::3], origin, 4.0)
+        tree.insertPointCloud(scan[::3], origin, maxrange=4.0)
+    assert ours.to_bytes("ot") == tree.write()
+    assert_same_states(ours, tree)
+
+
+def test_params_log_odds_are_octomaps():
+    p = OccupancyParams()
+    tree = octomap.OcTree(0.1)
+    for ours, ref in (
+        (p.hit_log, tree.getProbHitLog()),
+        (p.miss_log, tree.getProbMissLog()),
+        (p.threshold_log, tree.getOccupancyThresLog()),
+        (p.clamp_min_log, tree.getClampingThresMinLog()),
+        (p.clamp_max_log, tree.getClampingThresMaxLog()),
+    ):
+        assert ours == np.float32(ref)
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("prob_hit", 0.5),
+        ("prob_hit", 1.0),
+        ("prob_miss", 0.6),
+        ("prob_miss", 0.0),
+        ("occupancy_threshold", 0.05),
+        ("clamp_min", float("nan")),
+        ("clamp_max", 0.4),
+        ("prob_hit", "0.7"),
+    ],
+)
+def test_params_validation_names_the_field(field, value):
+    with pytest.raises(ConfigError, match=field if field != "clamp_max" else "clamp"):
+        OccupancyParams(**{field: value})
+
+
+@pytest.mark.parametrize("resolution", [0.0, -0.1, float("nan"), float("inf"), "0.1", True])
+def test_resolution_validation(resolution):
+    with pytest.raises(ConfigError, match="resolution"):
+        OccupancyMap(resolution)
+
+
+@pytest.mark.parametrize(
+    "bounds", [([0, 0, 0], [1, 1]), ([0, 0, 0], [1, 1, 0]), ([0, 0, np.nan], [1, 1, 1]), "box"]
+)
+def test_bounds_validation(bounds):
+    with pytest.raises(ConfigError, match="bounds"):
+        OccupancyMap(0.1, bounds=bounds)
+
+
+@pytest.mark.parametrize("max_range", [-1.0, float("nan"), "5"])
+def test_max_range_validation(max_range):
+    with pytest.raises(ConfigError, match="max_range"):
+        OccupancyMap(0.1).insert_point_cloud(np.ones((2, 3)), np.zeros(3), max_range)
+
+
+def test_nonfinite_and_out_of_range_points_are_skipped_with_counts(rng):
+    good = rng.uniform(-3, 3, size=(500, 3))
+    bad = np.array([[np.nan, 0, 0], [0, np.inf, 1], [5e3, 0, 0], [0, -1e40, 0]])
+    m = OccupancyMap(0.05)  # key range +-1638.4 m
+    stats = m.insert_point_cloud(np.concatenate([good, bad]), np.zeros(3))
+    assert (stats.skipped_nonfinite, stats.skipped_out_of_range, stats.points_used) == (2, 2, 500)
+    clean = OccupancyMap(0.05)
+    clean.insert_point_cloud(good, np.zeros(3))
+    assert m.to_bytes("ot") == clean.to_bytes("ot")
+
+
+def test_depth_image_back_projection_matches_open3d_rays():
+    """Our pixel convention is Open3D's: points from a ray-cast depth frame lie on the plane."""
+    o3d = open3d()
+    w, h = 64, 48
+    k = np.array([[50.0, 0, 31.0], [0, 55.0, 25.0], [0, 0, 1]])
+    # Camera at the origin looking along world +x (camera z), x right = world -y, y down = -z.
+    cam2world = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    world2cam = np.eye(4)
+    world2cam[:3, :3] = cam2world.T
+    rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(
+        o3d.core.Tensor(k), o3d.core.Tensor(world2cam), w, h
+    )
+    scene = o3d.t.geometry.RaycastingScene()
+    plane = o3d.geometry.TriangleMesh.create_box(0.1, 40.0, 40.0).translate([4.0, -20.0, -20.0])
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(plane))
+    t_hit = scene.cast_rays(rays)["t_hit"].numpy()  # z-depth for pinhole rays
+    pts = depth_image_points(t_hit, k, cam2world, np.zeros(3), None)
+    np.testing.assert_allclose(pts[:, 0], 4.0, atol=1e-4, err_msg="points off the plane x = 4")
+    d = rays.numpy()[..., 3:].reshape(-1, 3)
+    np.testing.assert_allclose(pts, d * t_hit.reshape(-1, 1), atol=1e-4)
+
+
+def test_depth_image_hits_and_no_returns():
+    k = (40.0, 40.0, 20.0, 15.0)
+    cam2world = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    origin = np.array([0.0, 0.0, 1.0])
+    depth = np.full((30, 40), 3.0)
+    depth[:, 20:] = np.inf  # right half: no return
+    depth[0, 0] = np.nan
+    depth[0, 1] = 0.0
+    m = OccupancyMap(0.1)
+    stats = m.insert_depth_image(depth, k, cam2world, origin, max_range=5.0)
+    assert stats.skipped_nonfinite == 2
+    assert stats.clipped == 30 * 20
+    occ = m.occupied_voxels()
+    assert occ.shape[0] > 0
+    # Hits lie on the plane x = 3 (z-depth along world x); no-return rays only cleared space.
+    assert np.all(np.abs(occ[:, 0] - 3.0) <= 0.1)
+    assert np.all(occ[:, 1] > -0.1), "no occupied voxel on the no-return (world -y) side"
+    free = m.free_voxels()
+    right = free[:, 1] < -0.5
+    reach = np.linalg.norm(free[right] - origin, axis=1)
+    assert reach.max() == pytest.approx(5.0, abs=0.2), "no-return beams clear up to max_range"
+    with pytest.raises(GeometryError, match="cam2world"):
+        m.insert_depth_image(depth, k, 2 * cam2world, origin, 5.0)
+    with pytest.raises(GeometryError, match="intrinsics"):
+        m.insert_depth_image(depth, (0.0, 40.0, 20.0, 15.0), cam2world, origin, 5.0)
+
+
+def test_copy_is_independent(scan):
+    m = OccupancyMap(0.2)
+    m.insert_point_cloud(scan[::10], np.zeros(3), 4.0)
+    c = m.copy()
+    before = c.to_bytes("ot")
+    m.insert_point_cloud(scan[1::10], np.array([0.5, 0.0, 0.0]), 4.0)
+    m.set_claim_boxes([[0, 0, 0]], [[1, 1, 1]])
+    assert c.to_bytes("ot") == before
+    assert c.claimed_voxels().shape[0] == 0
+    assert len(c) < len(m)
+
+
+def test_voxels_in_box_and_leaves(scan):
+    m = OccupancyMap(0.2)
+    m.insert_point_cloud(scan, np.zeros(3), 5.0)
+    lo, hi = np.array([-1.0, -3.0, -0.5]), np.array([2.0, 1.0, 1.5])
+    centres, trust = m.voxels_in_box(lo, hi)
+    every = np.concatenate([m.occupied_voxels(), m.free_voxels()])
+    inside = every[np.all((every >= lo) & (every <= hi), axis=1)]
+    assert {tuple(c) for c in np.round(centres, 6)} == {tuple(c) for c in np.round(inside, 6)}
+    np.testing.assert_array_equal(trust, np.where(m.classify(centres) == 1, 4, 3))
+    # The pruned form covers exactly the same volume.
+    lc, sizes, logodds = m.leaves()
+    assert math.isclose(float(np.sum(sizes**3)), len(m) * 0.2**3, rel_tol=1e-9)
+    assert sizes.max() > 0.2, "a scan's free space prunes into bigger leaves"
+    np.testing.assert_array_equal(
+        m.classify(lc), (logodds >= m.params.threshold_log).astype(np.int8)
+    )

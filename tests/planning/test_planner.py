@@ -1,0 +1,146 @@
+"""The secure planner, the baseline and the certificate on real scenarios (IPOPT solves)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import secure3d
+import secure3d.errors
+from secure3d.planning import PlanStatus, certify, plan, plan_problem, problem_from_scenario
+from secure3d.planning.collocation import NLPCache
+from secure3d.world.spec import Box, GoalSpec, StartSpec
+
+
+@pytest.fixture(scope="module")
+def corner(maps_dir):
+    return secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+
+
+@pytest.fixture(scope="module")
+def corner_problem(corner):
+    return problem_from_scenario(corner, reactive_family="closed_form")
+
+
+@pytest.fixture(scope="module")
+def plans(corner_problem):
+    cache = NLPCache()
+    return {p: plan_problem(corner_problem, p, cache=cache) for p in ("baseline", "secure")}
+
+
+def test_both_planners_succeed_and_reach_the_goal(plans, corner):
+    for name, result in plans.items():
+        assert result.status is PlanStatus.SUCCESS, f"{name}: {result.message}"
+        np.testing.assert_allclose(result.positions[-1], corner.goal.position, atol=1e-4, err_msg=name)
+        np.testing.assert_allclose(result.speeds[-1], 0.0, atol=1e-4, err_msg=name)
+        np.testing.assert_allclose(result.states[0], result.states[0], err_msg=name)
+
+
+def test_secure_plan_is_certified_and_baseline_is_not(plans, corner_problem):
+    secure = plans["secure"]
+    assert secure.certificate is not None and secure.certificate.ok, str(secure.certificate)
+    baseline_cert = certify(plans["baseline"], corner_problem)
+    assert not baseline_cert.ok, "the baseline cuts the blind corner: its reactive sets are not observed"
+    assert baseline_cert.first_violation is not None
+    assert 0.0 < baseline_cert.first_violation.time < plans["baseline"].final_time
+
+
+def test_security_costs_time_but_not_much(plans):
+    ratio = plans["secure"].final_time / plans["baseline"].final_time
+    assert 1.0 < ratio < 2.5, f"secure/baseline final time {ratio:.2f}"
+
+
+def test_dynamics_and_limits_hold_at_the_nodes(plans, corner_problem):
+    model = corner_problem.model
+    for name, r in plans.items():
+        assert np.all(r.controls >= model.u_lo - 1e-6) and np.all(r.controls <= model.u_hi + 1e-6), name
+        assert np.all(r.speeds <= model.limits.max_speed + 1e-3), name
+        # trapezoidal defects recomputed from the returned arrays, not from the NLP
+        h = np.diff(r.times)
+        F = model.f_batch(r.states, r.controls)
+        defect = r.states[1:] - r.states[:-1] - 0.5 * h[:, None] * (F[:-1] + F[1:])
+        assert np.abs(defect).max() < 1e-5, f"{name}: dynamics defect {np.abs(defect).max():.2e}"
+
+
+def test_certificate_catches_a_plan_made_with_a_wider_camera(corner_problem):
+    from secure3d.geometry.frustum import PinholeFrustum
+
+    wide = PinholeFrustum(hfov=np.radians(160), vfov=np.radians(150), far=15.0)
+    optimistic = dataclasses.replace(corner_problem, frustum=wide).with_options(certify=False)
+    r = plan_problem(optimistic, "secure", cache=NLPCache())
+    assert r.status is PlanStatus.SUCCESS, r.message
+    cert = certify(r, corner_problem)
+    assert not cert.ok, "a plan relying on a field of view the camera does not have must not certify"
+    assert cert.min_visibility_margin < 0 <= cert.min_obstacle_margin
+
+
+def test_certificate_sees_occlusion_by_a_wall_the_plan_ignored(plans, corner_problem):
+    # A wall across leg 2 (floor to ceiling, a gap left on the outside): the plan's views through it
+    # are blocked, so its reactive sets beyond it were never observed.
+    lo = np.vstack([corner_problem.boxes_lo, [[5.5, 5.0, 0.0]]])
+    hi = np.vstack([corner_problem.boxes_hi, [[7.2, 5.1, 2.5]]])
+    walled = dataclasses.replace(corner_problem, boxes_lo=lo, boxes_hi=hi)
+    cert = certify(plans["secure"], walled)
+    assert not cert.ok
+    assert cert.first_violation is not None
+
+
+def test_certificate_catches_a_sped_up_plan(plans, corner_problem):
+    fast = dataclasses.replace(plans["secure"], times=plans["secure"].times * 0.6,
+                               states=plans["secure"].states.copy())
+    fast.states[:, 3:6] /= 0.6  # same path, flown faster: reactive sets grow out of view
+    fast.controls[:] = fast.controls / 0.36
+    cert = certify(fast, corner_problem)
+    assert not cert.ok
+
+
+def test_fixed_lookback_also_certifies(corner_problem):
+    r = plan_problem(corner_problem.with_options(lookback="fixed", lookback_steps=4), "secure", cache=NLPCache())
+    assert r.ok, r.message
+    assert r.lookback_rule == "fixed"
+    K = corner_problem.options.nodes
+    expected = [i - 4 if i >= 4 else -1 for i in range(K)]
+    assert r.lookback.tolist() == expected
+
+
+def test_warm_replan_reuses_the_compiled_nlp_and_is_faster(corner_problem, plans):
+    cache = NLPCache()
+    cold = plan_problem(corner_problem, "secure", cache=cache)
+    misses = cache.misses
+    warm = plan_problem(corner_problem, "secure", cache=cache, warm=cold)
+    assert warm.ok, warm.message
+    assert cache.misses == misses, "the warm replan must reuse the compiled NLP"
+    assert warm.iterations < cold.iterations
+    np.testing.assert_allclose(warm.final_time, cold.final_time, rtol=1e-3)
+
+
+def test_start_inside_an_obstacle_is_invalid_input(corner):
+    with pytest.raises(secure3d.errors.ScenarioError, match="start"):
+        dataclasses.replace(corner, start=StartSpec(position=(3.0, 3.0, 1.25)))
+    # built past the scenario's checks (e.g. a replan from a state inside a newly seen obstacle)
+    problem = problem_from_scenario(corner, reactive_family="closed_form")
+    inside = problem.with_start(problem.model.initial_state(np.array([3.0, 3.0, 1.25]), np.zeros(3), 0.0))
+    r = plan_problem(inside, "secure")
+    assert r.status is PlanStatus.INVALID_INPUT
+    assert "start" in r.message and "inside a known obstacle" in r.message
+
+
+def test_goal_walled_off_is_infeasible(corner):
+    wall = Box("sealed", (5.6, 6.0, 0.0), (8.0, 6.3, 2.5))
+    world = dataclasses.replace(corner.world, boxes=(*corner.world.boxes, wall))
+    sealed = dataclasses.replace(corner, world=world)
+    r = plan(sealed, "baseline")
+    assert r.status is PlanStatus.INFEASIBLE
+    assert "no collision-free path" in r.message
+
+
+def test_goal_outside_the_map_is_invalid(corner):
+    with pytest.raises(secure3d.errors.ScenarioError, match="goal"):
+        dataclasses.replace(corner, goal=GoalSpec(position=(20.0, 1.0, 1.0)))
+    problem = problem_from_scenario(corner, reactive_family="closed_form")
+    outside = dataclasses.replace(problem, goal=np.array([20.0, 1.0, 1.0]))
+    r = plan_problem(outside, "baseline")
+    assert r.status is PlanStatus.INVALID_INPUT
+    assert "outside the map" in r.message
