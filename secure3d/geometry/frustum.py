@@ -142,9 +142,35 @@ class PinholeFrustum:
         corner = math.sqrt(1 + max(x_lo**2, x_hi**2) + max(y_lo**2, y_hi**2))
         return self.far / corner
 
+    def far_facets(self) -> tuple[np.ndarray, np.ndarray]:
+        """Far faces ``(N (k, 3), d (k,))``: one plane z = far for ``"depth"``; for ``"range"`` a
+        cap of facets inside the range sphere (the image is split into patches of at most
+        :data:`FACET_ANGLE`; the facet of a patch has the unit normal of the patch's central ray u_c
+        and offset ``far * min over the patch corners u of u_c . u``, so every point of the patch's
+        cone below it is within range). One plane at ``far_plane_depth`` would be sound too, but for
+        wide lenses it keeps less than half the range (paper: the isosceles-triangle sensor)."""
+        if self.far_kind == "depth":
+            return np.array([[0.0, 0.0, 1.0]]), np.array([self.far])
+        x_lo, x_hi, y_lo, y_hi = self.image_extents
+        nh = max(1, math.ceil(self.hfov / FACET_ANGLE))
+        nv = max(1, math.ceil(self.vfov / FACET_ANGLE))
+        xs = np.tan(np.linspace(math.atan(x_lo), math.atan(x_hi), nh + 1))
+        ys = np.tan(np.linspace(math.atan(y_lo), math.atan(y_hi), nv + 1))
+        normals, offsets = [], []
+        for i in range(nh):
+            for j in range(nv):
+                corners = np.array([[x, y, 1.0] for x in xs[i : i + 2] for y in ys[j : j + 2]])
+                corners /= np.linalg.norm(corners, axis=1, keepdims=True)
+                centre = corners.sum(axis=0)
+                centre /= np.linalg.norm(centre)
+                normals.append(centre)
+                offsets.append(self.far * float((corners @ centre).min()))
+        return np.array(normals), np.array(offsets)
+
     def optical_halfspaces(self) -> tuple[np.ndarray, np.ndarray]:
-        """Faces in the optical frame: ``(N (5, 3), d (5,))`` with unit outward rows, inside iff
-        ``N p <= d``. Order: right, left, bottom, top (side planes, ``d = 0``), far."""
+        """Faces in the optical frame: ``(N (n, 3), d (n,))`` with unit outward rows, inside iff
+        ``N p <= d``. Order: right, left, bottom, top (side planes, ``d = 0``), then the far faces
+        (:meth:`far_facets`: one for ``"depth"``, a cap of facets for ``"range"``)."""
         x_lo, x_hi, y_lo, y_hi = self.image_extents
         N = np.array(
             [
@@ -152,12 +178,20 @@ class PinholeFrustum:
                 [-1.0, 0.0, x_lo],
                 [0.0, 1.0, -y_hi],
                 [0.0, -1.0, y_lo],
-                [0.0, 0.0, 1.0],
             ]
         )
         N /= np.linalg.norm(N, axis=1, keepdims=True)
-        d = np.array([0.0, 0.0, 0.0, 0.0, self.far_plane_depth])
-        return N, d
+        far_N, far_d = self.far_facets()
+        return np.vstack([N, far_N]), np.concatenate([np.zeros(4), far_d])
+
+    @property
+    def n_faces(self) -> int:
+        """Number of half-spaces of the field of view (4 sides plus the far faces)."""
+        return 4 + len(self.far_facets()[1])
+
+
+#: Largest angular size of one far facet of a range-limited frustum (rad).
+FACET_ANGLE = math.radians(30.0)
 
 
 def _check_frustum(frustum: object) -> PinholeFrustum:
@@ -196,8 +230,8 @@ def frustum_halfspaces(
 
     Returns
     -------
-    A : (5, 3) or (N, 5, 3) float, or CasADi (5, 3)
-    b : (5,) or (N, 5) float, or CasADi (5, 1)
+    A : (F, 3) or (N, F, 3) float, or CasADi (F, 3), F = frustum.n_faces
+    b : (F,) or (N, F) float, or CasADi (F, 1)
     """
     frustum = _check_frustum(frustum)
     sym, R, o = _pose(world_from_optical_R, origin)

@@ -260,7 +260,7 @@ def _clipped_ends(
     points: np.ndarray, origin: np.ndarray, resolution: float, max_range: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     """Per point: effective end (float32), its keys and a status; plus the key box of all rays
-    and a bound on their total number of voxels (L1 key distances + 2 each).
+    and a bound on their total number of voxels (L1 key distances + 3 each).
 
     Status: 0 hit (ray + occupied end), 1 clipped at max range (ray only), 2 non-finite,
     3 end outside the key range (a finite value too big for float32 included). The clipped end
@@ -323,7 +323,8 @@ def _clipped_ends(
         hi[0] = max(hi[0], kx)
         hi[1] = max(hi[1], ky)
         hi[2] = max(hi[2], kz)
-        steps += abs(kx - lo_o[0]) + abs(ky - lo_o[1]) + abs(kz - lo_o[2]) + 2
+        # the origin voxel plus at most L1 + 2 DDA steps (see the kernels' per-ray bound)
+        steps += abs(kx - lo_o[0]) + abs(ky - lo_o[1]) + abs(kz - lo_o[2]) + 3
     return ends, keys, status, lo, hi, steps
 
 

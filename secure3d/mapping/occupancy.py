@@ -169,7 +169,9 @@ class Trust(IntEnum):
 
 
 def _check_resolution(resolution: object) -> float:
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, float, np.floating)):
+    if isinstance(resolution, bool) or not isinstance(
+        resolution, (int, float, np.integer, np.floating)
+    ):
         raise ConfigError(f"resolution: expected a number, got {resolution!r}")
     r = float(resolution)
     if not (math.isfinite(r) and r > 0.0):
@@ -327,7 +329,9 @@ class OccupancyMap:
     def _check_max_range(max_range: float | None) -> float | None:
         if max_range is None:
             return None
-        if isinstance(max_range, bool) or not isinstance(max_range, (int, float, np.floating)):
+        if isinstance(max_range, bool) or not isinstance(
+            max_range, (int, float, np.integer, np.floating)
+        ):
             raise ConfigError(f"max_range: expected a number or None, got {max_range!r}")
         mr = float(max_range)
         if math.isnan(mr) or mr < 0.0:
@@ -745,7 +749,7 @@ class OccupancyMap:
         p = check_points(points)
         if not np.all(np.isfinite(p)):
             raise GeometryError("boxes_near: points must be finite")
-        if not (isinstance(radius, (int, float, np.floating)) and radius >= 0.0):
+        if not (isinstance(radius, (int, float, np.integer, np.floating)) and radius >= 0.0):
             raise GeometryError(f"boxes_near: radius must be a number >= 0, got {radius!r}")
         lo, hi = self.known_obstacle_boxes(max_boxes)
         near = boxes_near_points(lo, hi, p, float(radius))
@@ -781,8 +785,18 @@ class OccupancyMap:
     # ------------------------------------------------------------------ files
 
     def to_bytes(self, fmt: str = "bt") -> bytes:
-        """The sensor layer as an OctoMap ``.bt`` or ``.ot`` buffer, byte-identical to what
-        OctoMap's ``writeBinary``/``write`` produces for the same map."""
+        """The sensor layer as an OctoMap ``.bt`` or ``.ot`` buffer.
+
+        The tree is pruned as OctoMap keeps it while inserting (every group of 8 sibling leaves
+        with equal log-odds merged); ``.bt`` then follows ``writeBinary`` (max-likelihood leaves,
+        ``prune()``). For maps built by insertion, and for files OctoMap wrote, the output is
+        byte-identical to OctoMap's ``writeBinary``/``write`` (tested). The claim layer is not
+        written.
+
+        Parameters
+        ----------
+        fmt : {"bt", "ot"}
+        """
         starts, depths, vals = octomap_io.prune(*self._sensor.leaves())
         if fmt == "ot":
             return octomap_io.write_ot_bytes(self._resolution, starts, depths, vals)

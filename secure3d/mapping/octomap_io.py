@@ -49,6 +49,9 @@ OT_MAGIC = b"# Octomap OcTree file"
 _COMMENT = b"# (feel free to add / change comments, but leave the first line as it is!)\n#\n"
 #: OctoMap's header is ~130 bytes; anything needing more than this is not a real header.
 MAX_HEADER_BYTES = 4096
+#: Most leaves a file may hold (~1 GB of parsed arrays); geb079.bt, a whole building floor at
+#: 0.08 m, has 428,144.
+MAX_LEAVES = 100_000_000
 TREE_ID = "OcTree"
 
 # Error codes of the numba parsers.
@@ -155,12 +158,17 @@ def _header(magic: bytes, size: int, resolution: float) -> bytes:
 
 
 @numba.njit(cache=True)
-def _parse_bt_body(body: np.ndarray, max_nodes: int) -> tuple:
-    """Walk ``.bt`` records; return (starts, depths, occupied, n_leaves, n_nodes, used, error)."""
+def _parse_bt_body(body: np.ndarray, max_nodes: int, n_out: int) -> tuple:
+    """Walk ``.bt`` records; return (starts, depths, occupied, n_leaves, n_nodes, used, error).
+
+    With ``n_out == 0`` nothing is stored (a validating count pass); otherwise ``n_out`` must be
+    the leaf count of that pass.
+    """
     n = body.shape[0]
-    starts = np.empty(max_nodes, np.int64)
-    depths = np.empty(max_nodes, np.int8)
-    occ = np.empty(max_nodes, np.bool_)
+    fill = n_out > 0
+    starts = np.empty(n_out, np.int64)
+    depths = np.empty(n_out, np.int8)
+    occ = np.empty(n_out, np.bool_)
     stack_prefix = np.empty(TREE_DEPTH + 1, np.int64)
     stack_rec = np.empty(TREE_DEPTH + 1, np.int64)
     stack_next = np.empty(TREE_DEPTH + 1, np.int64)
@@ -180,17 +188,17 @@ def _parse_bt_body(body: np.ndarray, max_nodes: int) -> tuple:
         if rec == 0:
             if sp > 0:
                 # OctoMap reads an inner node without children as a leaf of value -FLT_MAX: free.
-                if n_leaves >= max_nodes:
-                    return starts, depths, occ, n_leaves, n_nodes, pos, _TOO_MANY_NODES
-                starts[n_leaves] = prefix << (3 * (TREE_DEPTH - sp))
-                depths[n_leaves] = sp
-                occ[n_leaves] = False
+                if fill:
+                    starts[n_leaves] = prefix << (3 * (TREE_DEPTH - sp))
+                    depths[n_leaves] = sp
+                    occ[n_leaves] = False
                 n_leaves += 1
             else:
                 # A childless root is itself a leaf; OctoMap leaves it at its default, occupied.
-                starts[0] = 0
-                depths[0] = 0
-                occ[0] = True
+                if fill:
+                    starts[0] = 0
+                    depths[0] = 0
+                    occ[0] = True
                 n_leaves = 1
                 return starts, depths, occ, n_leaves, n_nodes, pos, _OK
         else:
@@ -205,9 +213,10 @@ def _parse_bt_body(body: np.ndarray, max_nodes: int) -> tuple:
                     if sp + 1 >= TREE_DEPTH:
                         return starts, depths, occ, n_leaves, n_nodes, pos, _TOO_DEEP
                     continue
-                starts[n_leaves] = ((prefix << 3) | c) << (3 * (TREE_DEPTH - sp - 1))
-                depths[n_leaves] = sp + 1
-                occ[n_leaves] = code == 2
+                if fill:
+                    starts[n_leaves] = ((prefix << 3) | c) << (3 * (TREE_DEPTH - sp - 1))
+                    depths[n_leaves] = sp + 1
+                    occ[n_leaves] = code == 2
                 n_leaves += 1
             stack_prefix[sp] = prefix
             stack_rec[sp] = rec
@@ -312,21 +321,25 @@ def read_bt_bytes(data: bytes) -> Leaves:
             raise MapFormatError(f"size 0 but {body.size} data bytes follow the header")
         empty = np.empty(0, np.int64)
         return Leaves(res, empty, np.empty(0, np.int8), np.empty(0, np.float32))
-    # Each 2-byte record declares at most 8 children: bound size before allocating anything.
+    # Each 2-byte record declares at most 8 children: reject an impossible size outright.
     max_nodes = 1 + 8 * (body.size // 2)
     if size > max_nodes:
         raise MapFormatError(
             f"size {size} is impossible: {body.size} data bytes hold at most {max_nodes} nodes"
         )
-    starts, depths, occ, n_leaves, n_nodes, used, err = _parse_bt_body(body, size)
+    # First pass: validate and count without storing; allocate only for what the file holds.
+    _, _, _, n_leaves, n_nodes, used, err = _parse_bt_body(body, size, 0)
     if err != _OK:
         raise MapFormatError(f"corrupt .bt data: {_PARSE_ERRORS[err]}")
     if used != body.size:
         raise MapFormatError(f"{body.size - used} trailing bytes after the tree")
     if n_nodes != size:
         raise MapFormatError(f"size mismatch: header says {size} nodes, data has {n_nodes}")
-    values = np.where(occ[:n_leaves], np.float32(1.0), np.float32(-1.0))
-    return Leaves(res, *_sorted(starts[:n_leaves], depths[:n_leaves], values))
+    if n_leaves > MAX_LEAVES:
+        raise MapFormatError(f"{n_leaves} leaves exceed the limit of {MAX_LEAVES}")
+    starts, depths, occ, _, _, _, _ = _parse_bt_body(body, size, n_leaves)
+    values = np.where(occ, np.float32(1.0), np.float32(-1.0))
+    return Leaves(res, *_sorted(starts, depths, values))
 
 
 def read_ot_bytes(data: bytes) -> Leaves:
@@ -354,6 +367,8 @@ def read_ot_bytes(data: bytes) -> Leaves:
     if size == 0:
         empty = np.empty(0, np.int64)
         return Leaves(res, empty, np.empty(0, np.int8), np.empty(0, np.float32))
+    if size > MAX_LEAVES:
+        raise MapFormatError(f"{size} nodes exceed the limit of {MAX_LEAVES}")
     rec = body.reshape(size, 5)
     values = np.ascontiguousarray(rec[:, :4]).view("<f4").ravel().astype(np.float32)
     masks = np.ascontiguousarray(rec[:, 4])
@@ -429,11 +444,11 @@ def _inner_nodes(starts: NDArray[np.int64], depths: NDArray[np.int8]) -> list[ND
     return [np.unique(starts[depths > k] >> (3 * (TREE_DEPTH - k))) for k in range(TREE_DEPTH)]
 
 
-def _preorder(prefix_by_depth: list[NDArray[np.int64]]) -> tuple[np.ndarray, np.ndarray]:
-    """Depth-first order of nodes: by first finest code, ancestors before descendants."""
+def _preorder(prefix_by_depth: list[NDArray[np.int64]]) -> NDArray[np.int64]:
+    """Depth-first order of nodes given per depth: by first finest code, ancestors first."""
     depth = np.concatenate([np.full(p.size, k, np.int64) for k, p in enumerate(prefix_by_depth)])
     first = np.concatenate([p << (3 * (TREE_DEPTH - k)) for k, p in enumerate(prefix_by_depth)])
-    return np.lexsort((depth, first)), depth
+    return np.lexsort((depth, first))
 
 
 def write_bt_bytes(
@@ -467,7 +482,7 @@ def write_bt_bytes(
             code = np.concatenate([code, np.full(qi.size, 3)])
         idx = offsets[k] + np.searchsorted(inner[k], q >> 3)
         rec += np.bincount(idx, weights=code << (2 * (q & 7)), minlength=rec.size).astype(np.int64)
-    order, _ = _preorder(inner)
+    order = _preorder(inner)
     body = rec[order].astype("<u2").tobytes()
     return _header(BT_MAGIC, rec.size + starts.size, resolution) + body
 
@@ -521,7 +536,7 @@ def write_ot_bytes(
             for k in range(TREE_DEPTH + 1)
         ]
     )
-    order, _ = _preorder(nodes)
+    order = _preorder(nodes)
     rec = np.empty((order.size, 5), np.uint8)
     rec[:, :4] = node_val[order].astype("<f4").view(np.uint8).reshape(-1, 4)
     rec[:, 4] = node_mask[order]

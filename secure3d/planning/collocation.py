@@ -297,7 +297,8 @@ def build_nlp(
         start = [k for k in nodes if assignment[k] < 0]
         if view:
             Xi, Xj = cols(X, view), cols(X, [assignment[k] for k in view])
-            add(kern.vis.map(len(view))(Xi, Xj), [("visibility", o.margin, ca.inf)] * 5, len(view))
+            add(kern.vis.map(len(view))(Xi, Xj), [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
+                len(view))
             add(kern.obs_view.map(len(view))(Xi, Xj, cols(Boxes, view), cols(Lam, view)),
                 kern.obs_view_rows, len(view))
         if start:

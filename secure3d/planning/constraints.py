@@ -66,7 +66,7 @@ def frustum_rows(
     """
     A, b = frustum_halfspaces(R_cam, o_cam, frustum)
     rows = []
-    for k in range(5):
+    for k in range(A.shape[0]):
         n = A[k, :].T
         rows.append(("visibility", b[k] - ca.dot(n, c) - ca.norm_2(ca.mtimes(M, n)), margin, ca.inf))
     return rows

@@ -33,12 +33,7 @@ def node_geometry(problem: PlanningProblem, states: np.ndarray) -> dict[str, np.
 def frustum_margins(problem: PlanningProblem, geo: dict[str, np.ndarray]) -> np.ndarray:
     """(n_ellipsoids, n_cameras) margin of ellipsoid i inside camera j's frustum (min over faces;
     >= 0 inside)."""
-    n_cam = len(geo["R"])
-    A = np.empty((n_cam, 5, 3))
-    b = np.empty((n_cam, 5))
-    for j in range(n_cam):
-        Aj, bj = frustum_halfspaces(geo["R"][j], geo["o"][j], problem.frustum)
-        A[j], b[j] = np.asarray(Aj, float), np.asarray(bj, float).ravel()
+    A, b = frustum_halfspaces(geo["R"], geo["o"], problem.frustum)  # (n_cam, F, 3), (n_cam, F)
     # support of E_i along each face normal of frustum j: n.c_i + |M_i n|
     nc = np.einsum("jfd,id->ijf", A, geo["C"])
     Mn = np.einsum("iab,jfb->ijfa", geo["M"], A)

@@ -17,12 +17,10 @@ from secure3d.mapping.boxes import (
 
 def box_cells(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Every cell of inclusive integer boxes (test-side reference, one box at a time)."""
-    out = [
-        np.stack(
-            np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(l, h, strict=True)], indexing="ij"), -1
-        ).reshape(-1, 3)
-        for l, h in zip(lo, hi, strict=True)
-    ]
+    out = []
+    for l, h in zip(lo, hi, strict=True):
+        axes = [np.arange(a, b + 1) for a, b in zip(l, h, strict=True)]
+        out.append(np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3))
     return np.concatenate(out) if out else np.empty((0, 3), np.int64)
 
 

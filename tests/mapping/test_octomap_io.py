@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 import octomap
 import pytest
@@ -106,12 +103,12 @@ def test_bt_keeps_only_the_binary_state(small_map):
     assert set(np.unique(logodds)) <= {p.clamp_min_log, p.clamp_max_log}
 
 
-def test_updates_split_pruned_leaves_like_octomap(geb079):
+def test_updates_split_pruned_leaves_like_octomap(geb079, tmp_path):
     """Inserting into a map read from .bt expands pruned leaves exactly as OctoMap does."""
     ours, _, raw = geb079
     ours = ours.copy()
     tree = octomap.OcTree(0.1)
-    path = Path(os.environ["HOME"]) / "geb079_copy.bt"
+    path = tmp_path / "geb079_copy.bt"
     path.write_bytes(raw)
     assert tree.readBinary(str(path).encode())
     rng = np.random.default_rng(1)
