@@ -10,6 +10,7 @@ import json
 import math
 import os
 import platform
+import re
 import subprocess
 import sys
 import tempfile
@@ -22,6 +23,7 @@ from typing import Any
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+_CPP_LOCATION = re.compile(r"^\S*\.(?:cpp|hpp|h|cc):\d+:\s*")
 
 
 @dataclass(frozen=True)
@@ -47,10 +49,14 @@ def timed(fn: Callable[[], Any]) -> Timed:
     return Timed(value, error, time.perf_counter() - t_wall, time.process_time() - t_cpu)
 
 
-def error_text(exc: BaseException, limit: int = 160) -> str:
-    """``Type: first line of the message``, shortened to ``limit`` characters."""
-    first = (str(exc).strip().splitlines() or [""])[0]
-    text = f"{type(exc).__name__}: {first}"
+def error_text(exc: BaseException, limit: int = 300) -> str:
+    """``Type: message`` on one line, shortened to ``limit`` characters.
+
+    CasADi's errors span several lines, each prefixed by a C++ source location
+    (``.../fatrop_interface.cpp:477: ``); the prefixes go and the lines are joined with `` / ``.
+    """
+    lines = [_CPP_LOCATION.sub("", ln).strip() for ln in str(exc).strip().splitlines()]
+    text = f"{type(exc).__name__}: " + " / ".join(ln for ln in lines if ln)
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 

@@ -382,10 +382,25 @@ def _cert_cell(phase: dict) -> str:
     return word + ("*" if phase.get("post_hoc") else "")
 
 
+#: Columns shared by the main table and the sweeps.
+COST_HEADERS = [
+    "T (s)",
+    "build (s)",
+    "solve (s)",
+    "total (s)",
+    "iters",
+    "warm build (s)",
+    "warm solve (s)",
+    "warm total (s)",
+    "warm iters",
+    "NLP builds cold/warm",
+]
+
+
 def _cost_cells(row: dict) -> list[str]:
-    """final time, build, solve, total, iterations (cold), warm build/solve/total/iterations."""
+    """Cells under :data:`COST_HEADERS` (medians over the repetitions)."""
     if "setup_error" in row or "error" in row["cold"]:
-        return ["—"] * 9
+        return ["—"] * len(COST_HEADERS)
     c, w = row["cold"], row["warm"]
     warm = (
         ["—"] * 4
@@ -399,20 +414,8 @@ def _cost_cells(row: dict) -> list[str]:
         fmt(c["wall"], 3),
         fmt(c["iterations"], 0),
         *warm,
+        f"{fmt(c['nlp_builds'], 0)}/{fmt(w.get('nlp_builds'), 0)}",
     ]
-
-
-COST_HEADERS = [
-    "T (s)",
-    "build (s)",
-    "solve (s)",
-    "total (s)",
-    "iters",
-    "warm build (s)",
-    "warm solve (s)",
-    "warm total (s)",
-    "warm iters",
-]
 
 
 def main_table(rows: Sequence[dict]) -> str:
@@ -443,7 +446,7 @@ def main_table(rows: Sequence[dict]) -> str:
                 fmt(cold.get("margin"), 3),
             ]
         )
-    return markdown_table(headers, body, right=[False] * 6 + [True] * 11)
+    return markdown_table(headers, body, right=[False] * 6 + [True] * (len(COST_HEADERS) + 2))
 
 
 def _ratio(rows: Sequence[dict], key: str, phase: str = "cold") -> dict:
@@ -486,7 +489,9 @@ def sweep_table(rows: Sequence[dict], first: str) -> str:
                 ratio,
             ]
         )
-    return markdown_table(headers, body, right=[True, True, False, False] + [True] * 10)
+    return markdown_table(
+        headers, body, right=[True, True, False, False] + [True] * (len(COST_HEADERS) + 1)
+    )
 
 
 def _find(rows: Sequence[dict], scenario: str, planner: str, solver: str) -> dict | None:
@@ -498,6 +503,12 @@ def _find(rows: Sequence[dict], scenario: str, planner: str, solver: str) -> dic
 
 def _usable(row: dict | None) -> bool:
     return row is not None and "setup_error" not in row and "error" not in row["cold"]
+
+
+def _met(value: float | None, bound: float) -> str:
+    if value is None or not np.isfinite(value):
+        return "—"
+    return "yes" if value <= bound else "NO"
 
 
 def targets_table(rows: Sequence[dict], solvers: Sequence[str]) -> str:
@@ -512,24 +523,10 @@ def targets_table(rows: Sequence[dict], solvers: Sequence[str]) -> str:
         c, w = sec["cold"], sec["warm"]
         k = sec["nodes"]
         note = "" if k == TARGET_NODES else f" (K={k}, target is for K={TARGET_NODES})"
-        ratio = (
-            _ratio([sec, base], "solve").get(("blind_corner", solver, k, None))
-            if _usable(base)
-            else None
-        )
-        t_ratio = (
-            _ratio([sec, base], "final_time").get(("blind_corner", solver, k, None))
-            if _usable(base)
-            else None
-        )
+        tag = ("blind_corner", solver, k, None)
+        ratio = _ratio([sec, base], "solve").get(tag) if _usable(base) else None
+        t_ratio = _ratio([sec, base], "final_time").get(tag) if _usable(base) else None
         warm_ok = "skipped" not in w and "error" not in w
-
-        def met(value: float | None, bound: float) -> str:
-            return (
-                "—"
-                if value is None or not np.isfinite(value)
-                else ("yes" if value <= bound else "NO")
-            )
 
         body += [
             [
@@ -537,7 +534,7 @@ def targets_table(rows: Sequence[dict], solvers: Sequence[str]) -> str:
                 f"{fmt(c['solve'], 3)} s",
                 f"<= {TARGET_COLD_SOLVE} s",
                 PAPER_SOLVE_BLIND_CORNER,
-                met(c["solve"], TARGET_COLD_SOLVE),
+                _met(c["solve"], TARGET_COLD_SOLVE),
             ],
             [
                 f"cold secure total incl. build, guess, certificate ({solver})",
@@ -551,7 +548,7 @@ def targets_table(rows: Sequence[dict], solvers: Sequence[str]) -> str:
                 f"{fmt(w['solve'], 3)} s" if warm_ok else "—",
                 f"<= {TARGET_WARM_SOLVE} s",
                 "—",
-                met(w["solve"], TARGET_WARM_SOLVE) if warm_ok else "—",
+                _met(w["solve"], TARGET_WARM_SOLVE) if warm_ok else "—",
             ],
             [
                 f"warm replan total, NLP rebuilds {fmt(w.get('nlp_builds'), 0)} ({solver})",
@@ -565,7 +562,7 @@ def targets_table(rows: Sequence[dict], solvers: Sequence[str]) -> str:
                 f"{fmt(ratio)}x",
                 f"<= {TARGET_SOLVE_RATIO:g}x",
                 PAPER_SOLVE_RATIO,
-                met(ratio, TARGET_SOLVE_RATIO),
+                _met(ratio, TARGET_SOLVE_RATIO),
             ],
             [
                 f"secure / baseline final time ({solver})",
@@ -581,54 +578,49 @@ def targets_table(rows: Sequence[dict], solvers: Sequence[str]) -> str:
 
 
 def _final_time(row: dict | None) -> tuple[float | None, str]:
-    """Median cold final time and its status flag for the reproduction table."""
+    """Median cold final time (None if unavailable) and its table cell."""
+    if row is None:
+        return None, "not run"
     if not _usable(row):
-        return None, "not run" if row is None else "n/a"
-    status = _status_cell(row)
-    return row["cold"]["final_time"], "" if status == "success" else status
+        return None, "n/a"
+    t, status = row["cold"]["final_time"], _status_cell(row)
+    return t, fmt(t) + ("" if status == "success" else f" ({status})")
+
+
+#: The paper's cases next to ours: scenario, paper secure T (s), paper baseline T (s), paper solve.
+PAPER_CASES = (
+    ("planar_passage_50cm", PAPER_PASSAGE_50, None, PAPER_SOLVE_PASSAGE),
+    ("planar_passage_20cm", PAPER_PASSAGE_20, None, PAPER_SOLVE_PASSAGE),
+    ("planar_blind_corner", PAPER_CORNER_SECURE, PAPER_CORNER_BASELINE, PAPER_SOLVE_BLIND_CORNER),
+    ("narrow_passage_50cm", None, None, None),
+    ("narrow_passage_20cm", None, None, None),
+    ("blind_corner", None, None, None),
+)
 
 
 def reproduction_table(rows: Sequence[dict], solver: str = "ipopt") -> str:
-    """The paper's planar diff-drive cases next to ours (and the 3D passages for comparison)."""
+    """The paper's planar diff-drive cases next to ours, and our 3D versions of them."""
     body = []
-    for scen, paper in (
-        ("planar_passage_50cm", PAPER_PASSAGE_50),
-        ("planar_passage_20cm", PAPER_PASSAGE_20),
-    ):
-        t, flag = _final_time(_find(rows, scen, "secure", solver))
-        body.append([f"{scen}: secure T", f"{fmt(t)} s {flag}".strip(), f"{paper:.2f} s"])
+    for scen, p_sec, p_base, p_solve in PAPER_CASES:
+        sec, base = _find(rows, scen, "secure", solver), _find(rows, scen, "baseline", solver)
+        ts, cell_s = _final_time(sec)
+        tb, cell_b = _final_time(base)
+        ratio = ts / tb if ts and tb else None
+        paper_ratio = p_sec / p_base if p_sec and p_base else None
+        solve = sec["cold"]["solve"] if _usable(sec) else None
+        body.append([
+            scen, cell_s, cell_b, fmt(ratio), fmt(p_sec), fmt(p_base),
+            fmt(paper_ratio), fmt(solve, 3), p_solve or "—",
+        ])  # fmt: skip
     t50 = _final_time(_find(rows, "planar_passage_50cm", "secure", solver))[0]
     t20 = _final_time(_find(rows, "planar_passage_20cm", "secure", solver))[0]
-    grows = "—" if t50 is None or t20 is None else ("yes" if t20 > t50 else "NO")
-    body.append(["secure T grows from 50 cm to 20 cm", grows, "yes"])
-    for scen in ("narrow_passage_50cm", "narrow_passage_20cm"):
-        t, flag = _final_time(_find(rows, scen, "secure", solver))
-        body.append([f"{scen} (3D, point mass): secure T", f"{fmt(t)} s {flag}".strip(), "—"])
-    ts, fs = _final_time(_find(rows, "planar_blind_corner", "secure", solver))
-    tb, fb = _final_time(_find(rows, "planar_blind_corner", "baseline", solver))
-    body.append(
-        [
-            "planar_blind_corner: secure T",
-            f"{fmt(ts)} s {fs}".strip(),
-            f"{PAPER_CORNER_SECURE:.2f} s",
-        ]
-    )
-    body.append(
-        [
-            "planar_blind_corner: baseline T",
-            f"{fmt(tb)} s {fb}".strip(),
-            f"{PAPER_CORNER_BASELINE:.2f} s",
-        ]
-    )
-    ratio = fmt(ts / tb) + "x" if ts and tb else "—"
-    body.append(
-        [
-            "planar_blind_corner: secure / baseline T",
-            ratio,
-            f"{PAPER_CORNER_SECURE / PAPER_CORNER_BASELINE:.2f}x",
-        ]
-    )
-    return markdown_table([f"case ({solver})", "ours", "paper"], body)
+    grows = "not run" if t50 is None or t20 is None else ("yes" if t20 > t50 else "NO")
+    headers = [f"case ({solver})", "secure T (s)", "baseline T (s)", "secure/baseline",
+               "paper secure T", "paper baseline T", "paper ratio", "secure solve (s)",
+               "paper solve (fmincon)"]  # fmt: skip
+    table = markdown_table(headers, body)
+    note = f"Secure final time grows from the 50 cm to the 20 cm passage: {grows} (paper: yes)."
+    return f"{table}\n\n{note}"
 
 
 def failures(sections: dict[str, Sequence[dict]]) -> list[str]:
@@ -645,7 +637,15 @@ def failures(sections: dict[str, Sequence[dict]]) -> list[str]:
             for phase in ("cold", "warm"):
                 p = r[phase]
                 if "error" in p:
-                    lines.append(f"{tag} {phase}: {p['error']}")
+                    first = next(x[phase] for x in r["reps"] if "error" in x[phase])
+                    printed = first.get("native_output_head") or []
+                    extra = (
+                        f" (the solver printed {first['native_output_lines']} lines, the first:"
+                        f" {printed[0][:200]!r})"
+                        if printed
+                        else ""
+                    )
+                    lines.append(f"{tag} {phase}: {p['error']}{extra}")
                 elif "skipped" not in p and set(p.get("statuses", {})) - {"success"}:
                     msgs = {
                         x[phase].get("message", "")

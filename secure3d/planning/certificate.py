@@ -66,9 +66,9 @@ def _manoeuvres(controller: object, model: object, X: np.ndarray, dt: float, m: 
     traj = np.asarray(traj, dtype=float)  # (N, T, nx)
     idx = np.unique(np.linspace(0, traj.shape[1] - 1, m).round().astype(int))
     sel = traj[:, idx, :]
-    pos = np.stack([np.stack([np.asarray(model.position(x), float).ravel() for x in row]) for row in sel])
     # rollouts that stopped early are padded by repeating their final state: harmless duplicates
-    return pos
+    pos = np.asarray(model.position(sel.reshape(-1, sel.shape[-1])), dtype=float)
+    return pos.reshape(sel.shape[0], sel.shape[1], 3)
 
 
 def _view_margins(points: np.ndarray, R: np.ndarray, o: np.ndarray, frustum: object, radius: float) -> np.ndarray:
@@ -144,9 +144,7 @@ def certify(
     obstacle_margin = np.minimum(dist, in_map) - r
 
     # ---- observed before: start ball, or an earlier view with a clear line of sight -------------
-    poses = [model.camera_pose(x) for x in X]
-    R = np.stack([np.asarray(p_[0], float) for p_ in poses])
-    o = np.stack([np.asarray(p_[1], float).ravel() for p_ in poses])
+    R, o = (np.asarray(a, dtype=float) for a in model.camera_pose(X))
     start_margin = np.minimum(flat - problem.start_region_lo, problem.start_region_hi - flat).min(axis=1) - r
     view = _view_margins(flat, R, o, problem.frustum, r)
     earlier = np.arange(n_t)[None, :] < owner[:, None]

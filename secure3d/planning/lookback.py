@@ -23,10 +23,8 @@ def node_geometry(problem: PlanningProblem, states: np.ndarray) -> dict[str, np.
     """Reactive ellipsoids and camera poses at the nodes: centres (K,3), shapes (K,3,3), R (K,3,3), o (K,3)."""
     model, family = problem.model, problem.family
     C, M = family.ellipsoid_batch(states)
-    poses = [model.camera_pose(x) for x in states]
-    R = np.stack([np.asarray(p[0], dtype=float) for p in poses])
-    o = np.stack([np.asarray(p[1], dtype=float).ravel() for p in poses])
-    P = np.stack([np.asarray(model.position(x), dtype=float).ravel() for x in states])
+    R, o = (np.asarray(a, dtype=float) for a in model.camera_pose(states))
+    P = np.asarray(model.position(states), dtype=float)
     return {"C": np.asarray(C, float), "M": np.asarray(M, float), "R": R, "o": o, "P": P}
 
 

@@ -70,11 +70,16 @@ class _Solve:
     cached: bool
 
 
-def _variable_bounds(problem: PlanningProblem, nlp: TranscribedNLP) -> tuple[np.ndarray, np.ndarray]:
+#: The final time may not exceed this multiple of the initial guess's (a feasible-ish flight): keeps
+#: IPOPT from wandering to absurd durations when it struggles.
+T_GUESS_FACTOR = 3.0
+
+
+def _variable_bounds(problem: PlanningProblem, nlp: TranscribedNLP, T_guess: float) -> tuple[np.ndarray, np.ndarray]:
     lay, model = nlp.layout, problem.model
     lbx = np.full(lay.n_w, -np.inf)
     ubx = np.full(lay.n_w, np.inf)
-    lbx[lay.i_T], ubx[lay.i_T] = T_MIN, T_MAX
+    lbx[lay.i_T], ubx[lay.i_T] = T_MIN, min(T_MAX, max(T_GUESS_FACTOR * T_guess, 10.0))
     lbx[lay.i_X] = np.broadcast_to(model.x_lo, lay.i_X.shape)
     ubx[lay.i_X] = np.broadcast_to(model.x_hi, lay.i_X.shape)
     lbx[lay.i_X[0]] = problem.x0
@@ -120,7 +125,7 @@ def _solve_once(
         L = np.where(same[..., None], L, fresh)
     w0 = lay.pack(float(np.clip(T, T_MIN, T_MAX)), X, U, L)
     p = parameter_vector(problem, slots)
-    lbx, ubx = _variable_bounds(problem, nlp)
+    lbx, ubx = _variable_bounds(problem, nlp, T)
     args = {"x0": w0, "p": p, "lbx": lbx, "ubx": ubx, "lbg": nlp.lbg, "ubg": nlp.ubg}
     solver = nlp.solver
     if multipliers is not None and multipliers[0] == nlp.key:
@@ -202,7 +207,7 @@ def _result(problem: PlanningProblem, planner: str, s: _Solve, build: float, sol
     K = problem.options.nodes
     times = np.linspace(0.0, s.T, K)
     geo = lb.node_geometry(problem, s.X)
-    speeds = np.linalg.norm(np.stack([np.asarray(model.velocity(x), float).ravel() for x in s.X]), axis=1)
+    speeds = np.linalg.norm(np.asarray(model.velocity(s.X), dtype=float), axis=1)
     return PlanResult(
         status=s.status,
         message=s.message,
@@ -234,6 +239,59 @@ def _guess_from_warm(problem: PlanningProblem, warm: PlanResult, t_offset: float
     times, X, U = resample(problem.model, warm.times, warm.states, warm.controls, t_offset, K)
     X[0] = problem.x0
     return Guess(times=times, states=X, controls=U, path=X[:, :3])
+
+
+def _solve_rounds(
+    problem: PlanningProblem, planner: str, guess: Guess, warm: PlanResult | None, warm_time: float,
+    cache: NLPCache,
+) -> tuple[_Solve, float, float, int]:
+    """Assign look-backs on the guess, solve, and (adaptive rule) re-assign and re-solve."""
+    o = problem.options
+    K = o.nodes
+    if planner == "baseline":
+        assignment: tuple[int, ...] = (-1,) * K
+    elif o.lookback == "fixed":
+        assignment = lb.fixed_assignment(K, o.lookback_steps)
+    else:
+        assignment, _ = lb.adaptive_assignment(problem, guess.states)
+
+    multipliers = None
+    L0 = None
+    prev_slots = None
+    if warm is not None and warm.warm is not None:
+        # Same structure as the previous plan: its multipliers are a good start even after the
+        # remaining trajectory was resampled from warm_time on (node i keeps its role).
+        multipliers = (warm.warm["key"], warm.warm["lam_x"], warm.warm["lam_g"])
+        L0 = warm.warm["L"]
+        prev_slots = warm.warm["slots"]
+        if planner == "secure" and o.lookback == "adaptive":
+            assignment = tuple(warm.warm["assignment"])
+
+    build = solve_t = 0.0
+    iters = 0
+    T, X, U = guess.final_time, guess.states, guess.controls
+    rounds = o.lookback_rounds if (planner == "secure" and o.lookback == "adaptive") else 1
+    if multipliers is not None:
+        rounds = 1  # a warm replan keeps the previous, already refined, assignment
+    best: _Solve | None = None
+    for _ in range(rounds):
+        n_before = cache.misses
+        s = _solve_once(problem, planner, assignment, T, X, U, cache, L=L0, multipliers=multipliers,
+                        prev_slots=prev_slots)
+        if cache.misses > n_before:
+            build += s.nlp.build_time
+        solve_t += s.solve_time
+        iters += s.iterations
+        if best is None or (s.status.ok and (not best.status.ok or s.T < best.T)):
+            best = s
+        if not s.status.ok or rounds == 1:
+            break
+        new_assignment = lb.refine_assignment(problem, s.X, assignment)
+        if new_assignment == assignment:
+            break
+        assignment = new_assignment
+        T, X, U, L0, multipliers, prev_slots = s.T, s.X, s.U, s.L, None, s.slots
+    return best, build, solve_t, iters
 
 
 def plan_problem(
@@ -270,49 +328,21 @@ def plan_problem(
         except NoPathError as exc:
             return _failed(problem, planner, PlanStatus.INFEASIBLE, str(exc))
 
-    K = o.nodes
-    if planner == "baseline":
-        assignment: tuple[int, ...] = (-1,) * K
-    elif o.lookback == "fixed":
-        assignment = lb.fixed_assignment(K, o.lookback_steps)
-    else:
-        assignment, _ = lb.adaptive_assignment(problem, guess.states)
-
-    multipliers = None
-    L0 = None
-    prev_slots = None
-    if warm is not None and warm.warm is not None and warm_time == 0.0:
-        multipliers = (warm.warm["key"], warm.warm["lam_x"], warm.warm["lam_g"])
-        L0 = warm.warm["L"]
-        prev_slots = warm.warm["slots"]
-        if planner == "secure" and o.lookback == "adaptive":
-            assignment = tuple(warm.warm["assignment"])
-
+    attempts = [guess]
+    if warm is None and planner == "secure":
+        # The paper: poor guesses stop convergence. A slower flight along the same path is a more
+        # conservative (more feasible) start; it is tried when the first one fails.
+        attempts.append(None)
+    s = None
     build = solve_t = 0.0
     iters = 0
-    T, X, U = guess.final_time, guess.states, guess.controls
-    rounds = o.lookback_rounds if (planner == "secure" and o.lookback == "adaptive") else 1
-    if multipliers is not None:
-        rounds = 1  # a warm replan keeps the previous, already refined, assignment
-    best: _Solve | None = None
-    for _ in range(rounds):
-        n_before = cache.misses
-        s = _solve_once(problem, planner, assignment, T, X, U, cache, L=L0, multipliers=multipliers,
-                        prev_slots=prev_slots)
-        if cache.misses > n_before:
-            build += s.nlp.build_time
-        solve_t += s.solve_time
-        iters += s.iterations
-        if best is None or (s.status.ok and (not best.status.ok or s.T < best.T)):
-            best = s
-        if not s.status.ok or rounds == 1:
+    for attempt, g in enumerate(attempts):
+        if g is None:
+            g = initial_guess(problem, secure=True, speed_fraction=0.5 * o.guess_speed_fraction)
+        s, b_, t_, i_ = _solve_rounds(problem, planner, g, warm, warm_time, cache)
+        build, solve_t, iters = build + b_, solve_t + t_, iters + i_
+        if s.status.ok:
             break
-        new_assignment = lb.refine_assignment(problem, s.X, assignment)
-        if new_assignment == assignment:
-            break
-        assignment = new_assignment
-        T, X, U, L0, multipliers, prev_slots = s.T, s.X, s.U, s.L, None, s.slots
-    s = best
     result = _result(problem, planner, s, build, solve_t, iters)
     if result.ok and planner == "secure" and o.certify:
         from secure3d.planning.certificate import certify

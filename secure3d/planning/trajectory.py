@@ -46,7 +46,7 @@ def interpolate(
     u = (1 - a) * controls[k] + a * controls[k + 1]
     project = getattr(model, "project_state", None)
     if project is not None:
-        x = np.stack([np.asarray(project(xi), dtype=float) for xi in x])
+        x = np.asarray(project(x), dtype=float)
     return x, u
 
 

@@ -185,7 +185,7 @@ def _path_clearance(loop: _Loop, plan: PlanResult, t_rel: float, lo: np.ndarray,
     if len(t) == 0 or len(lo) == 0:
         return float("inf")
     X, _ = interpolate(loop.model, plan.times, plan.states, plan.controls, t)
-    P = np.stack([np.asarray(loop.model.position(x), float).ravel() for x in X])
+    P = np.asarray(loop.model.position(X), dtype=float)
     q = np.clip(P[:, None, :], lo[None], hi[None])
     return float(np.linalg.norm(P[:, None, :] - q, axis=-1).min() - loop.model.body_radius)
 
@@ -431,8 +431,8 @@ def _run(loop, rec, dt, frame_period, r, goal, time_limit, max_replans, frame_lo
         event(t, "time limit", f"{time_limit:.1f} s without reaching the goal", "WARN")
 
     states = np.array(X_log)
-    positions = np.stack([np.asarray(model.position(s_), float).ravel() for s_ in states])
-    speeds = np.linalg.norm(np.stack([np.asarray(model.velocity(s_), float).ravel() for s_ in states]), axis=1)
+    positions = np.asarray(model.position(states), dtype=float)
+    speeds = np.linalg.norm(np.asarray(model.velocity(states), dtype=float), axis=1)
     return SimResult(
         scenario=scenario.name, planner=loop.planner, seed=seed, collided=collided,
         collision_time=collision_time, collision_obstacles=tuple(collision_names), reached_goal=reached,
