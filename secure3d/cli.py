@@ -4,13 +4,18 @@ Each subcommand is two small functions, one adding its arguments to an ``argpars
 running it, registered in :data:`COMMANDS`. A runner imports what it needs inside its body, so
 ``secure3d show`` never pays for CasADi or Open3D. Adding a subcommand::
 
-    def _plan_arguments(parser): parser.add_argument("scenario", type=Path)
-    def _plan(args): from secure3d.planning.solve import plan; ...; return 0
-    COMMANDS = (..., Command("plan", "solve a scenario's planning problem", _plan_arguments, _plan))
+    def _certify_arguments(parser): parser.add_argument("scenario", type=Path)
+    def _certify(args): from secure3d.planning import certify; ...; return 0
+    COMMANDS = (..., Command("certify", "certify a plan", _certify_arguments, _certify))
+
+Subcommands: ``show``, ``plan``, ``simulate``, ``campaign`` (logic in
+:mod:`secure3d.simulation.campaign`), ``bench``, ``reactive fit`` and ``demo``. Every output file
+is written atomically (temporary file + rename), into folders created on demand.
 
 Errors that secure3d raises on purpose (:class:`~secure3d.errors.Secure3DError`) and usage errors
 print exactly one line ``secure3d: error: <message>`` on stderr and exit with status 2; no
-traceback. Anything else is a bug and keeps its traceback.
+traceback. Anything else is a bug and keeps its traceback. ``plan`` exits with 1 when a planner
+did not return a successful (for the secure planner: certified) plan; Ctrl-C exits with 130.
 """
 
 from __future__ import annotations
@@ -21,10 +26,13 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 from secure3d import __version__
-from secure3d.errors import Secure3DError
+from secure3d.errors import ConfigError, Secure3DError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from secure3d.simulation.closed_loop import SimResult
 
 PROG = "secure3d"
 #: Exit status for bad input (argparse's convention).
@@ -59,8 +67,433 @@ def _show(args: argparse.Namespace) -> int:
     return 0
 
 
+PLANNER_CHOICES = ("secure", "baseline", "both")
+#: Columns of the ``plan`` table.
+PLAN_COLUMNS = (
+    "planner",
+    "status",
+    "final time",
+    "build",
+    "solve",
+    "iterations",
+    "certified",
+    "margin",
+)
+#: Where ``secure3d demo`` and ``bench campaign`` find their scenario: the repository's maps/ (the
+#: source of truth), else a copy shipped in the package.
+_REPO = Path(__file__).resolve().parents[1]
+_SCENARIO_DIRS = (_REPO / "maps", Path(__file__).resolve().parent / "scenarios")
+_BENCHMARKS = _REPO / "benchmarks"
+
+
+def _planners(choice: str) -> tuple[str, ...]:
+    return ("secure", "baseline") if choice == "both" else (choice,)
+
+
+def _add_planner_options(parser: argparse.ArgumentParser) -> None:
+    """Planner settings shared by plan, simulate, campaign and demo (default: the scenario's)."""
+    group = parser.add_argument_group("planner options (default: the scenario's planner section)")
+    group.add_argument("--nodes", type=int, metavar="K", help="collocation nodes K")
+    group.add_argument("--solver", choices=("ipopt", "fatrop"), help="NLP solver")
+    group.add_argument(
+        "--lookback", choices=("adaptive", "fixed"), help="look-back rule of eq. NLP's visibility"
+    )
+
+
+def _planner_options(args: argparse.Namespace) -> dict[str, object]:
+    names = ("nodes", "solver", "lookback")
+    return {name: getattr(args, name) for name in names if getattr(args, name) is not None}
+
+
+def _output_path(path: Path | None) -> Path | None:
+    """``path`` with its folder created (outputs themselves are written atomically)."""
+    if path is not None:
+        _output_dir(path.parent)
+    return path
+
+
+def _output_dir(folder: Path) -> Path:
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"output folder {str(folder)!r}: {exc.strerror or exc}") from None
+    return folder
+
+
+def _bundled_scenario(name: str) -> Path:
+    for folder in _SCENARIO_DIRS:
+        path = folder / f"{name}.yaml"
+        if path.is_file():
+            return path
+    raise ConfigError(
+        f"scenario {name!r} not found in {' or '.join(str(d) for d in _SCENARIO_DIRS)};"
+        " pass a scenario file"
+    )
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    widths = [max(len(str(r[k])) for r in (header, *rows)) for k in range(len(header))]
+    lines = [
+        "  ".join(str(c).ljust(w) for c, w in zip(r, widths, strict=True)).rstrip()
+        for r in (header, *rows)
+    ]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+# ---- plan --------------------------------------------------------------------------------------
+
+
+def _plan_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scenario", type=Path, help="scenario YAML file")
+    parser.add_argument(
+        "--planner", choices=PLANNER_CHOICES, default="both", help="planner(s) to run (both)"
+    )
+    _add_planner_options(parser)
+    parser.add_argument(
+        "--png", type=Path, metavar="FILE", help="write a top-down figure of the plans"
+    )
+    parser.add_argument("--json", action="store_true", help="print the results as JSON")
+
+
+def _plan_json(result: object) -> dict[str, object]:
+    cert = result.certificate
+    return {
+        "planner": result.planner,
+        "status": result.status.value,
+        "ok": result.ok,
+        "message": result.message,
+        "final_time": result.final_time if len(result.times) else None,
+        "build_time": result.build_time,
+        "solve_time": result.solve_time,
+        "iterations": result.iterations,
+        "solver": result.solver,
+        "lookback_rule": result.lookback_rule,
+        "certified": None if cert is None else cert.ok,
+        "min_margin": None if cert is None else cert.min_margin,
+        "times": result.times.tolist(),
+        "positions": result.positions.tolist(),
+        "speeds": result.speeds.tolist(),
+    }
+
+
+def _plan(args: argparse.Namespace) -> int:
+    """Exit 0 when every planner returned a successful (and, if secure, certified) plan, else 1."""
+    from secure3d.planning import NLPCache, plan
+    from secure3d.world.scenario import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    options = _planner_options(args)
+    png = _output_path(args.png)
+    cache = NLPCache()
+    results = [plan(scenario, p, cache=cache, **options) for p in _planners(args.planner)]
+    if args.json:
+        print(json.dumps([_plan_json(r) for r in results], indent=2))
+    else:
+        rows = []
+        for r in results:
+            cert = r.certificate
+            rows.append(
+                (
+                    r.planner,
+                    r.status.value,
+                    f"{r.final_time:.2f} s" if len(r.times) else "-",
+                    f"{1e3 * r.build_time:.0f} ms",
+                    f"{1e3 * r.solve_time:.0f} ms",
+                    str(r.iterations),
+                    "-" if cert is None else ("yes" if cert.ok else "NO"),
+                    "-" if cert is None else f"{cert.min_margin:+.3f} m",
+                )
+            )
+        rule = options.get("lookback", scenario.planner.lookback)
+        print(f"{scenario.name}: {len(results)} plan(s) in the server's map, look-back rule {rule}")
+        print(_table(PLAN_COLUMNS, rows))
+        for r in results:
+            if not r.ok:
+                print(f"{r.planner}: {' '.join(r.message.split())}")
+    if png is not None:
+        from secure3d.viz.figures import top_down_figure
+        from secure3d.world.attacks import server_claim
+
+        claim = server_claim(scenario)
+        top_down_figure(
+            scenario.world.bounds,
+            scenario.world.boxes,
+            out_path=png,
+            true_meshes=scenario.world.meshes,
+            claimed_boxes=claim.boxes,
+            claimed_meshes=claim.meshes,
+            hidden_names=scenario.hidden_obstacles,
+            plans=[r for r in results if len(r.positions)],
+            start=scenario.start.position,
+            goal=scenario.goal.position,
+            title=f"{scenario.name}: plans in the server's map",
+        )
+        print(f"wrote {png}", file=sys.stderr if args.json else sys.stdout)
+    return 0 if all(r.ok for r in results) else 1
+
+
+# ---- simulate ----------------------------------------------------------------------------------
+
+
+def _simulate_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scenario", type=Path, help="scenario YAML file")
+    parser.add_argument(
+        "--planner", choices=PLANNER_CHOICES, default="both", help="planner(s) to fly (both)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="camera noise seed (0)")
+    _add_planner_options(parser)
+    parser.add_argument(
+        "--rrd",
+        type=Path,
+        metavar="FILE",
+        help="write a Rerun recording (with both planners: FILE_secure.rrd and FILE_baseline.rrd)",
+    )
+    parser.add_argument(
+        "--png", type=Path, metavar="FILE", help="write a top-down figure of the flights"
+    )
+    parser.add_argument(
+        "--speed-png", type=Path, metavar="FILE", help="write the speed profiles of the flights"
+    )
+    parser.add_argument("--events", action="store_true", help="print every event of each run")
+
+
+def _check_seed(seed: int) -> None:
+    if seed < 0:
+        raise ConfigError(f"--seed: must be a non-negative integer (got {seed})")
+
+
+def _per_planner(path: Path | None, planner: str, several: bool) -> Path | None:
+    if path is None or not several:
+        return path
+    return path.with_name(f"{path.stem}_{planner}{path.suffix or '.rrd'}")
+
+
+def _print_run(result: SimResult, events: bool = False) -> None:
+    print(result.summary())
+    if events:
+        print("\n".join(f"  {e}" for e in result.events))
+    for path in result.outputs.values():
+        print(f"  wrote {path}")
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from secure3d.simulation.campaign import comparison_figures, comparison_table, fly_planners
+    from secure3d.world.scenario import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    _check_seed(args.seed)
+    planners = _planners(args.planner)
+    rrd, png, speed = (_output_path(p) for p in (args.rrd, args.png, args.speed_png))
+    several = len(planners) > 1
+    results = fly_planners(
+        scenario,
+        planners,
+        args.seed,
+        rrd=lambda planner: _per_planner(rrd, planner, several),
+        report=lambda result: _print_run(result, args.events),
+        **_planner_options(args),
+    )
+    if several:
+        print()
+        print(comparison_table(results))
+    for path in comparison_figures(scenario, results, top_down=png, speed=speed).values():
+        print(f"wrote {path}")
+    return 0
+
+
+# ---- campaign ----------------------------------------------------------------------------------
+
+
+def _planner_names(text: str) -> tuple[str, ...]:
+    names = tuple(p.strip() for p in text.split(",") if p.strip())
+    bad = [p for p in names if p not in ("secure", "baseline")]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(
+            f"expected a comma-separated list of secure, baseline (got {text!r})"
+        )
+    return names
+
+
+def _campaign_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scenario", type=Path, help="base scenario YAML file")
+    parser.add_argument("-n", type=int, required=True, help="number of hidden-obstacle variants")
+    parser.add_argument(
+        "--planners",
+        type=_planner_names,
+        default=("secure", "baseline"),
+        help="comma-separated planners to fly (secure,baseline)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the variants (0)")
+    parser.add_argument(
+        "--workers", type=int, help="worker processes (default: the number of CPUs)"
+    )
+    parser.add_argument(
+        "--out", type=Path, default=Path("out/campaign"), help="output folder (out/campaign)"
+    )
+    parser.add_argument(
+        "--kind",
+        choices=("auto", "corner", "forest"),
+        default="auto",
+        help="where hidden obstacles go (auto)",
+    )
+    parser.add_argument("--count", type=int, default=1, help="hidden obstacles per variant (1)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_planner_options(parser)
+
+
+def _campaign(args: argparse.Namespace) -> int:
+    from secure3d.simulation.campaign import run_campaign
+
+    result = run_campaign(
+        args.scenario,
+        args.n,
+        planners=args.planners,
+        seed=args.seed,
+        workers=args.workers,
+        out_dir=_output_dir(args.out),
+        progress=not args.no_progress,
+        kind=args.kind,
+        count=args.count,
+        **_planner_options(args),
+    )
+    print(result.summary_markdown().rstrip())
+    print(f"\nwrote {result.csv_path} and {result.summary_path}")
+    return 0
+
+
+# ---- bench -------------------------------------------------------------------------------------
+
+
+def _bench_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "target",
+        choices=("mapping", "planner", "campaign"),
+        help="mapping: benchmarks/bench_mapping.py; planner: benchmarks/bench_planner.py;"
+        " campaign: a 20-variant campaign on maps/blind_corner.yaml",
+    )
+    parser.add_argument(
+        "args", nargs=argparse.REMAINDER, help="passed on (campaign: options of 'campaign')"
+    )
+
+
+def _run_script(name: str, argv: Sequence[str]) -> int:
+    """Run a repository script in a fresh interpreter; its exit status is ours."""
+    import subprocess
+
+    script = _BENCHMARKS / name
+    if not script.is_file():
+        raise ConfigError(
+            f"{script} not found: the benchmarks ship with the source repository, not the package"
+        )
+    return subprocess.run([sys.executable, str(script), *argv], check=False).returncode
+
+
+def _bench(args: argparse.Namespace) -> int:
+    if args.target == "campaign":
+        scenario = _bundled_scenario("blind_corner")
+        defaults = ["-n", "20", "--out", "out/bench_campaign"]
+        return main(["campaign", str(scenario), *defaults, *args.args])
+    return _run_script(f"bench_{args.target}.py", args.args)
+
+
+# ---- reactive ----------------------------------------------------------------------------------
+
+
+def _reactive_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "action",
+        choices=("fit",),
+        help="fit: fit the shipped reactive-set families (benchmarks/fit_reactive_sets.py;"
+        " 'secure3d reactive fit --help' lists its options)",
+    )
+    parser.add_argument("args", nargs=argparse.REMAINDER, help="passed on to the fitting script")
+
+
+def _reactive(args: argparse.Namespace) -> int:
+    return _run_script("fit_reactive_sets.py", args.args)
+
+
+# ---- demo --------------------------------------------------------------------------------------
+
+
+def _demo_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", type=Path, default=Path("out"), help="output folder (out)")
+    parser.add_argument(
+        "--quick", action="store_true", help="fewer collocation nodes (20): faster, coarser plans"
+    )
+    parser.add_argument(
+        "--scenario", type=Path, help="fly this scenario instead of the blind corner"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="camera noise seed (0)")
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from secure3d.simulation.campaign import (
+        PAPER_BLIND_CORNER,
+        comparison_figures,
+        comparison_table,
+        fly_planners,
+    )
+    from secure3d.world.scenario import load_scenario
+
+    scenario = load_scenario(args.scenario or _bundled_scenario("blind_corner"))
+    out = _output_dir(args.out)
+    options = {"nodes": 20} if args.quick else {}
+    name = scenario.name
+    _check_seed(args.seed)
+    quick = " (quick: 20 nodes)" if args.quick else ""
+    print(f"Flying {name!r} with the secure planner and the baseline{quick}.")
+    results = fly_planners(
+        scenario,
+        ("secure", "baseline"),
+        args.seed,
+        rrd=lambda planner: out / f"{name}_{planner}.rrd",
+        report=_print_run,
+        **options,
+    )
+    figures = comparison_figures(
+        scenario, results, top_down=out / f"{name}_top_down.png", speed=out / f"{name}_speed.png"
+    )
+    for path in figures.values():
+        print(f"  wrote {path}")
+    print()
+    reference = PAPER_BLIND_CORNER if name == "blind_corner" else None
+    print(comparison_table(results, reference=reference))
+    print(f"\nReplay a flight with: rerun {out / f'{name}_secure.rrd'}")
+    return 0
+
+
 COMMANDS: tuple[Command, ...] = (
     Command("show", "validate a scenario file and print its summary", _show_arguments, _show),
+    Command(
+        "plan", "plan a scenario with the secure and/or baseline planner", _plan_arguments, _plan
+    ),
+    Command(
+        "simulate",
+        "fly a scenario in closed loop (the paper's Algorithm 1)",
+        _simulate_arguments,
+        _simulate,
+    ),
+    Command(
+        "campaign",
+        "fly randomised hidden-obstacle variants with each planner",
+        _campaign_arguments,
+        _campaign,
+    ),
+    Command("bench", "run a benchmark (mapping, planner or campaign)", _bench_arguments, _bench),
+    Command(
+        "reactive",
+        "reactive-set tools ('fit' refits the shipped families)",
+        _reactive_arguments,
+        _reactive,
+    ),
+    Command(
+        "demo",
+        "fly the blind corner with both planners: recordings, figures, table",
+        _demo_arguments,
+        _demo,
+    ),
 )
 
 

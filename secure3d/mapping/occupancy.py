@@ -63,6 +63,10 @@ def _logodds(p: float) -> np.float32:
     return np.float32(math.log(p / (1.0 - p)))
 
 
+#: Fraction of a voxel within which a claimed box face counts as touching the neighbouring voxel.
+BOUNDARY_TOUCH = 1e-3
+
+
 @dataclass(frozen=True)
 class OccupancyParams:
     """OctoMap's sensor model; the defaults are OctoMap's.
@@ -613,16 +617,19 @@ class OccupancyMap:
         a = lo_a / self._resolution
         b = hi_a / self._resolution
         if occupied:
-            first = np.floor(a).astype(np.int64)
-            last = np.ceil(b).astype(np.int64) - 1
+            # A face lying exactly on a voxel boundary also claims the voxel in front of it: the
+            # camera's hits on that face land on either side of the boundary (float rounding), and
+            # an unclaimed sliver there would look like a new obstacle.
+            first = np.floor(a - BOUNDARY_TOUCH).astype(np.int64)
+            last = np.ceil(b + BOUNDARY_TOUCH).astype(np.int64) - 1
             last = np.maximum(last, first)  # a zero-thickness box still touches its voxel
         else:
             first = np.ceil(a).astype(np.int64)
             last = np.floor(b).astype(np.int64) - 1
         keys_lo = np.clip(first + TREE_MAX_VAL, 0, KEY_LIMIT - 1)
         keys_hi = np.clip(last + TREE_MAX_VAL, -1, KEY_LIMIT - 1)
-        keys = _box_cells(keys_lo, keys_hi)
-        self._merge_claims(np.unique(morton_encode(keys)), np.full(len(keys), bool(occupied)))
+        codes = np.unique(morton_encode(_box_cells(keys_lo, keys_hi)))
+        self._merge_claims(codes, np.full(len(codes), bool(occupied)))
 
     def set_claim_mesh(self, vertices: ArrayLike, faces: ArrayLike, occupied: bool = True) -> None:
         """Claim the interior of a closed triangle mesh occupied or free.
@@ -663,9 +670,8 @@ class OccupancyMap:
         )
         sd = scene.compute_signed_distance(o3d.core.Tensor(centres.astype(np.float32))).numpy()
         take = sd <= half_diag if occupied else sd < -half_diag
-        self._merge_claims(
-            np.unique(morton_encode(keys[take])), np.full(int(take.sum()), bool(occupied))
-        )
+        codes = np.unique(morton_encode(keys[take]))
+        self._merge_claims(codes, np.full(len(codes), bool(occupied)))
 
     def set_claim_from_map(self, other: OccupancyMap) -> None:
         """Take another map's sensor layer (e.g. a ``.bt`` from the server) as the claim.

@@ -232,7 +232,13 @@ def build_nlp(
 
     Every constraint family is one mapped call of its node kernel over the nodes it applies to, so
     the expression graph (and the solver set-up time) does not grow with K.
+    With ``options.solver == "fatrop"`` the stage-wise transcription of
+    :mod:`secure3d.planning.fatrop_transcription` is built instead.
     """
+    if problem.options.solver == "fatrop":
+        from secure3d.planning.fatrop_transcription import build_fatrop_nlp  # imports this module
+
+        return build_fatrop_nlp(problem, planner, assignment, kernels)
     t0 = time.perf_counter()
     model, o = problem.model, problem.options
     K, nx, nu, S = o.nodes, model.nx, model.nu, o.obstacle_slots

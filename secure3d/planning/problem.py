@@ -71,7 +71,7 @@ class PlannerOptions:
     lookback_rounds: int = 2
     solver: Literal["ipopt", "fatrop"] = "ipopt"
     margin: float = 0.02
-    obstacle_slots: int = 6
+    obstacle_slots: int = 8
     obstacle_radius: float = 1.5
     occlusion: bool = True
     start_region_radius: float = 1.0

@@ -35,6 +35,9 @@ if TYPE_CHECKING:  # pragma: no cover
 #: Shared by calls that do not pass their own cache (a simulator passes one per flight).
 DEFAULT_CACHE = NLPCache()
 
+#: Re-selections of the obstacle slots on a solution before it is accepted.
+SLOT_REFRESHES = 3
+
 #: Largest constraint violation accepted from a solver that reports success.
 FEASIBILITY_TOL = 1e-4
 
@@ -282,6 +285,19 @@ def _solve_rounds(
             build += s.nlp.build_time
         solve_t += s.solve_time
         iters += s.iterations
+        for _ in range(SLOT_REFRESHES):
+            # Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may
+            # have come closer. Re-select and re-solve warm until the selection is stable.
+            if not s.status.ok:
+                break
+            slots = lb.select_slots(problem, planner, s.X, assignment)
+            if np.allclose(slots, s.slots):
+                break
+            nxt = _solve_once(problem, planner, assignment, s.T, s.X, s.U, cache, L=s.L,
+                              multipliers=None, prev_slots=s.slots)
+            solve_t += nxt.solve_time
+            iters += nxt.iterations
+            s = nxt
         if best is None or (s.status.ok and (not best.status.ok or s.T < best.T)):
             best = s
         if not s.status.ok or rounds == 1:

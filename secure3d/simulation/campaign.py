@@ -19,8 +19,9 @@ Both files are written once, at the end, atomically (temporary file + ``os.repla
 written atomically to ``campaign.in_progress.csv`` (removed on completion), so a long campaign is
 never lost and no file is ever half-written.
 
-:func:`comparison_table` and :func:`comparison_figures` present a few runs of one scenario side by
-side (``secure3d simulate``, ``secure3d demo`` and the examples use them).
+:func:`fly_planners` flies one scenario with each planner; :func:`comparison_table` and
+:func:`comparison_figures` present those runs side by side (``secure3d simulate``, ``secure3d
+demo`` and the examples use them).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ import multiprocessing
 import os
 import secrets
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -201,7 +202,10 @@ def wilson_interval(successes: int, trials: int, z: float = _Z95) -> tuple[float
     denom = 1.0 + z * z / trials
     centre = (p + z * z / (2 * trials)) / denom
     half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / denom
-    return max(0.0, centre - half), min(1.0, centre + half)
+    # The exact bounds at k = 0 and k = n are 0 and 1; the formula misses them by rounding.
+    lo = 0.0 if successes == 0 else max(0.0, centre - half)
+    hi = 1.0 if successes == trials else min(1.0, centre + half)
+    return lo, hi
 
 
 @dataclass(frozen=True)
@@ -613,6 +617,44 @@ def _summary_markdown(result: CampaignResult) -> str:
     return "\n".join(lines) + "\n"
 
 
+def fly_planners(
+    scenario: Scenario | str | os.PathLike[str],
+    planners: Sequence[str] = PLANNERS,
+    seed: int = 0,
+    *,
+    rrd: Callable[[str], str | os.PathLike[str] | None] | None = None,
+    report: Callable[[SimResult], object] | None = None,
+    **options: object,
+) -> list[SimResult]:
+    """Fly one scenario with each planner, same seed (camera noise), one NLP cache for all.
+
+    Parameters
+    ----------
+    scenario : Scenario or path of a scenario YAML file.
+    planners : planners to fly, in order.
+    seed : simulation seed shared by every run, so the planners face the same camera noise.
+    rrd : planner -> path of its Rerun recording (or None for none).
+    report : called with each SimResult as soon as it is finished (e.g. to print its summary).
+    **options : planner options (:class:`~secure3d.planning.problem.PlannerOptions` fields).
+    """
+    from secure3d.planning.collocation import NLPCache
+    from secure3d.simulation.closed_loop import simulate
+
+    if isinstance(scenario, (str, os.PathLike)):
+        from secure3d.world.scenario import load_scenario
+
+        scenario = load_scenario(scenario)
+    cache = NLPCache()
+    results = []
+    for planner in planners:
+        path = None if rrd is None else rrd(planner)
+        result = simulate(scenario, planner, seed=seed, rrd=path, cache=cache, **options)
+        if report is not None:
+            report(result)
+        results.append(result)
+    return results
+
+
 def comparison_table(
     results: Sequence[SimResult], reference: Mapping[str, float] | None = None
 ) -> str:
@@ -669,6 +711,29 @@ def comparison_table(
     return "\n".join(lines)
 
 
+#: Events marked on the speed profiles, with their short labels.
+_MARKED_EVENTS = {
+    "hidden obstacle seen": "seen",
+    "take-over": "take-over",
+    "collision": "collision",
+}
+#: Events closer than this (s) share one marker, so their labels do not print over each other.
+_MARKER_MERGE = 0.25
+
+
+def _speed_markers(result: SimResult) -> list[tuple[float, str]]:
+    markers: list[tuple[float, str]] = []
+    for event in result.events:
+        label = _MARKED_EVENTS.get(event.kind)
+        if label is None:
+            continue
+        if markers and event.time - markers[-1][0] < _MARKER_MERGE:
+            markers[-1] = (markers[-1][0], f"{markers[-1][1]}, {label}")
+        else:
+            markers.append((event.time, label))
+    return markers
+
+
 def comparison_figures(
     scenario: Scenario,
     results: Sequence[SimResult],
@@ -719,18 +784,10 @@ def comparison_figures(
         )
     if speed is not None:
         Path(speed).parent.mkdir(parents=True, exist_ok=True)
-        marked = {
-            "hidden obstacle seen": "seen",
-            "take-over": "take-over",
-            "collision": "collision",
-        }
         written["speed"] = speed_profile_figure(
             {r.planner: (r.times, r.speeds) for r in results},
             speed,
-            markers={
-                r.planner: [(e.time, marked[e.kind]) for e in r.events if e.kind in marked]
-                for r in results
-            },
+            markers={r.planner: _speed_markers(r) for r in results},
             speed_limit=float(model_from_spec(scenario.vehicle, scenario.camera).limits.max_speed),
             title=f"{scenario.name}: speed",
         )

@@ -100,8 +100,9 @@ def test_boxes_near_a_corridor():
     m.set_claim_boxes([[2.0, 0.5, 0.0], [6.0, -0.9, 0.0]], [[2.5, 0.8, 1.0], [6.5, -0.6, 1.0]])
     corridor = np.stack([np.linspace(0, 3, 10), np.zeros(10), np.full(10, 0.5)], axis=1)
     lo, hi = m.boxes_near(corridor, radius=0.6)
-    assert np.any(np.all(np.isclose(lo, [2.0, 0.5, 0.0]), axis=1)), "the first obstacle is near"
-    assert not np.any(lo[:, 0] >= 6.0 - 1e-9), "the far obstacle is not"
+    # occupied claims also take the voxels their faces touch (faces on voxel boundaries here)
+    assert np.any(np.all(np.isclose(lo[:, :2], [1.9, 0.4]), axis=1)), "the first obstacle is near"
+    assert not np.any(lo[:, 0] >= 5.9 - 1e-9), "the far obstacle is not"
     assert lo.shape[0] == 1, "the bounds walls are farther than 0.6 m"
     lo, _ = m.boxes_near(corridor, radius=1.1)
     assert lo.shape[0] > 1, "with a larger radius the side walls of the bounds appear"

@@ -54,7 +54,7 @@ def test_solid_without_edge_contacts_is_a_watertight_volume():
 
 def test_map_surface_mesh_in_metres(rng):
     m = OccupancyMap(0.1)
-    m.set_claim_boxes([[0.0, 0.0, 0.0]], [[0.5, 0.3, 0.2]])
+    m.set_claim_boxes([[0.01, 0.01, 0.01]], [[0.49, 0.29, 0.19]])
     v, f = m.surface_mesh("claimed")
     mesh = trimesh.Trimesh(v, f, process=False)
     assert mesh.is_volume

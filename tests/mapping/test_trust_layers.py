@@ -11,6 +11,7 @@ import trimesh
 
 from secure3d.errors import ConfigError, GeometryError
 from secure3d.mapping import OccupancyMap, Trust
+from secure3d.mapping.occupancy import BOUNDARY_TOUCH
 
 RES = 0.1
 
@@ -128,7 +129,7 @@ def test_every_trust_level_and_observed():
 
 
 def test_claim_boxes_are_conservative(rng):
-    """Occupied claims cover every voxel the box overlaps; free claims only voxels inside it."""
+    """Occupied claims cover every voxel the box overlaps or touches; free claims only voxels inside it."""
     lo = np.array([[0.03, -0.21, 0.1]])
     hi = np.array([[0.47, 0.2, 0.31]])
     occ = OccupancyMap(RES)
@@ -138,7 +139,8 @@ def test_claim_boxes_are_conservative(rng):
     grid = (np.stack(np.meshgrid(*[np.arange(-8, 8)] * 3, indexing="ij"), -1).reshape(-1, 3)
             + 0.5) * RES  # fmt: skip
     vlo, vhi = grid - RES / 2, grid + RES / 2
-    overlaps = np.all((vlo < hi) & (vhi > lo), axis=1)
+    touch = BOUNDARY_TOUCH * RES
+    overlaps = np.all((vlo < hi + touch) & (vhi > lo - touch), axis=1)
     contained = np.all((vlo >= lo - 1e-12) & (vhi <= hi + 1e-12), axis=1)
     np.testing.assert_array_equal(occ.trust(grid) == Trust.CLAIMED_OCCUPIED, overlaps)
     np.testing.assert_array_equal(free.trust(grid) == Trust.CLAIMED_FREE, contained)

@@ -1,0 +1,415 @@
+"""A stage-wise transcription of the planner's NLP (the paper's eq. NLP) that fatrop can solve.
+
+fatrop (shipped in the casadi wheel) factorises the KKT system of an optimal-control problem by a
+Riccati recursion. CasADi's ``structure_detection="auto"`` finds that structure only when
+(DESIGN.md section 4, "Discretisation"):
+
+- the decision vector is ordered stage by stage, ``w = [z_0, v_0, z_1, v_1, ..., z_{K-1}, v_{K-1}]``
+  (z: states, v: controls);
+- the constraint rows are ordered ``[gap_0, path_0, gap_1, path_1, ..., gap_{K-2}, path_{K-2},
+  path_{K-1}]``; each gap-closing row reads ``z_{k+1}[i] - F_i(z_k, v_k) = 0`` (z_{k+1}[i] enters
+  with coefficient +1 and no other entry of z_{k+1} appears) and every path row depends on one
+  stage only;
+- the Lagrangian Hessian is block-diagonal by stage (the interface silently drops coupling blocks).
+
+The collocation transcription (:mod:`.collocation`) has none of this: T is one global variable, the
+trapezoidal defect is implicit in x_{k+1}, and the visibility row of node i reads the camera of an
+earlier node j. Here stage k carries
+
+``z_k = [x_k, u_k, T_k, r_k]``
+    the model state; the control at node k (a state, because controls are linear in time between
+    nodes: the reading of :func:`secure3d.planning.trajectory.interpolate`, which the certificate
+    and the tracker use); a copy of the final time (``T_{k+1} = T_k``); and a shift register
+    ``r_k = (c(x_{k-1}), c(x_{k-2}), ..., c(x_{k-D}))`` of the camera coordinates of the last D
+    nodes;
+``v_k = [u_{k+1}, lam_k]``
+    the next node's control (absent at the last stage) and the dual vectors of node k's obstacle
+    slots.
+
+Dynamics: ``x_{k+1}`` is the explicit RK4 integral (:data:`RK4_SUBSTEPS` steps) over
+h = T_k / (K - 1) of ``xdot = f(x, u(t))`` with u linear from u_k to u_{k+1}; for the point mass
+(a chain of integrators) this is exact, so a fatrop plan and an IPOPT (trapezoidal) plan differ
+only by the collocation error of the latter. The register shifts, ``r_{k+1} = (c(x_k), r_k[0],
+..., r_k[D-2])``, so the visibility row of node i with look-back j = i - s (1 <= s <= D) reads
+``r_i[s - 1]`` and stays stage-local. ``c(x)`` is exactly the part of the state the camera pose
+depends on (found from the kernels' sparsity: position and yaw for the point mass, position and
+attitude quaternion for the quadrotor), not the whole state: the register costs D * len(c) states
+per stage and fatrop's Riccati recursion grows with the cube of the stage size.
+
+The constraint rows are the same :class:`~secure3d.planning.collocation.NodeKernels` as IPOPT's
+(limits, bounds, frustum, start region, obstacle duals), so both solvers enforce the same
+guarantees at the nodes. Differences from :func:`~secure3d.planning.collocation.build_nlp`:
+
+- the control-dependent limit rows also hold at node 0 (u_0 acts over the first interval; the
+  collocation transcription leaves u_0 inside its box only);
+- ``lookback="adaptive"`` is refused (:class:`~secure3d.errors.ConfigError`): its assignments may
+  reach arbitrarily far back and the register would grow to K stages; the paper's fixed rule
+  j = i - D is supported (any assignment with spans <= D is, in fact);
+- ``collocation`` does not apply (the discretisation is RK4), so ``"hermite_simpson"`` is refused.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from secure3d.errors import ConfigError
+from secure3d.planning.collocation import (
+    NodeKernels,
+    TranscribedNLP,
+    model_terminal_rows,
+    nlp_key,
+    node_kernels,
+)
+from secure3d.planning.problem import PlanningProblem
+
+#: RK4 steps per node interval. One is exact for the point mass (piecewise-cubic positions); two
+#: keep the quadrotor's attitude kinematics (the only nonlinear dynamics) well below the node
+#: spacing's other errors at K = 40 (tests/planning/test_fatrop.py measures fourth-order
+#: convergence).
+RK4_SUBSTEPS = 2
+
+#: Convergence tolerances, as the IPOPT transcription's (secure3d.planning.collocation).
+TOL, ACCEPTABLE_TOL, ACCEPTABLE_ITER = 1e-6, 1e-4, 5
+
+#: Linear cost on the duals of node 0 (x_0 is fixed, so no row uses them; the layout keeps them
+#: for compatibility). Without it their only term is the barrier -mu log(lam), which pushes them
+#: to infinity (IPOPT damps such variables with kappa_d; fatrop has no such option); with it they
+#: settle at mu / weight and add about n * mu to the objective.
+UNUSED_DUAL_WEIGHT = 1e-3
+
+
+@dataclass
+class StageLayout:
+    """Where each variable block lives in the stage-ordered decision vector w.
+
+    Offers the interface of :class:`~secure3d.planning.collocation.NLPLayout` that
+    :mod:`secure3d.planning.solve` uses (``i_T``, ``i_X``, ``i_U``, ``i_L``, ``n_w``, ``pack``,
+    ``unpack``, ``hermite``) plus the stage copies.
+
+    Attributes
+    ----------
+    K, nx, nu, slots : nodes, model states, model controls, obstacle slots per node.
+    depth : register depth D (0 when no node looks back).
+    cam_idx : (nc,) int, the state entries the camera pose depends on.
+    i_T : index of T in stage 0 (the bounded copy; the gap rows make all copies equal).
+    i_Ts : (K,) int, T_k. i_X : (K, nx). i_U : (K, nu), the state copies u_k.
+    i_Unext : (K-1, nu), the control copies u_{k+1} in v_k. i_L : (K, slots, 6).
+    i_R : (K, depth, nc), r_k[m] = c(x_{k-1-m}).
+    stage_start : (K + 1,) int, first index of each stage (and n_w).
+    n_z : states per stage.
+    """
+
+    K: int
+    nx: int
+    nu: int
+    slots: int
+    depth: int
+    cam_idx: np.ndarray
+    hermite: bool = False
+    i_T: int = 0
+    i_Ts: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    i_X: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    i_U: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    i_Unext: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    i_L: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    i_R: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    stage_start: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    n_z: int = 0
+    n_w: int = 0
+
+    def __post_init__(self) -> None:
+        K, nx, nu, S, D = self.K, self.nx, self.nu, self.slots, self.depth
+        self.cam_idx = np.asarray(self.cam_idx, dtype=int)
+        nc = len(self.cam_idx)
+        self.n_z = nx + nu + 1 + D * nc
+        n_v = np.full(K, nu + 6 * S)
+        n_v[-1] = 6 * S  # no next control after the last node
+        start = np.concatenate([[0], np.cumsum(self.n_z + n_v)])
+        z0 = start[:-1, None]
+        self.stage_start = start
+        self.i_X = z0 + np.arange(nx)
+        self.i_U = z0 + nx + np.arange(nu)
+        self.i_Ts = start[:-1] + nx + nu
+        self.i_T = int(self.i_Ts[0])
+        self.i_R = (z0 + nx + nu + 1 + np.arange(D * nc)).reshape(K, D, nc)
+        self.i_Unext = z0[:-1] + self.n_z + np.arange(nu)
+        self.i_L = (z0 + self.n_z + n_v[:, None] - 6 * S + np.arange(6 * S)).reshape(K, S, 6)
+        self.n_w = int(start[-1])
+
+    def register_values(self, X: np.ndarray) -> np.ndarray:
+        """(K, D, nc) register contents implied by node states X (K, nx): r_k[m] = c(x_{k-1-m}),
+        with the start state filling the slots before node 0."""
+        k = np.arange(self.K)[:, None] - 1 - np.arange(self.depth)[None, :]
+        return np.asarray(X, dtype=float)[np.maximum(k, 0)][..., self.cam_idx]
+
+    def pack(self, T: float, X: np.ndarray, U: np.ndarray, L: np.ndarray, Um: np.ndarray | None = None) -> np.ndarray:
+        """Decision vector (n_w,) from T, X (K, nx), U (K, nu), L (K, slots, 6); every copy (T_k,
+        u_{k+1}, the register) is filled consistently. ``Um`` is accepted for interface
+        compatibility and ignored (no midpoint controls)."""
+        w = np.zeros(self.n_w)
+        U = np.asarray(U, dtype=float)
+        w[self.i_Ts] = T
+        w[self.i_X] = X
+        w[self.i_U] = U
+        w[self.i_Unext] = U[1:]
+        w[self.i_L] = L
+        w[self.i_R] = self.register_values(X)
+        return w
+
+    def unpack(self, w: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """(T, X (K, nx), U (K, nu), L (K, slots, 6)) from a decision vector; T is the last stage's
+        copy (the objective's)."""
+        w = np.asarray(w, dtype=float).ravel()
+        return float(w[self.i_Ts[-1]]), w[self.i_X], w[self.i_U], w[self.i_L]
+
+
+def camera_state_indices(kernels: NodeKernels, nx: int) -> np.ndarray:
+    """State entries of x_j that the visibility kernels read (the camera pose's arguments).
+
+    Returns
+    -------
+    (nc,) int, sorted.
+    """
+    xi, xj = ca.SX.sym("xi", nx), ca.SX.sym("xj", nx)
+    outs = [kernels.vis(xi, xj)]
+    n_in = kernels.obs_view.n_in()
+    extra = [ca.SX.sym(f"a{i}", kernels.obs_view.size1_in(i)) for i in range(2, n_in)]
+    outs.append(kernels.obs_view(xi, xj, *extra))
+    expr = ca.vertcat(*outs)
+    return np.array([d for d in range(nx) if ca.depends_on(expr, xj[d])], dtype=int)
+
+
+def rk4_foh(model: object, x: ca.SX, u0: ca.SX, u1: ca.SX, h: ca.SX, steps: int = RK4_SUBSTEPS) -> ca.SX:
+    """Explicit RK4 over one node interval of length h with the control linear from u0 to u1.
+
+    Parameters
+    ----------
+    model : vehicle model with ``f(x, u)`` (numpy and CasADi).
+    x : (nx,) state at the interval's start; u0, u1 : (nu,) controls at its ends; h : length (s).
+    steps : RK4 steps per interval.
+
+    Returns
+    -------
+    (nx,) state at the interval's end (same type as ``x``: CasADi or numpy).
+    """
+    dt = h / steps
+    for i in range(steps):
+        a, b = i / steps, (i + 0.5) / steps
+        ua, ub, uc = u0 + a * (u1 - u0), u0 + b * (u1 - u0), u0 + (i + 1) / steps * (u1 - u0)
+        k1 = model.f(x, ua)
+        k2 = model.f(x + 0.5 * dt * k1, ub)
+        k3 = model.f(x + 0.5 * dt * k2, ub)
+        k4 = model.f(x + dt * k3, uc)
+        x = x + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return x
+
+
+def check_fatrop_options(problem: PlanningProblem, planner: str) -> None:
+    """Raise :class:`~secure3d.errors.ConfigError` for options this transcription cannot honour."""
+    o = problem.options
+    if planner == "secure" and o.lookback != "fixed":
+        raise ConfigError(
+            f"solver 'fatrop' supports lookback='fixed' only (the paper's j = i - lookback_steps, carried "
+            f"in a shift register of the state); got lookback={o.lookback!r}: pass lookback='fixed' or "
+            f"solver='ipopt'"
+        )
+    if o.collocation != "trapezoidal":
+        raise ConfigError(
+            f"solver 'fatrop' discretises with explicit RK4 (no collocation scheme); got "
+            f"collocation={o.collocation!r}: leave it at 'trapezoidal' or use solver='ipopt'"
+        )
+
+
+def _solver_options(problem: PlanningProblem, equality: list[bool]) -> dict:
+    o = problem.options
+    return {
+        "print_time": False,
+        "structure_detection": "auto",
+        "expand": True,
+        "equality": equality,
+        "fatrop": {
+            "print_level": 5 if o.verbose else 0,
+            "max_iter": o.max_iter,
+            "tol": TOL,
+            "tol_acceptable": ACCEPTABLE_TOL,
+            "acceptable_iter": ACCEPTABLE_ITER,
+        },
+    }
+
+
+class _Rows:
+    """Constraint rows collected family by family, each tagged with its stage, then put in the
+    order fatrop's structure detection needs (gap rows of stage k, then its path rows)."""
+
+    def __init__(self) -> None:
+        self.exprs: list[ca.SX] = []
+        self.names: list[str] = []
+        self.lb: list[float] = []
+        self.ub: list[float] = []
+        self.stage: list[int] = []
+        self.part: list[int] = []
+
+    def add(self, out: ca.SX, rows: list[tuple[str, float, float]], stages: list[int], gap: bool = False) -> None:
+        """``out`` (len(rows), len(stages)): column c holds the rows of stage ``stages[c]``."""
+        if not rows or not stages:
+            return
+        self.exprs.append(ca.vec(out))
+        for k in stages:
+            for name, lo, hi in rows:
+                self.names.append(name)
+                self.lb.append(lo)
+                self.ub.append(hi)
+                self.stage.append(k)
+                self.part.append(0 if gap else 1)
+
+    def ordered(self) -> tuple[ca.SX, np.ndarray, np.ndarray, list[str]]:
+        order = np.lexsort((np.arange(len(self.stage)), self.part, self.stage))
+        g = ca.vertcat(*self.exprs)[order.tolist()]
+        names = [self.names[i] for i in order]
+        return g, np.asarray(self.lb, float)[order], np.asarray(self.ub, float)[order], names
+
+
+def build_fatrop_nlp(
+    problem: PlanningProblem, planner: str, assignment: tuple[int, ...], kernels: NodeKernels | None = None
+) -> TranscribedNLP:
+    """Transcribe the problem stage by stage for fatrop (see the module docstring).
+
+    Parameters
+    ----------
+    problem : the planning problem; ``options.solver`` should be ``"fatrop"``.
+    planner : ``"secure"`` or ``"baseline"``.
+    assignment : (K,) look-back node per node, -1 = the start region (secure planner only).
+    kernels : the problem's node kernels (built if None).
+
+    Returns
+    -------
+    TranscribedNLP
+        With a :class:`StageLayout`; parameters as :func:`~secure3d.planning.collocation.parameter_vector`.
+
+    Raises
+    ------
+    ConfigError
+        For ``lookback="adaptive"`` (secure planner) or ``collocation="hermite_simpson"``.
+    """
+    t0 = time.perf_counter()
+    check_fatrop_options(problem, planner)
+    model, o = problem.model, problem.options
+    K, nx, nu, S = o.nodes, model.nx, model.nu, o.obstacle_slots
+    secure = planner == "secure"
+    kern = kernels if kernels is not None else node_kernels(problem)
+    if len(assignment) != K:
+        raise ConfigError(f"assignment: expected {K} look-back entries, got {len(assignment)}")
+    spans = [k - j for k, j in enumerate(assignment) if secure and k > 0 and j >= 0]
+    if any(s < 1 for s in spans):
+        raise ConfigError(f"assignment: every look-back must be an earlier node, got {assignment}")
+    depth = max(spans, default=0)
+    cam_idx = camera_state_indices(kern, nx) if depth else np.zeros(0, int)
+    lay = StageLayout(K=K, nx=nx, nu=nu, slots=S, depth=depth, cam_idx=cam_idx)
+    nc = len(cam_idx)
+
+    # ---- decision variables and parameters ----------------------------------------------------
+    w = ca.SX.sym("w", lay.n_w)
+
+    def block(idx: np.ndarray) -> ca.SX:
+        """Columns c = w[idx[c]]: idx (n_cols, n_rows) -> SX (n_rows, n_cols)."""
+        idx = np.asarray(idx, dtype=int)
+        return ca.reshape(w[idx.ravel().tolist()], idx.shape[1], idx.shape[0])
+
+    X, U, L = block(lay.i_X), block(lay.i_U), block(lay.i_L.reshape(K, 6 * S))
+    Ts = block(lay.i_Ts[:, None])  # (1, K)
+    Un = block(lay.i_Unext)  # (nu, K-1)
+    n_p = 9 + K * S * 6
+    p = ca.SX.sym("p", n_p)
+    start_lo, start_hi, goal = p[0:3], p[3:6], p[6:9]
+    Boxes = ca.reshape(p[9:], 6 * S, K)
+    rows = _Rows()
+    nodes = list(range(1, K))
+
+    # ---- objective: final time (last stage) + the collocation transcription's effort term --------
+    u_mid = 0.5 * (model.u_lo + model.u_hi)
+    u_scale = np.maximum(0.5 * (model.u_hi - model.u_lo), 1e-6)
+    effort = ca.sum1(((U - ca.repmat(u_mid, 1, K)) / ca.repmat(u_scale, 1, K)) ** 2)
+    J = Ts[K - 1] + o.effort_weight / (K - 1) * ca.dot(Ts, effort) + UNUSED_DUAL_WEIGHT * ca.sum1(L[:, 0])
+
+    # ---- gap-closing rows z_{k+1} - F(z_k, v_k): RK4 state, next control, T copy, register --------
+    xs, u0s, u1s, Tsym = ca.SX.sym("x", nx), ca.SX.sym("u0", nu), ca.SX.sym("u1", nu), ca.SX.sym("T")
+    rs = ca.SX.sym("r", depth * nc)
+    r_next = ca.vertcat(xs[cam_idx.tolist()], rs[: (depth - 1) * nc]) if depth else ca.SX(0, 1)
+    step = ca.Function(
+        "stage_step", [xs, u0s, u1s, Tsym, rs],
+        [ca.vertcat(rk4_foh(model, xs, u0s, u1s, Tsym / (K - 1)), u1s, Tsym, r_next)],
+    )
+    R = block(lay.i_R.reshape(K, depth * nc)) if depth else ca.SX(0, K)
+    Z_next = ca.vertcat(X[:, 1:], U[:, 1:], Ts[:, 1:], R[:, 1:])
+    F = step.map(K - 1)(X[:, : K - 1], U[:, : K - 1], Un, Ts[:, : K - 1], R[:, : K - 1])
+    gap_rows = [("dynamics", 0.0, 0.0)] * nx + [("stage_copy", 0.0, 0.0)] * (nu + 1 + depth * nc)
+    rows.add(Z_next - F, gap_rows, list(range(K - 1)), gap=True)
+
+    # ---- stage 0: register filled with the start camera, control limits over the first interval --
+    if depth:
+        fill = ca.repmat(X[cam_idx.tolist(), 0], depth, 1)
+        rows.add(R[:, 0] - fill, [("stage_copy", 0.0, 0.0)] * (depth * nc), [0])
+    us = ca.SX.sym("u", nu)
+    path_sym = kern.path(xs, us)
+    u_rows = [i for i in range(path_sym.shape[0]) if ca.depends_on(path_sym[i], us)]
+    if u_rows:
+        rows.add(kern.path(X[:, 0], U[:, 0])[u_rows, :], [kern.path_rows[i] for i in u_rows], [0])
+
+    # ---- path constraints at nodes 1..K-1: model limits and world bounds ---------------------------
+    if kern.path_rows:
+        rows.add(kern.path.map(K - 1)(X[:, 1:], U[:, 1:]), kern.path_rows, nodes)
+
+    # ---- boundary conditions: at rest at the goal (last stage) -------------------------------------
+    x_end = X[:, K - 1]
+    pos_end, vel_end = model.position(x_end), model.velocity(x_end)
+    terminal = [pos_end[d] - goal[d] for d in range(3) if ca.depends_on(pos_end[d], w)]
+    terminal += [vel_end[d] for d in range(3) if ca.depends_on(vel_end[d], w)]
+    terminal += list(model_terminal_rows(model, x_end))
+    rows.add(ca.vertcat(*terminal), [("terminal", 0.0, 0.0)] * len(terminal), [K - 1])
+
+    # ---- obstacles and visibility (eq. NLP), stage-local through the register ----------------------
+    if not secure:
+        rows.add(kern.obs_base.map(K - 1)(X[:, 1:], Boxes[:, 1:], L[:, 1:]), kern.obs_base_rows, nodes)
+    else:
+        view = [k for k in nodes if assignment[k] >= 0]
+        start = [k for k in nodes if assignment[k] < 0]
+        if view:
+            # x_j rebuilt from the register: the camera entries, zeros elsewhere (unread by the kernels)
+            scatter = ca.DM(ca.Sparsity.triplet(nx, nc, cam_idx.tolist(), list(range(nc))), 1.0)
+            cam = block(np.stack([lay.i_R[k, k - assignment[k] - 1] for k in view]))
+            Xi, Xj = X[:, view], ca.mtimes(scatter, cam)
+            n_faces = problem.frustum.n_faces
+            rows.add(kern.vis.map(len(view))(Xi, Xj), [("visibility", o.margin, ca.inf)] * n_faces, view)
+            rows.add(kern.obs_view.map(len(view))(Xi, Xj, Boxes[:, view], L[:, view]), kern.obs_view_rows, view)
+        if start:
+            Xs = X[:, start]
+            lo, hi = ca.repmat(start_lo, 1, len(start)), ca.repmat(start_hi, 1, len(start))
+            rows.add(kern.start.map(len(start))(Xs, lo, hi), [("start_region", o.margin, ca.inf)] * 6, start)
+            rows.add(kern.obs_start.map(len(start))(Xs, Boxes[:, start], L[:, start]), kern.obs_start_rows, start)
+
+    # ---- solver ---------------------------------------------------------------------------------
+    g, lbg, ubg, names = rows.ordered()
+    families = {n: np.flatnonzero(np.array(names) == n) for n in dict.fromkeys(names)}
+    nlp = {"x": w, "p": p, "f": J, "g": g}
+    opts = _solver_options(problem, [bool(lo == hi) for lo, hi in zip(lbg, ubg, strict=True)])
+    solver = ca.nlpsol(f"secure3d_{planner}_fatrop", "fatrop", nlp, opts)
+    return TranscribedNLP(
+        key=nlp_key(problem, planner, assignment),
+        layout=lay,
+        solver=solver,
+        g_fun=ca.Function("g", [w, p], [g]),
+        lbg=lbg,
+        ubg=ubg,
+        families=families,
+        n_p=n_p,
+        build_time=time.perf_counter() - t0,
+        # fatrop takes no multiplier warm start: the "warm" solver is the same one (no rebuild)
+        warm_solver=solver,
+        nlp=nlp,
+        solver_name="fatrop",
+        solver_options=opts,
+    )
