@@ -18,6 +18,7 @@ from pathlib import Path
 
 from secure3d.simulation.campaign import (
     PAPER_BLIND_CORNER,
+    PAPER_BLIND_CORNER_LABEL,
     comparison_figures,
     comparison_table,
     fly_planners,
@@ -50,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
         top_down=args.out / "02_blind_corner_top_down.png",
         speed=args.out / "02_blind_corner_speed.png",
     )
-    print(comparison_table(results, reference=PAPER_BLIND_CORNER))
+    print(comparison_table(results, PAPER_BLIND_CORNER, PAPER_BLIND_CORNER_LABEL))
     for path in (*(r.outputs["rrd"] for r in results), *figures.values()):
         print(f"wrote {path}")
     return 0

@@ -29,19 +29,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--quick",
         action="store_true",
-        help="1 variant, 20 collocation nodes, in this process (a smoke test)",
+        help="smoke test: 2 variants, baseline only, 20 collocation nodes, in this process",
     )
     parser.add_argument("-n", type=int, default=6, help="number of variants")
     parser.add_argument("--workers", type=int, help="worker processes (default: CPU count)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the variants")
     args = parser.parse_args(argv)
 
-    n, workers, options = args.n, args.workers, {}
+    n, workers, planners, options = args.n, args.workers, ("secure", "baseline"), {}
     if args.quick:
-        n, workers, options = 1, 1, {"nodes": 20}
+        n, workers, planners, options = 2, 1, ("baseline",), {"nodes": 20}
     result = run_campaign(
         MAPS / "blind_corner.yaml",
         n,
+        planners,
         seed=args.seed,
         workers=workers,
         out_dir=args.out / "07_campaign",

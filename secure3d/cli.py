@@ -131,16 +131,6 @@ def _bundled_scenario(name: str) -> Path:
     )
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    widths = [max(len(str(r[k])) for r in (header, *rows)) for k in range(len(header))]
-    lines = [
-        "  ".join(str(c).ljust(w) for c, w in zip(r, widths, strict=True)).rstrip()
-        for r in (header, *rows)
-    ]
-    lines.insert(1, "  ".join("-" * w for w in widths))
-    return "\n".join(lines)
-
-
 # ---- plan --------------------------------------------------------------------------------------
 
 
@@ -180,6 +170,7 @@ def _plan_json(result: object) -> dict[str, object]:
 def _plan(args: argparse.Namespace) -> int:
     """Exit 0 when every planner returned a successful (and, if secure, certified) plan, else 1."""
     from secure3d.planning import NLPCache, plan
+    from secure3d.simulation.campaign import format_table
     from secure3d.world.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
@@ -207,7 +198,7 @@ def _plan(args: argparse.Namespace) -> int:
             )
         rule = options.get("lookback", scenario.planner.lookback)
         print(f"{scenario.name}: {len(results)} plan(s) in the server's map, look-back rule {rule}")
-        print(_table(PLAN_COLUMNS, rows))
+        print(format_table(PLAN_COLUMNS, rows))
         for r in results:
             if not r.ok:
                 print(f"{r.planner}: {' '.join(r.message.split())}")
@@ -241,7 +232,7 @@ def _simulate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--planner", choices=PLANNER_CHOICES, default="both", help="planner(s) to fly (both)"
     )
-    parser.add_argument("--seed", type=int, default=0, help="camera noise seed (0)")
+    parser.add_argument("--seed", type=int, default=0, metavar="N", help="camera noise seed (0)")
     _add_planner_options(parser)
     parser.add_argument(
         "--rrd",
@@ -322,14 +313,19 @@ def _campaign_arguments(parser: argparse.ArgumentParser) -> None:
         "--planners",
         type=_planner_names,
         default=("secure", "baseline"),
+        metavar="LIST",
         help="comma-separated planners to fly (secure,baseline)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the variants (0)")
+    parser.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the variants (0)")
     parser.add_argument(
-        "--workers", type=int, help="worker processes (default: the number of CPUs)"
+        "--workers", type=int, metavar="W", help="worker processes (default: the number of CPUs)"
     )
     parser.add_argument(
-        "--out", type=Path, default=Path("out/campaign"), help="output folder (out/campaign)"
+        "--out",
+        type=Path,
+        default=Path("out/campaign"),
+        metavar="DIR",
+        help="output folder (out/campaign)",
     )
     parser.add_argument(
         "--kind",
@@ -337,7 +333,9 @@ def _campaign_arguments(parser: argparse.ArgumentParser) -> None:
         default="auto",
         help="where hidden obstacles go (auto)",
     )
-    parser.add_argument("--count", type=int, default=1, help="hidden obstacles per variant (1)")
+    parser.add_argument(
+        "--count", type=int, default=1, metavar="C", help="hidden obstacles per variant (1)"
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     _add_planner_options(parser)
 
@@ -418,19 +416,25 @@ def _reactive(args: argparse.Namespace) -> int:
 
 
 def _demo_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, default=Path("out"), help="output folder (out)")
+    parser.add_argument(
+        "--out", type=Path, default=Path("out"), metavar="DIR", help="output folder (out)"
+    )
     parser.add_argument(
         "--quick", action="store_true", help="fewer collocation nodes (20): faster, coarser plans"
     )
     parser.add_argument(
-        "--scenario", type=Path, help="fly this scenario instead of the blind corner"
+        "--scenario",
+        type=Path,
+        metavar="FILE",
+        help="fly this scenario instead of the blind corner",
     )
-    parser.add_argument("--seed", type=int, default=0, help="camera noise seed (0)")
+    parser.add_argument("--seed", type=int, default=0, metavar="N", help="camera noise seed (0)")
 
 
 def _demo(args: argparse.Namespace) -> int:
     from secure3d.simulation.campaign import (
         PAPER_BLIND_CORNER,
+        PAPER_BLIND_CORNER_LABEL,
         comparison_figures,
         comparison_table,
         fly_planners,
@@ -458,8 +462,10 @@ def _demo(args: argparse.Namespace) -> int:
     for path in figures.values():
         print(f"  wrote {path}")
     print()
-    reference = PAPER_BLIND_CORNER if name == "blind_corner" else None
-    print(comparison_table(results, reference=reference))
+    if name == "blind_corner":
+        print(comparison_table(results, PAPER_BLIND_CORNER, PAPER_BLIND_CORNER_LABEL))
+    else:
+        print(comparison_table(results))
     print(f"\nReplay a flight with: rerun {out / f'{name}_secure.rrd'}")
     return 0
 

@@ -65,15 +65,29 @@ from secure3d.planning.collocation import (
     node_kernels,
 )
 from secure3d.planning.problem import PlanningProblem
+from secure3d.planning.result import PlanStatus
 
-#: RK4 steps per node interval. One is exact for the point mass (piecewise-cubic positions); two
-#: keep the quadrotor's attitude kinematics (the only nonlinear dynamics) well below the node
-#: spacing's other errors at K = 40 (tests/planning/test_fatrop.py measures fourth-order
-#: convergence).
+#: RK4 steps per node interval. One is exact for the point mass (piecewise-cubic positions). For
+#: the quadrotor (the only nonlinear dynamics) at h = 0.115 s and full body rates, the largest state
+#: error against a tight scipy integration was measured at 8e-3 with one step and 5e-4 with two
+#: (fourth order: x16 per halving; tests/planning/test_fatrop.py checks the order).
 RK4_SUBSTEPS = 2
 
-#: Convergence tolerances, as the IPOPT transcription's (secure3d.planning.collocation).
-TOL, ACCEPTABLE_TOL, ACCEPTABLE_ITER = 1e-6, 1e-4, 5
+#: Convergence tolerance. fatrop measures the unscaled KKT error, IPOPT (tol 1e-6) a scaled one
+#: whose dual part is divided by the multipliers' size; at 1e-6 fatrop was measured to stall at
+#: mu = 1e-7 on blind_corner (125 iterations instead of 31, same T to 1e-5).
+TOL, ACCEPTABLE_TOL, ACCEPTABLE_ITER = 1e-5, 1e-4, 5
+
+#: Initial barrier parameter. fatrop's barrier update is monotone (IPOPT's here is adaptive); from
+#: fatrop's default 0.1 the first iterations wander far from the guess (T up to 4x the guess's)
+#: and blind_corner took 66-92 iterations instead of about 30.
+MU_INIT = 1e-2
+
+#: How far the initial point is pushed inside its bounds (fatrop's default 1e-2). fatrop takes no
+#: multiplier warm start, so re-solves from a near-optimal primal point (obstacle-slot refreshes,
+#: warm replans) lean on the primal alone; moved less, blind_corner's secure warm replans took
+#: 36-39 iterations instead of 75-124 (cold plans 58 instead of 86).
+BOUND_PUSH = 1e-4
 
 #: Linear cost on the duals of node 0 (x_0 is fixed, so no row uses them; the layout keeps them
 #: for compatibility). Without it their only term is the barrier -mu log(lam), which pushes them
@@ -208,6 +222,23 @@ def rk4_foh(model: object, x: ca.SX, u0: ca.SX, u1: ca.SX, h: ca.SX, steps: int 
     return x
 
 
+#: fatrop's ``return_flag`` (solver.stats()["fatrop"]) in the names IPOPT uses. 0 and 1 are fatrop's
+#: Success and MaxIterExceeded; 2 was measured to be the acceptable-level stop (tol_acceptable for
+#: acceptable_iter iterations). CasADi's ``success`` is True for 0 only.
+FATROP_FLAGS = {
+    0: ("Solve_Succeeded", PlanStatus.SUCCESS),
+    1: ("Maximum_Iterations_Exceeded", PlanStatus.ITERATION_LIMIT),
+    2: ("Solved_To_Acceptable_Level", PlanStatus.SUCCESS),
+}
+
+
+def fatrop_status(stats: dict) -> tuple[PlanStatus, str]:
+    """Status and message of a fatrop solve from ``solver.stats()`` (the feasibility of the
+    returned point is checked separately by the caller)."""
+    flag = int(stats.get("fatrop", {}).get("return_flag", -1))
+    return FATROP_FLAGS.get(flag, (f"fatrop return flag {flag}", PlanStatus.SOLVER_ERROR))[::-1]
+
+
 def check_fatrop_options(problem: PlanningProblem, planner: str) -> None:
     """Raise :class:`~secure3d.errors.ConfigError` for options this transcription cannot honour."""
     o = problem.options
@@ -235,6 +266,8 @@ def _solver_options(problem: PlanningProblem, equality: list[bool]) -> dict:
             "print_level": 5 if o.verbose else 0,
             "max_iter": o.max_iter,
             "tol": TOL,
+            "mu_init": MU_INIT,
+            "bound_push": BOUND_PUSH,
             "tol_acceptable": ACCEPTABLE_TOL,
             "acceptable_iter": ACCEPTABLE_ITER,
         },

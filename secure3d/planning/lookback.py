@@ -12,7 +12,12 @@ from __future__ import annotations
 import numpy as np
 
 from secure3d.geometry.frustum import frustum_halfspaces
-from secure3d.geometry.polytope import segments_blocked
+from secure3d.geometry.polytope import (
+    box_halfspaces,
+    ellipsoid_polytope_distance,
+    los_hull_distance,
+    segments_blocked,
+)
 from secure3d.planning.problem import PlanningProblem
 
 #: Penalty (m) on a candidate camera whose line of sight to the reactive set crosses a known obstacle.
@@ -113,21 +118,13 @@ def refine_assignment(
     return tuple(out)
 
 
-def select_slots(
-    problem: PlanningProblem, planner: str, states: np.ndarray, assignment: tuple[int, ...]
-) -> np.ndarray:
-    """(K, S, 6) boxes [lo, hi] per node slot: the known obstacles nearest to what node k constrains
-    (the body for the baseline; the line-of-sight hull from camera j to E_k for the secure planner).
-    Empty slots hold a small box far outside the world (its constraint is inactive)."""
+def _hull_box_distances(problem: PlanningProblem, planner: str, states: np.ndarray,
+                        assignment: tuple[int, ...]) -> np.ndarray:
+    """(K, n_boxes) screening distance from what node k constrains to every known box: the body
+    (baseline) or samples of the line-of-sight hull from camera j to E_k minus its largest
+    semi-axis (secure)."""
     o = problem.options
-    K, S = len(states), o.obstacle_slots
-    far = np.asarray(problem.bounds_hi) + 1e3
-    slots = np.empty((K, S, 6))
-    slots[:, :, 0:3] = far
-    slots[:, :, 3:6] = far + 0.1
-    n = len(problem.boxes_lo)
-    if n == 0:
-        return slots
+    K, n = len(states), len(problem.boxes_lo)
     geo = node_geometry(problem, states)
     if planner == "secure":
         reach = np.linalg.norm(geo["M"], ord=2, axis=(1, 2))
@@ -143,7 +140,68 @@ def select_slots(
         reach = np.full(K, problem.model.body_radius)
         pts = geo["P"][:, None, :]
     d = min_box_distance_all(pts.reshape(-1, 3), problem.boxes_lo, problem.boxes_hi)
-    d = d.reshape(K, -1, n).min(axis=1) - reach[:, None]
+    return d.reshape(K, -1, n).min(axis=1) - reach[:, None]
+
+
+def _exact_distance(problem: PlanningProblem, geo: dict[str, np.ndarray], assignment: tuple[int, ...],
+                    k: int, b_idx: int) -> float:
+    A, b = box_halfspaces(problem.boxes_lo[b_idx], problem.boxes_hi[b_idx])
+    j = assignment[k]
+    if problem.options.occlusion and j >= 0:
+        return float(los_hull_distance(geo["o"][j], geo["C"][k], geo["M"][k], A, b)[0])
+    return float(ellipsoid_polytope_distance(geo["C"][k], geo["M"][k], A, b)[0])
+
+
+def _refine_distances(problem: PlanningProblem, states: np.ndarray, assignment: tuple[int, ...],
+                      screen: np.ndarray, keep: int) -> np.ndarray:
+    """Replace the screening distances of each node's ``keep`` nearest boxes by exact ones (the
+    screening subtracts the largest semi-axis, which ranks boxes poorly beside long reactive sets)."""
+    geo = node_geometry(problem, states)
+    out = np.full_like(screen, np.inf)
+    for k in range(len(states)):
+        for b_idx in np.argsort(screen[k])[:keep]:
+            if screen[k, b_idx] <= problem.options.obstacle_radius:
+                out[k, b_idx] = _exact_distance(problem, geo, assignment, k, int(b_idx))
+    return out
+
+
+def slots_missing(problem: PlanningProblem, planner: str, states: np.ndarray,
+                  assignment: tuple[int, ...], slots: np.ndarray, slack: float = 0.05) -> bool:
+    """Whether some box left out of a node's slots comes within ``margin + slack`` of what that
+    node constrains on ``states`` (then the slots must be re-selected and the NLP re-solved)."""
+    if len(problem.boxes_lo) == 0:
+        return False
+    d = _hull_box_distances(problem, planner, states, assignment)
+    boxes = np.concatenate([problem.boxes_lo, problem.boxes_hi], axis=1)  # (n, 6)
+    in_slot = np.all(np.isclose(slots[:, :, None, :], boxes[None, None, :, :]), axis=-1).any(axis=1)
+    d = np.where(in_slot, np.inf, d)
+    limit = problem.options.margin + slack
+    flagged = np.argwhere(d < limit)
+    if len(flagged) == 0 or planner != "secure":
+        return bool(len(flagged))
+    # the screening bound is loose for elongated reactive sets: confirm with exact distances
+    geo = node_geometry(problem, states)
+    return any(_exact_distance(problem, geo, assignment, int(k), int(b)) < limit for k, b in flagged)
+
+
+def select_slots(
+    problem: PlanningProblem, planner: str, states: np.ndarray, assignment: tuple[int, ...]
+) -> np.ndarray:
+    """(K, S, 6) boxes [lo, hi] per node slot: the known obstacles nearest to what node k constrains
+    (the body for the baseline; the line-of-sight hull from camera j to E_k for the secure planner).
+    Empty slots hold a small box far outside the world (its constraint is inactive)."""
+    o = problem.options
+    K, S = len(states), o.obstacle_slots
+    far = np.asarray(problem.bounds_hi) + 1e3
+    slots = np.empty((K, S, 6))
+    slots[:, :, 0:3] = far
+    slots[:, :, 3:6] = far + 0.1
+    n = len(problem.boxes_lo)
+    if n == 0:
+        return slots
+    d = _hull_box_distances(problem, planner, states, assignment)
+    if planner == "secure":
+        d = _refine_distances(problem, states, assignment, d, 2 * S)
     order = np.argsort(d, axis=1)[:, :S]
     for k in range(K):
         for s, idx in enumerate(order[k]):

@@ -59,6 +59,9 @@ class PlannerOptions:
         the bang-bang minimum-time solution; small).
     max_iter : solver iteration limit per solve; time_limit : wall-clock limit per solve (s).
     certify : run :func:`secure3d.certify` on secure plans and report NOT_CERTIFIED on failure.
+    close_gaps : voxels of morphological closing applied to the belief's obstacles before they are
+        merged into boxes (:meth:`~secure3d.mapping.occupancy.OccupancyMap.known_obstacle_boxes`):
+        turns sensed surface combs into solid boxes; closes openings narrower than 2 voxels.
     grid_resolution : cell size of the graph search that makes the initial guess (m).
     guess_speed_fraction : cruise speed of the initial guess, as a fraction of the speed limit.
     verbose : print solver output.
@@ -79,6 +82,7 @@ class PlannerOptions:
     max_iter: int = 500
     time_limit: float = 60.0
     certify: bool = True
+    close_gaps: int = 1
     grid_resolution: float = 0.2
     guess_speed_fraction: float = 0.8
     verbose: bool = False
@@ -109,6 +113,8 @@ class PlannerOptions:
         if not isinstance(self.max_iter, int) or self.max_iter < 1:
             raise ConfigError(f"planner option max_iter: must be a positive integer, got {self.max_iter!r}")
         _check_positive("time_limit", self.time_limit)
+        if isinstance(self.close_gaps, bool) or not isinstance(self.close_gaps, int) or self.close_gaps < 0:
+            raise ConfigError(f"planner option close_gaps: must be an integer >= 0, got {self.close_gaps!r}")
         _check_positive("grid_resolution", self.grid_resolution)
         if not 0 < self.guess_speed_fraction <= 1:
             raise ConfigError(
@@ -261,7 +267,7 @@ def problem_from_scenario(
         x0 = model.initial_state(np.array(s.position), np.array(s.velocity), s.yaw)
     if belief is None:
         belief = belief_map(scenario)
-    lo, hi = belief.known_obstacle_boxes()
+    lo, hi = belief.known_obstacle_boxes(close_gaps=opts.close_gaps)
     start_lo, start_hi = start_region(model, family, x0, opts.start_region_radius)
     return PlanningProblem(
         model=model,

@@ -23,6 +23,7 @@ import numpy as np
 from secure3d.errors import ConfigError
 from secure3d.planning import lookback as lb
 from secure3d.planning.collocation import T_MAX, T_MIN, NLPCache, TranscribedNLP, parameter_vector
+from secure3d.planning.fatrop_transcription import fatrop_status
 from secure3d.planning.guess import Guess, NoPathError, initial_guess
 from secure3d.planning.problem import PlanningProblem, problem_from_scenario
 from secure3d.planning.result import PlanResult, PlanStatus
@@ -151,6 +152,8 @@ def _solve_once(
     worst = max(viol.values(), default=0.0)
     rs = str(stats.get("return_status", "unknown"))
     status = _IPOPT_STATUS.get(rs, PlanStatus.SUCCESS if stats.get("success") else PlanStatus.SOLVER_ERROR)
+    if nlp.solver_name == "fatrop":
+        status, rs = fatrop_status(stats)
     if status is PlanStatus.SUCCESS and worst > FEASIBILITY_TOL:
         status = PlanStatus.INFEASIBLE
         rs += f" but constraints violated by {worst:.2e}"
@@ -288,10 +291,7 @@ def _solve_rounds(
         for _ in range(SLOT_REFRESHES):
             # Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may
             # have come closer. Re-select and re-solve warm until the selection is stable.
-            if not s.status.ok:
-                break
-            slots = lb.select_slots(problem, planner, s.X, assignment)
-            if np.allclose(slots, s.slots):
+            if not s.status.ok or not lb.slots_missing(problem, planner, s.X, assignment, s.slots):
                 break
             nxt = _solve_once(problem, planner, assignment, s.T, s.X, s.U, cache, L=s.L,
                               multipliers=None, prev_slots=s.slots)

@@ -90,9 +90,6 @@ class ReactiveController(ABC):
         """A horizon (s) long enough for every manoeuvre from within the limits to stop."""
         return self.latency + 8.0
 
-    def _context_for(self, X0: np.ndarray, context: dict[str, Any]) -> dict[str, Any]:
-        return context
-
     def _hold_controls(self, X0: np.ndarray, u_hold: np.ndarray | None) -> np.ndarray:
         if u_hold is None:
             return self.model.nominal_control(X0)
@@ -122,8 +119,9 @@ class ReactiveController(ABC):
         Returns
         -------
         t : (T,) float, times from detection (s).
-        X : (N, T, nx) float; rows stop changing once each manoeuvre is at rest. The run ends when
-            all are at rest or at ``t_max``.
+        X : (N, T, nx) float. The run ends when all manoeuvres are at rest or at ``t_max``; those
+            that stopped earlier keep being simulated under the law (and stay at rest). The
+            latency is rounded up to whole steps.
         """
         dt = _check_dt(dt)
         X = self.model.project_state(np.array(X0, dtype=float, ndmin=2))
@@ -133,7 +131,6 @@ class ReactiveController(ABC):
         n_hold = math.ceil(self.latency / dt - 1e-9)
         n_max = max(n_hold, math.ceil(t_max / dt - 1e-9))
         U_hold = self._hold_controls(X, u_hold)
-        context = self._context_for(X, context)
         states = [X]
         for k in range(n_max):
             if k < n_hold:
@@ -142,7 +139,7 @@ class ReactiveController(ABC):
                 rest = self.at_rest(X)
                 if rest.all():
                     break
-                U = self.control_batch(X, dt, step_index=k - n_hold, **context)
+                U = self.control_batch(X, dt, **context)
             X = self.model.step_batch(X, U, dt)
             states.append(X)
         traj = np.stack(states, axis=1)
@@ -391,7 +388,7 @@ class MPCReactiveController(ReactiveController):
     ----------
     model : a PointMass.
     horizon : number of MPC steps N.
-    step : MPC step and control period (s).
+    dt : MPC step and control period (s).
     weights : :class:`MPCWeights`.
     latency : reaction delay (s).
     tol : FISTA stopping tolerance on the control change (m/s^2).
@@ -404,7 +401,7 @@ class MPCReactiveController(ReactiveController):
         self,
         model: VehicleModel,
         horizon: int = 15,
-        step: float = 0.1,
+        dt: float = 0.1,
         weights: MPCWeights | None = None,
         latency: float = 0.0,
         tol: float = 1e-7,
@@ -419,10 +416,10 @@ class MPCReactiveController(ReactiveController):
             raise ConfigError(
                 f"MPCReactiveController.horizon: must be an integer in [2, 200], got {horizon!r}"
             )
-        step = float(step)
+        step = float(dt)
         if not math.isfinite(step) or not 0.005 <= step <= 1.0:
             raise ConfigError(f"MPCReactiveController.step: must be in [0.005, 1] s, got {step!r}")
-        self.horizon, self.step = horizon, step
+        self.horizon, self.dt = horizon, step
         self.weights = MPCWeights() if weights is None else weights
         self.tol, self.max_iter = float(tol), int(max_iter)
         self._build_qp()
@@ -430,11 +427,11 @@ class MPCReactiveController(ReactiveController):
         self._warm: np.ndarray | None = None
 
     def config(self) -> dict[str, Any]:
-        """Name, latency, horizon, step and weights."""
+        """Name, latency, horizon, MPC step and weights."""
         return {
             **super().config(),
             "horizon": self.horizon,
-            "step": self.step,
+            "dt": self.dt,
             "weights": dataclasses.asdict(self.weights),
         }
 
@@ -444,7 +441,7 @@ class MPCReactiveController(ReactiveController):
 
     # -- the QP, per axis --------------------------------------------------------------------------
     def _build_qp(self) -> None:
-        N, h, w = self.horizon, self.step, self.weights
+        N, h, w = self.horizon, self.dt, self.weights
         k = np.arange(1, N + 1)[:, None]
         j = np.arange(N)[None, :]
         Gp = np.where(j < k, h * h * (k - j - 0.5), 0.0)
@@ -539,7 +536,7 @@ class MPCReactiveController(ReactiveController):
             p0, v0, pto, n = par[0:3].T, par[3:6].T, par[6:9].T, par[9:12].T
             k = ca.DM(np.arange(1, N + 1))
             w = self.weights
-            P = ca.repmat(p0, N, 1) + self.step * ca.mtimes(k, v0) + ca.mtimes(ca.DM(self._Gp), u)
+            P = ca.repmat(p0, N, 1) + self.dt * ca.mtimes(k, v0) + ca.mtimes(ca.DM(self._Gp), u)
             V = ca.repmat(v0, N, 1) + ca.mtimes(ca.DM(self._Gv), u)
             E = P - ca.repmat(pto, N, 1)
             cost = (
@@ -597,9 +594,9 @@ class MPCReactiveController(ReactiveController):
     def control(
         self,
         x: np.ndarray,
-        dt: float = 0.01,
         obstacle: Any = None,
         takeover_point: Any = None,
+        dt: float = 0.01,
         **_: Any,
     ) -> np.ndarray:
         """The MPC control (4,) for one state, solved with CasADi.
@@ -609,6 +606,7 @@ class MPCReactiveController(ReactiveController):
         x : (7,) state.
         obstacle : (3,) point, or a pair/array ``(lo, hi)`` of box corners (2, 3).
         takeover_point : (3,) the take-over point (default: the current position).
+        dt : unused (the MPC's own period is ``self.dt``); kept for the common interface.
         """
         x = np.asarray(x, dtype=float)
         lo, hi = _obstacle_box(obstacle)
@@ -616,6 +614,27 @@ class MPCReactiveController(ReactiveController):
         n = obstacle_direction(x[None, 0:3], lo[None], hi[None], -_unit(x[None, 3:6]))[0]
         u = self.solve(x, to, n)[0]
         return np.concatenate([u, [0.0]])
+
+    def rollout(
+        self,
+        x0: np.ndarray,
+        obstacle: Any = None,
+        takeover_point: Any = None,
+        dt: float = 0.01,
+        t_max: float | None = None,
+        u_hold: np.ndarray | None = None,
+        **context: Any,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """One MPC manoeuvre from x0 (7,) against ``obstacle`` (point (3,) or box (2, 3)).
+
+        ``obstacle_lo``/``obstacle_hi`` may be given instead of ``obstacle``; ``takeover_point``
+        defaults to x0's position. Returns ``t (T,)``, ``X (T, 7)``.
+        """
+        if obstacle is not None:
+            context["obstacle_lo"], context["obstacle_hi"] = _obstacle_box(obstacle)
+        if takeover_point is not None:
+            context["takeover"] = np.asarray(takeover_point, dtype=float)
+        return super().rollout(x0, dt, t_max, u_hold, **context)
 
     def at_rest(self, X: np.ndarray) -> np.ndarray:
         """Speed below 1e-3 m/s (the rollout also requires the applied control to vanish)."""
@@ -633,7 +652,7 @@ class MPCReactiveController(ReactiveController):
 
         Context: ``obstacle_lo``, ``obstacle_hi`` (N, 3) (required) and ``takeover`` (N, 3)
         (default: the initial positions, where the obstacle was detected). The MPC is re-solved
-        every ``step`` seconds (rounded to whole ``dt``), warm-started from its shifted previous
+        every ``self.dt`` seconds (rounded to whole ``dt``), warm-started from its shifted previous
         plan; a manoeuvre ends when its speed and its control both vanish.
         """
         dt = _check_dt(dt)
@@ -649,7 +668,7 @@ class MPCReactiveController(ReactiveController):
         t_max = self.default_t_max() if t_max is None else float(t_max)
         n_hold = math.ceil(self.latency / dt - 1e-9)
         n_max = max(n_hold, math.ceil(t_max / dt - 1e-9))
-        period = max(1, round(self.step / dt))
+        period = max(1, round(self.dt / dt))
         U_hold = self._hold_controls(X, u_hold)
         states, plan, U = [X], None, U_hold
         for k in range(n_max):

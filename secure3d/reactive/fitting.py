@@ -12,8 +12,8 @@ state. We fit the smooth family of :mod:`secure3d.reactive.features` in four ste
 4. Inflation: for each manoeuvre the exact smallest isotropic inflation ``eta_i`` with every body
    ball of every point inside (:func:`secure3d.reactive._clearance.required_inflation`); then a
    linear program picks ``eta(x) = e . psi(x) >= eta_i + margin`` minimising the first-order change
-   of the mean volume. A validation sample drawn after the fitting sample raises the margin until
-   it is contained too.
+   of the mean volume. A validation sample drawn after the fitting sample raises the margin (by
+   twice its shortfall) if some of its manoeuvres are not contained.
 
 Containment on fresh manoeuvres is then *checked*, not assumed (:func:`check_containment`).
 """
@@ -228,7 +228,7 @@ def fit_family(
     shortfall = float((need_v - scal_v @ eta).max())
     extra = 0.0
     if shortfall > 0:
-        # Enlarge the whole envelope uniformly, with the same relative headroom again on top.
+        # psi_0 = 1, so raising e_0 raises eta everywhere: by twice what the validation lacked.
         extra = 2.0 * shortfall
         eta = eta + np.r_[extra, np.zeros(len(eta) - 1)]
 

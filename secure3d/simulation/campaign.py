@@ -81,6 +81,20 @@ FLUSH_EVERY = 10
 ERROR_OUTCOME = "error"
 #: The paper's blind-corner flight times (s) for reference (Ivanov & Campbell, Results).
 PAPER_BLIND_CORNER = {"secure": 2.50, "baseline": 1.67}
+PAPER_BLIND_CORNER_LABEL = "paper (planar robot, MATLAB; its baseline collides)"
+#: Columns of :func:`comparison_table`.
+COMPARISON_COLUMNS = (
+    "planner",
+    "outcome",
+    "collided",
+    "time to goal",
+    "min clearance",
+    "take-overs",
+    "replans",
+    "solve median",
+    "solve max",
+    "real time",
+)
 #: z of the two-sided 95 % normal quantile, for the Wilson interval of a rate.
 _Z95 = 1.959963984540054
 
@@ -450,7 +464,8 @@ def run_campaign(
     Raises
     ------
     ConfigError
-        Bad ``n``, ``planners``, ``seed``, ``workers`` or ``flush_every``.
+        Bad ``n``, ``planners``, ``seed``, ``workers``, ``flush_every`` or planner options (checked
+        before any run), or ``out_dir`` cannot be created.
     ScenarioError
         The base scenario is invalid or no variant could be placed.
     """
@@ -471,7 +486,10 @@ def run_campaign(
     # Bad planner options would otherwise surface as one error row per run, after the workers start.
     problem_from_scenario(base, **options)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"out_dir: cannot create {str(out)!r}: {exc.strerror or exc}") from None
     variants = random_hidden_obstacle_scenarios(base, n, seed, kind=kind, count=count)
     jobs = [
         _Job(i, scenario, seed + i, planner, dict(options))
@@ -579,7 +597,8 @@ def _summary_markdown(result: CampaignResult) -> str:
     s = result.settings
     opts = ", ".join(f"{k}={v}" for k, v in sorted(dict(s.get("options", {})).items()))
     lines = [
-        f"# Campaign: {result.base}, {result.n} hidden-obstacle variants",
+        f"# Campaign: {result.base}, {result.n} hidden-obstacle"
+        f" variant{'' if result.n == 1 else 's'}",
         "",
         f"Seed {result.seed} (variant i simulated with seed {result.seed} + i), placement"
         f" `{s.get('kind')}`, {s.get('count')} hidden obstacle(s) per variant, planner options:"
@@ -615,6 +634,17 @@ def _summary_markdown(result: CampaignResult) -> str:
         lines += ["", "Errors:", ""]
         lines += [f"- variant {r.variant} / {r.planner}: {r.error}" for r in errors]
     return "\n".join(lines) + "\n"
+
+
+def format_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A fixed-width text table: the header, a rule of dashes, then one line per row."""
+    widths = [max(len(str(r[k])) for r in (header, *rows)) for k in range(len(header))]
+    lines = [
+        "  ".join(str(c).ljust(w) for c, w in zip(r, widths, strict=True)).rstrip()
+        for r in (header, *rows)
+    ]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
 
 
 def fly_planners(
@@ -656,14 +686,17 @@ def fly_planners(
 
 
 def comparison_table(
-    results: Sequence[SimResult], reference: Mapping[str, float] | None = None
+    results: Sequence[SimResult],
+    reference: Mapping[str, float] | None = None,
+    reference_label: str = "paper",
 ) -> str:
     """Closed-loop runs side by side, one row per run (``secure3d simulate`` and ``demo``).
 
     Parameters
     ----------
     results : SimResults, typically the same scenario flown by different planners.
-    reference : planner -> time to goal (s) to quote next to ours, e.g. :data:`PAPER_BLIND_CORNER`.
+    reference : planner -> time to goal (s) to quote below ours, e.g. :data:`PAPER_BLIND_CORNER`.
+    reference_label : where the reference comes from (starts the quoted line).
 
     Returns
     -------
@@ -672,30 +705,24 @@ def comparison_table(
         median and max solve time, real-time factor), then the price of security when both a
         secure and a baseline run reached the goal, then the reference line.
     """
-    header = (
-        "planner", "outcome", "collided", "time to goal", "min clearance", "take-overs",
-        "replans", "solve median", "solve max", "real time",
-    )  # fmt: skip
-    rows = [header]
+    rows = []
     for r in results:
         solves = np.asarray(r.solve_times, dtype=float)
-        rows.append((
-            r.planner,
-            r.outcome,
-            "yes" if r.collided else "no",
-            _fmt_s(_or_nan(r.time_to_goal)),
-            _fmt_s(float(r.min_clearance), "m", 3),
-            str(r.takeovers),
-            str(r.replans),
-            f"{_fmt_ms(float(np.median(solves)))} ms" if len(solves) else "-",
-            f"{_fmt_ms(float(solves.max()))} ms" if len(solves) else "-",
-            f"{r.real_time_factor:.2f}x",
-        ))  # fmt: skip
-    widths = [max(len(row[k]) for row in rows) for k in range(len(header))]
-    lines = [
-        "  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip() for row in rows
-    ]
-    lines.insert(1, "  ".join("-" * w for w in widths))
+        rows.append(
+            (
+                r.planner,
+                r.outcome,
+                "yes" if r.collided else "no",
+                _fmt_s(_or_nan(r.time_to_goal)),
+                _fmt_s(float(r.min_clearance), "m", 3),
+                str(r.takeovers),
+                str(r.replans),
+                f"{_fmt_ms(float(np.median(solves)))} ms" if len(solves) else "-",
+                f"{_fmt_ms(float(solves.max()))} ms" if len(solves) else "-",
+                f"{r.real_time_factor:.2f}x",
+            )
+        )
+    lines = format_table(COMPARISON_COLUMNS, rows).splitlines()
     by_planner = {r.planner: r for r in results}
     sec, base = by_planner.get("secure"), by_planner.get("baseline")
     if sec is not None and base is not None and sec.reached_goal and base.reached_goal:
@@ -707,7 +734,7 @@ def comparison_table(
         ratio = ""
         if "secure" in reference and "baseline" in reference:
             ratio = f" (ratio {reference['secure'] / reference['baseline']:.2f})"
-        lines.append(f"paper (planar robot, MATLAB): {quoted}{ratio}; the baseline collides")
+        lines.append(f"{reference_label}: {quoted}{ratio}")
     return "\n".join(lines)
 
 

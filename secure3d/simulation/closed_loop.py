@@ -33,6 +33,8 @@ if TYPE_CHECKING:  # pragma: no cover
 #: Pixels of a frame that must land in voxels the robot did not know as obstacles before the frame
 #: for it to count as revealing something new (a few, against depth noise).
 NEW_EVIDENCE_PIXELS = 3
+#: Hits are inserted this far (m) in front of the surface they were measured on.
+SURFACE_BIAS = 1e-4
 #: The robot counts as stopped below this speed (m/s) before it replans.
 STOP_SPEED = 0.05
 #: Goal reached: within the goal tolerance and slower than this (m/s).
@@ -157,7 +159,7 @@ class _Loop:
         self.hidden = set(scenario.hidden_obstacles)
 
     def refresh_obstacles(self) -> None:
-        lo, hi = self.belief.known_obstacle_boxes()
+        lo, hi = self.belief.known_obstacle_boxes(close_gaps=self.problem.options.close_gaps)
         self.problem = dataclasses.replace(self.problem, boxes_lo=lo, boxes_hi=hi)
 
 
@@ -310,8 +312,11 @@ def _run(loop, rec, dt, frame_period, r, goal, time_limit, max_replans, frame_lo
         if len(pts):
             new = int(_unexplained_hits(loop.belief, pts).sum()) >= NEW_EVIDENCE_PIXELS
         cam = loop.camera
+        # Insert hits a hair (0.1 mm) in front of the surface: a wall lying exactly on a voxel
+        # boundary then marks the voxel in front of it (which its claim covers) instead of flipping
+        # between the two voxels with float rounding and carving the claim into fragments.
         loop.belief.insert_depth_image(
-            frame.depth, (cam.fx, cam.fy, cam.cx, cam.cy), R, o, scenario.camera.max_range
+            frame.depth - SURFACE_BIAS, (cam.fx, cam.fy, cam.cx, cam.cy), R, o, scenario.camera.max_range
         )
         if rec is not None and frame_no % frame_log_every == 0:
             rec.log_camera(t, R, o, cam.fx, cam.fy, scenario.camera.width, scenario.camera.height, frame.depth)

@@ -55,3 +55,13 @@ def test_check_detects_a_family_that_is_too_small():
     wrong.model = model
     report = check_containment(wrong, BrakingController(model), 2000, np.random.default_rng(104))
     assert not report.passed and report.worst_excess > 0.1 and report.fraction_inside < 1.0
+
+
+def test_point_mass_fitted_family_with_latency():
+    """A family fitted with a 0.1 s latency (random held accelerations) is picked up by latency."""
+    model = make_model("point_mass")
+    family = family_for(model, "braking", "fitted", latency=0.1)
+    assert family.kind == "fitted" and family.latency == 0.1
+    ctrl = BrakingController(model, latency=0.1)
+    report = check_containment(family, ctrl, 3000, np.random.default_rng(105))
+    assert report.passed and report.volume_ratio_vs_closed_form < 1.0, str(report)

@@ -142,13 +142,15 @@ def test_mpc_stops_and_settles_away_from_the_obstacle():
     mpc = MPCReactiveController(model)
     x0 = model.initial_state((0, 0, 0), (4.0, 0, 0))
     lo, hi = np.array([3.0, -1, -1]), np.array([4.0, 1, 1])
-    t, X = mpc.rollout(x0, obstacle_lo=lo, obstacle_hi=hi)
+    t, X = mpc.rollout(x0, np.stack([lo, hi]))
     assert X[:, 0].max() < 3.0 - model.body_radius, "stopped short of the obstacle"
     offset = mpc.weights.repulsion / (2 * mpc.weights.drift)
     np.testing.assert_allclose(
         X[-1, :3], [-offset, 0, 0], atol=5e-3, err_msg="settles away from it"
     )
     assert np.linalg.norm(X[-1, 3:6]) < 1e-3 and t[-1] < mpc.default_t_max()
+    _, X_lohi = mpc.rollout(x0, obstacle_lo=lo, obstacle_hi=hi, takeover_point=x0[:3])
+    np.testing.assert_array_equal(X_lohi, X)
 
 
 def test_controller_configuration_errors():

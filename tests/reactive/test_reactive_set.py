@@ -155,16 +155,13 @@ def test_load_rejects_or_falls_back_on_mismatch(tmp_path):
         load_family_file(bad, make_model("point_mass"))
 
 
-def test_quadrotor_gains_are_part_of_the_fit():
+def test_quadrotor_gains_are_part_of_the_fit(tmp_path):
     data = json.loads((DATA_DIR / "quadrotor_braking.json").read_text())
     data["meta"]["controller_config"]["gains"]["attitude_gain"] = 99.0
-    fake = DATA_DIR.parent / "_test_quad.json"
-    try:
-        fake.write_text(json.dumps(data))
-        with pytest.raises(ConfigError, match="controller settings"):
-            load_family_file(fake, make_model("quadrotor"))
-    finally:
-        fake.unlink()
+    fake = tmp_path / "quadrotor_braking.json"
+    fake.write_text(json.dumps(data))
+    with pytest.raises(ConfigError, match="controller settings"):
+        load_family_file(fake, make_model("quadrotor"))
 
 
 def test_fit_save_load_roundtrip(tmp_path, rng):

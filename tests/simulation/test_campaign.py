@@ -300,12 +300,12 @@ class StandInRun:
 
 def test_comparison_table_rows_and_price_of_security() -> None:
     runs = [StandInRun("secure", True, 3.0), StandInRun("baseline", True, 2.4)]
-    text = comparison_table(runs, reference={"secure": 2.5, "baseline": 1.67})
+    text = comparison_table(runs, {"secure": 2.5, "baseline": 1.67}, "paper")
     lines = text.splitlines()
     assert lines[0].split()[:2] == ["planner", "outcome"]
     assert lines[2].startswith("secure") and "3.00 s" in lines[2] and "300 ms" in lines[2]
     assert "price of security: 1.25x" in text
-    assert "secure 2.50 s, baseline 1.67 s (ratio 1.50)" in text
+    assert lines[-1] == "paper: secure 2.50 s, baseline 1.67 s (ratio 1.50)"
     crashed = [StandInRun("secure", True, 3.0), StandInRun("baseline", False, None, collided=True)]
     assert "price of security" not in comparison_table(crashed)
 
