@@ -217,10 +217,16 @@ def node_kernels(problem: PlanningProblem) -> NodeKernels:
         if o.occlusion:
             view_rows.append(cons.point_clearance_row("occlusion", o_cam, 0.0, box, lam, o.margin))
         start_rows += [dual, clear]
-        base_rows += [dual, cons.point_clearance_row("obstacle", pos, r, box, lam, o.margin)]
+        # The same separating plane for this node and the next keeps the straight segment between
+        # them clear too (the plane's side is an affine function of the position).
+        base_rows += [
+            dual,
+            cons.point_clearance_row("obstacle", pos, r, box, lam, o.margin),
+            cons.point_clearance_row("obstacle", model.position(xk1), r, box, lam, o.margin),
+        ]
     obs_view, view_meta = _rows_function("obs_view", [xi, xj, boxes, lams], view_rows)
     obs_start, start_meta = _rows_function("obs_start", [xi, boxes, lams], start_rows)
-    obs_base, base_meta = _rows_function("obs_base", [xi, boxes, lams], base_rows)
+    obs_base, base_meta = _rows_function("obs_base", [xi, xk1, boxes, lams], base_rows)
     return NodeKernels(dyn, path, path_meta, vis, start, obs_view, obs_start, obs_base,
                        view_meta, start_meta, base_meta)
 
@@ -297,7 +303,8 @@ def build_nlp(
     # ---- obstacles and visibility (eq. NLP: S_r(x_i) inside S_s(x_j), clear of Ĉ_obst) ----------
     nodes = list(range(1, K))
     if not secure:
-        add(kern.obs_base.map(K - 1)(X[:, 1:], Boxes[:, 1:], Lam[:, 1:]), kern.obs_base_rows, K - 1)
+        X_next = ca.horzcat(X[:, 2:], X[:, K - 1])
+        add(kern.obs_base.map(K - 1)(X[:, 1:], X_next, Boxes[:, 1:], Lam[:, 1:]), kern.obs_base_rows, K - 1)
     else:
         view = [k for k in nodes if assignment[k] >= 0]
         start = [k for k in nodes if assignment[k] < 0]
@@ -351,12 +358,26 @@ def model_terminal_rows(model: object, x_end: ca.SX) -> list[ca.SX]:
     return []
 
 
+def model_identity(model: object) -> tuple:
+    """What makes two vehicle models interchangeable in an NLP (their frozen configuration)."""
+    return (type(model).__name__, model.name, model.limits, float(model.body_radius), model.mount)
+
+
+def family_identity(family: object) -> tuple:
+    """What makes two reactive-set families interchangeable: class, model, controller, latency and,
+    for fitted families, the coefficients' data file content."""
+    coefs = [getattr(family, a) for a in ("centre_coef", "beta_coef", "gamma_coef", "eta_coef") if hasattr(family, a)]
+    digest = hash(b"".join(np.asarray(c_, dtype=float).tobytes() for c_ in coefs)) if coefs else None
+    return (type(family).__name__, getattr(family, "kind", None), getattr(family, "controller_name", None),
+            float(getattr(family, "latency", 0.0)), model_identity(family.model), digest)
+
+
 def nlp_key(problem: PlanningProblem, planner: str, assignment: tuple[int, ...]) -> tuple:
     """What determines the NLP's structure: the same key means the compiled NLP can be reused."""
     o = problem.options
     return (
-        id(problem.model),
-        id(problem.family),
+        model_identity(problem.model),
+        family_identity(problem.family),
         problem.frustum,
         planner,
         o.nodes,

@@ -45,7 +45,13 @@ guarantees at the nodes. Differences from :func:`~secure3d.planning.collocation.
 - ``lookback="adaptive"`` is refused (:class:`~secure3d.errors.ConfigError`): its assignments may
   reach arbitrarily far back and the register would grow to K stages; the paper's fixed rule
   j = i - D is supported (any assignment with spans <= D is, in fact);
-- ``collocation`` does not apply (the discretisation is RK4), so ``"hermite_simpson"`` is refused.
+- ``collocation`` does not apply (the discretisation is RK4), so ``"hermite_simpson"`` is refused;
+- ``time_limit`` is not enforced (fatrop has no wall-clock limit; ``max_iter`` is), and fatrop
+  takes no multiplier warm start (a warm replan starts from the previous primal only).
+
+Cost: fatrop factorises every stage densely, and the 6 * obstacle_slots duals are stage controls
+(48 with 8 slots), so its time per iteration grows quickly with the slots; the casadi wheel's
+BLASFEO is built for TARGET_GENERIC (no AVX2/FMA kernels) on top of that.
 """
 
 from __future__ import annotations
@@ -160,7 +166,9 @@ class StageLayout:
         k = np.arange(self.K)[:, None] - 1 - np.arange(self.depth)[None, :]
         return np.asarray(X, dtype=float)[np.maximum(k, 0)][..., self.cam_idx]
 
-    def pack(self, T: float, X: np.ndarray, U: np.ndarray, L: np.ndarray, Um: np.ndarray | None = None) -> np.ndarray:
+    def pack(
+        self, T: float, X: np.ndarray, U: np.ndarray, L: np.ndarray, Um: np.ndarray | None = None
+    ) -> np.ndarray:
         """Decision vector (n_w,) from T, X (K, nx), U (K, nu), L (K, slots, 6); every copy (T_k,
         u_{k+1}, the register) is filled consistently. ``Um`` is accepted for interface
         compatibility and ignored (no midpoint controls)."""
@@ -197,7 +205,9 @@ def camera_state_indices(kernels: NodeKernels, nx: int) -> np.ndarray:
     return np.array([d for d in range(nx) if ca.depends_on(expr, xj[d])], dtype=int)
 
 
-def rk4_foh(model: object, x: ca.SX, u0: ca.SX, u1: ca.SX, h: ca.SX, steps: int = RK4_SUBSTEPS) -> ca.SX:
+def rk4_foh(
+    model: object, x: ca.SX, u0: ca.SX, u1: ca.SX, h: ca.SX, steps: int = RK4_SUBSTEPS
+) -> ca.SX:
     """Explicit RK4 over one node interval of length h with the control linear from u0 to u1.
 
     Parameters
@@ -244,9 +254,9 @@ def check_fatrop_options(problem: PlanningProblem, planner: str) -> None:
     o = problem.options
     if planner == "secure" and o.lookback != "fixed":
         raise ConfigError(
-            f"solver 'fatrop' supports lookback='fixed' only (the paper's j = i - lookback_steps, carried "
-            f"in a shift register of the state); got lookback={o.lookback!r}: pass lookback='fixed' or "
-            f"solver='ipopt'"
+            f"solver 'fatrop' supports lookback='fixed' only (the paper's j = i - lookback_steps, "
+            f"carried in a shift register of the state); got lookback={o.lookback!r}: pass "
+            f"lookback='fixed' or solver='ipopt'"
         )
     if o.collocation != "trapezoidal":
         raise ConfigError(
@@ -286,7 +296,9 @@ class _Rows:
         self.stage: list[int] = []
         self.part: list[int] = []
 
-    def add(self, out: ca.SX, rows: list[tuple[str, float, float]], stages: list[int], gap: bool = False) -> None:
+    def add(
+        self, out: ca.SX, rows: list[tuple[str, float, float]], stages: list[int], gap: bool = False
+    ) -> None:
         """``out`` (len(rows), len(stages)): column c holds the rows of stage ``stages[c]``."""
         if not rows or not stages:
             return
@@ -307,7 +319,10 @@ class _Rows:
 
 
 def build_fatrop_nlp(
-    problem: PlanningProblem, planner: str, assignment: tuple[int, ...], kernels: NodeKernels | None = None
+    problem: PlanningProblem,
+    planner: str,
+    assignment: tuple[int, ...],
+    kernels: NodeKernels | None = None,
 ) -> TranscribedNLP:
     """Transcribe the problem stage by stage for fatrop (see the module docstring).
 
@@ -321,7 +336,8 @@ def build_fatrop_nlp(
     Returns
     -------
     TranscribedNLP
-        With a :class:`StageLayout`; parameters as :func:`~secure3d.planning.collocation.parameter_vector`.
+        With a :class:`StageLayout`; its parameters are
+        :func:`~secure3d.planning.collocation.parameter_vector`'s.
 
     Raises
     ------
@@ -366,14 +382,24 @@ def build_fatrop_nlp(
     u_mid = 0.5 * (model.u_lo + model.u_hi)
     u_scale = np.maximum(0.5 * (model.u_hi - model.u_lo), 1e-6)
     effort = ca.sum1(((U - ca.repmat(u_mid, 1, K)) / ca.repmat(u_scale, 1, K)) ** 2)
-    J = Ts[K - 1] + o.effort_weight / (K - 1) * ca.dot(Ts, effort) + UNUSED_DUAL_WEIGHT * ca.sum1(L[:, 0])
+    J = (
+        Ts[K - 1]
+        + o.effort_weight / (K - 1) * ca.dot(Ts, effort)
+        + UNUSED_DUAL_WEIGHT * ca.sum1(L[:, 0])
+    )
 
-    # ---- gap-closing rows z_{k+1} - F(z_k, v_k): RK4 state, next control, T copy, register --------
-    xs, u0s, u1s, Tsym = ca.SX.sym("x", nx), ca.SX.sym("u0", nu), ca.SX.sym("u1", nu), ca.SX.sym("T")
+    # ---- gap-closing rows z_{k+1} - F(z_k, v_k): RK4 state, next control, T copy, register -------
+    xs, u0s, u1s, Tsym = (
+        ca.SX.sym("x", nx),
+        ca.SX.sym("u0", nu),
+        ca.SX.sym("u1", nu),
+        ca.SX.sym("T"),
+    )
     rs = ca.SX.sym("r", depth * nc)
     r_next = ca.vertcat(xs[cam_idx.tolist()], rs[: (depth - 1) * nc]) if depth else ca.SX(0, 1)
     step = ca.Function(
-        "stage_step", [xs, u0s, u1s, Tsym, rs],
+        "stage_step",
+        [xs, u0s, u1s, Tsym, rs],
         [ca.vertcat(rk4_foh(model, xs, u0s, u1s, Tsym / (K - 1)), u1s, Tsym, r_next)],
     )
     R = block(lay.i_R.reshape(K, depth * nc)) if depth else ca.SX(0, K)
@@ -392,11 +418,11 @@ def build_fatrop_nlp(
     if u_rows:
         rows.add(kern.path(X[:, 0], U[:, 0])[u_rows, :], [kern.path_rows[i] for i in u_rows], [0])
 
-    # ---- path constraints at nodes 1..K-1: model limits and world bounds ---------------------------
+    # ---- path constraints at nodes 1..K-1: model limits and world bounds -------------------------
     if kern.path_rows:
         rows.add(kern.path.map(K - 1)(X[:, 1:], U[:, 1:]), kern.path_rows, nodes)
 
-    # ---- boundary conditions: at rest at the goal (last stage) -------------------------------------
+    # ---- boundary conditions: at rest at the goal (last stage) -----------------------------------
     x_end = X[:, K - 1]
     pos_end, vel_end = model.position(x_end), model.velocity(x_end)
     terminal = [pos_end[d] - goal[d] for d in range(3) if ca.depends_on(pos_end[d], w)]
@@ -404,25 +430,41 @@ def build_fatrop_nlp(
     terminal += list(model_terminal_rows(model, x_end))
     rows.add(ca.vertcat(*terminal), [("terminal", 0.0, 0.0)] * len(terminal), [K - 1])
 
-    # ---- obstacles and visibility (eq. NLP), stage-local through the register ----------------------
+    # ---- obstacles and visibility (eq. NLP), stage-local through the register --------------------
     if not secure:
-        rows.add(kern.obs_base.map(K - 1)(X[:, 1:], Boxes[:, 1:], L[:, 1:]), kern.obs_base_rows, nodes)
+        rows.add(
+            kern.obs_base.map(K - 1)(X[:, 1:], Boxes[:, 1:], L[:, 1:]), kern.obs_base_rows, nodes
+        )
     else:
         view = [k for k in nodes if assignment[k] >= 0]
         start = [k for k in nodes if assignment[k] < 0]
         if view:
-            # x_j rebuilt from the register: the camera entries, zeros elsewhere (unread by the kernels)
+            # x_j rebuilt from the register: camera entries, zeros elsewhere (the kernels skip them)
             scatter = ca.DM(ca.Sparsity.triplet(nx, nc, cam_idx.tolist(), list(range(nc))), 1.0)
             cam = block(np.stack([lay.i_R[k, k - assignment[k] - 1] for k in view]))
             Xi, Xj = X[:, view], ca.mtimes(scatter, cam)
             n_faces = problem.frustum.n_faces
-            rows.add(kern.vis.map(len(view))(Xi, Xj), [("visibility", o.margin, ca.inf)] * n_faces, view)
-            rows.add(kern.obs_view.map(len(view))(Xi, Xj, Boxes[:, view], L[:, view]), kern.obs_view_rows, view)
+            rows.add(
+                kern.vis.map(len(view))(Xi, Xj), [("visibility", o.margin, ca.inf)] * n_faces, view
+            )
+            rows.add(
+                kern.obs_view.map(len(view))(Xi, Xj, Boxes[:, view], L[:, view]),
+                kern.obs_view_rows,
+                view,
+            )
         if start:
             Xs = X[:, start]
             lo, hi = ca.repmat(start_lo, 1, len(start)), ca.repmat(start_hi, 1, len(start))
-            rows.add(kern.start.map(len(start))(Xs, lo, hi), [("start_region", o.margin, ca.inf)] * 6, start)
-            rows.add(kern.obs_start.map(len(start))(Xs, Boxes[:, start], L[:, start]), kern.obs_start_rows, start)
+            rows.add(
+                kern.start.map(len(start))(Xs, lo, hi),
+                [("start_region", o.margin, ca.inf)] * 6,
+                start,
+            )
+            rows.add(
+                kern.obs_start.map(len(start))(Xs, Boxes[:, start], L[:, start]),
+                kern.obs_start_rows,
+                start,
+            )
 
     # ---- solver ---------------------------------------------------------------------------------
     g, lbg, ubg, names = rows.ordered()

@@ -71,7 +71,7 @@ class PlannerOptions:
     collocation: Literal["trapezoidal", "hermite_simpson"] = "trapezoidal"
     lookback: Literal["adaptive", "fixed"] = "adaptive"
     lookback_steps: int = 3
-    lookback_rounds: int = 2
+    lookback_rounds: int = 1
     solver: Literal["ipopt", "fatrop"] = "ipopt"
     margin: float = 0.02
     obstacle_slots: int = 8

@@ -54,6 +54,9 @@ def save_figure(fig: Figure, out_path: str | os.PathLike[str]) -> Path:
     try:
         with os.fdopen(fd, "wb") as fh:
             fig.savefig(fh, format=fmt, dpi=_DPI, bbox_inches="tight")
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; a figure is meant to be shared
         os.replace(tmp, out)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):

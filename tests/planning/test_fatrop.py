@@ -59,21 +59,28 @@ def secure_nlp(problem, cache, plans):
     return nlp
 
 
-# ---- layout and dynamics (no solver) ----------------------------------------------------------------
+# ---- layout and dynamics (no solver) -------------------------------------------------------------
 def test_layout_is_stage_ordered_and_packs_every_copy(rng):
     K, nx, nu, S, D = 6, 7, 4, 2, 3
     cam = np.array([0, 1, 2, 6])
     lay = StageLayout(K=K, nx=nx, nu=nu, slots=S, depth=D, cam_idx=cam)
     blocks = [lay.i_X, lay.i_U, lay.i_Ts, lay.i_R, lay.i_Unext, lay.i_L]
     every = np.concatenate([b.ravel() for b in blocks])
-    np.testing.assert_array_equal(np.sort(every), np.arange(lay.n_w), err_msg="indices must partition w")
+    np.testing.assert_array_equal(
+        np.sort(every), np.arange(lay.n_w), err_msg="indices must partition w"
+    )
     for k in range(K):  # stage k = [z_k, v_k], contiguous, states first
         z = np.concatenate([lay.i_X[k], lay.i_U[k], [lay.i_Ts[k]], lay.i_R[k].ravel()])
         v = np.concatenate([lay.i_Unext[k] if k < K - 1 else [], lay.i_L[k].ravel()]).astype(int)
         np.testing.assert_array_equal(np.sort(z), lay.stage_start[k] + np.arange(lay.n_z))
         np.testing.assert_array_equal(np.sort(v), lay.stage_start[k] + lay.n_z + np.arange(len(v)))
 
-    T, X, U, L = 3.5, rng.normal(size=(K, nx)), rng.normal(size=(K, nu)), rng.uniform(size=(K, S, 6))
+    T, X, U, L = (
+        3.5,
+        rng.normal(size=(K, nx)),
+        rng.normal(size=(K, nu)),
+        rng.uniform(size=(K, S, 6)),
+    )
     w = lay.pack(T, X, U, L)
     T2, X2, U2, L2 = lay.unpack(w)
     assert T2 == T
@@ -84,12 +91,16 @@ def test_layout_is_stage_ordered_and_packs_every_copy(rng):
     np.testing.assert_array_equal(w[lay.i_Unext], U[1:])
     for k in range(K):
         for m in range(D):  # r_k[m] = c(x_{k-1-m}), the start state before node 0
-            np.testing.assert_array_equal(w[lay.i_R[k, m]], X[max(k - 1 - m, 0), cam], err_msg=f"r_{k}[{m}]")
+            np.testing.assert_array_equal(
+                w[lay.i_R[k, m]], X[max(k - 1 - m, 0), cam], err_msg=f"r_{k}[{m}]"
+            )
 
 
 def _reference_step(model, x0, u0, u1, h):
     """Independent integration (scipy, tight tolerances) with the control linear over [0, h]."""
-    sol = solve_ivp(lambda t, x: model.f(x, u0 + t / h * (u1 - u0)), (0.0, h), x0, rtol=1e-12, atol=1e-13)
+    sol = solve_ivp(
+        lambda t, x: model.f(x, u0 + t / h * (u1 - u0)), (0.0, h), x0, rtol=1e-12, atol=1e-13
+    )
     return sol.y[:, -1]
 
 
@@ -98,8 +109,12 @@ def test_rk4_foh_is_exact_for_the_point_mass_and_fourth_order_for_the_quadrotor(
     for _ in range(5):
         x0 = pm.initial_state(rng.uniform(-2, 2, 3), rng.uniform(-3, 3, 3), rng.uniform(-3, 3))
         u0, u1 = rng.uniform(pm.u_lo, pm.u_hi), rng.uniform(pm.u_lo, pm.u_hi)
-        np.testing.assert_allclose(rk4_foh(pm, x0, u0, u1, 0.12, steps=1), _reference_step(pm, x0, u0, u1, 0.12),
-                                   atol=1e-10, err_msg="RK4 integrates cubic positions exactly")
+        np.testing.assert_allclose(
+            rk4_foh(pm, x0, u0, u1, 0.12, steps=1),
+            _reference_step(pm, x0, u0, u1, 0.12),
+            atol=1e-10,
+            err_msg="RK4 integrates cubic positions exactly",
+        )
 
     quad = Quadrotor()
     errors = {1: [], 2: [], 4: []}
@@ -119,13 +134,17 @@ def test_register_carries_exactly_the_camera_state(problem):
     from secure3d.planning.collocation import node_kernels
 
     # the point mass's camera pose is its position and yaw (secure3d.dynamics.point_mass)
-    np.testing.assert_array_equal(camera_state_indices(node_kernels(problem), problem.model.nx), [0, 1, 2, 6])
+    np.testing.assert_array_equal(
+        camera_state_indices(node_kernels(problem), problem.model.nx), [0, 1, 2, 6]
+    )
 
 
 def test_adaptive_lookback_and_hermite_simpson_are_refused(problem):
     K = problem.options.nodes
     with pytest.raises(ConfigError, match="lookback='fixed'"):
-        build_fatrop_nlp(problem.with_options(lookback="adaptive"), "secure", lb.fixed_assignment(K, 3))
+        build_fatrop_nlp(
+            problem.with_options(lookback="adaptive"), "secure", lb.fixed_assignment(K, 3)
+        )
     with pytest.raises(ConfigError, match="collocation"):
         build_fatrop_nlp(problem.with_options(collocation="hermite_simpson"), "baseline", (-1,) * K)
     with pytest.raises(ConfigError, match="lookback='fixed'"):
@@ -164,11 +183,15 @@ def test_nlp_has_the_structure_fatrop_detects(secure_nlp, plans, problem):
         assert np.all(stage[c] <= first[r] + 1), f"row {r} spans more than two stages"
         if len(later):
             n_gap += 1
-            assert len(later) == 1 and later[0] - lay.stage_start[first[r] + 1] < lay.n_z, f"gap row {r}"
+            assert len(later) == 1 and later[0] - lay.stage_start[first[r] + 1] < lay.n_z, (
+                f"gap row {r}"
+            )
             assert J[r, later[0]] == 1.0, f"gap row {r}: next state must enter with coefficient +1"
     assert n_gap == (lay.K - 1) * lay.n_z
 
-    hrows, hcols = (np.array(a) for a in solver.get_function("nlp_hess_l").sparsity_out(1).get_triplet())
+    hrows, hcols = (
+        np.array(a) for a in solver.get_function("nlp_hess_l").sparsity_out(1).get_triplet()
+    )
     assert np.array_equal(stage[hrows], stage[hcols]), "the Lagrangian Hessian couples two stages"
 
 
@@ -181,7 +204,9 @@ def test_visibility_rows_use_the_camera_of_node_i_minus_lookback(secure_nlp, pla
     margins = lb.frustum_margins(problem, lb.node_geometry(problem, res.states))
     K = problem.options.nodes
     expected = [margins[i, i - LOOKBACK] for i in range(LOOKBACK, K)]
-    np.testing.assert_allclose(vis.min(axis=1), expected, atol=1e-9, err_msg="row of node i vs frustum of i-D")
+    np.testing.assert_allclose(
+        vis.min(axis=1), expected, atol=1e-9, err_msg="row of node i vs frustum of i-D"
+    )
 
 
 # ---- fatrop solves of blind_corner --------------------------------------------------------------
@@ -201,22 +226,27 @@ def test_secure_fatrop_plan_is_certified(plans):
 
 
 def test_final_times_agree_with_ipopt(plans, ipopt_plans):
-    # RK4 with linear controls is exact for the point mass; IPOPT's trapezoidal collocation moves the
-    # positions by up to h^2 |du| / 12 (~1 cm here) and the two solvers may stop in nearby local
-    # optima: 0.02 % (baseline) and 0.3 % (secure) measured, 2 % allowed.
+    # RK4 with linear controls is exact for the point mass; IPOPT's trapezoidal collocation moves
+    # the positions by up to h^2 |du| / 12 (~1 cm here) and the two solvers may stop in nearby
+    # local optima: 0.02 % (baseline) and 0.3 % (secure) measured, 2 % allowed.
     for name in ("baseline", "secure"):
         assert ipopt_plans[name].ok, ipopt_plans[name].message
-        np.testing.assert_allclose(plans[name].final_time, ipopt_plans[name].final_time, rtol=0.02, err_msg=name)
+        np.testing.assert_allclose(
+            plans[name].final_time, ipopt_plans[name].final_time, rtol=0.02, err_msg=name
+        )
 
 
-def test_plans_follow_the_dynamics_and_limits_between_nodes(plans, problem):
+def test_plans_follow_the_dynamics_and_the_limits(plans, problem):
     model = problem.model
     for name, r in plans.items():
         h = np.diff(r.times)
         for k in range(len(h)):  # independent integration of the returned arrays
             x1 = _reference_step(model, r.states[k], r.controls[k], r.controls[k + 1], h[k])
-            np.testing.assert_allclose(x1, r.states[k + 1], atol=1e-6, err_msg=f"{name}: interval {k}")
-        a = np.linalg.norm(r.controls[:, :3], axis=1)  # node 0 included: u_0 acts on the first interval
+            np.testing.assert_allclose(
+                x1, r.states[k + 1], atol=1e-6, err_msg=f"{name}: interval {k}"
+            )
+        # node 0 included: u_0 acts on the first interval
+        a = np.linalg.norm(r.controls[:, :3], axis=1)
         assert a.max() <= model.limits.max_accel + 1e-6, f"{name}: |a| {a.max():.4f}"
         assert r.speeds.max() <= model.limits.max_speed + 1e-6, name
 
