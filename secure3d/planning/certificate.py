@@ -88,6 +88,43 @@ def _view_margins(points: np.ndarray, R: np.ndarray, o: np.ndarray, frustum: obj
     return np.minimum(np.minimum(side_h, side_v), far) - radius
 
 
+@dataclass(frozen=True, eq=False)
+class SampledPlan:
+    """A plan read densely: sample times (n,), manoeuvre points (n*m, 3) with the sample each belongs
+    to (owner), and the camera pose (rotations (n, 3, 3), origins (n, 3)) at every sample."""
+
+    times: np.ndarray
+    points: np.ndarray
+    owner: np.ndarray
+    rotations: np.ndarray
+    origins: np.ndarray
+
+
+def sample_plan(
+    plan: PlanResult,
+    problem: object,
+    *,
+    controller: object | None = None,
+    settings: CertificateSettings | None = None,
+) -> SampledPlan:
+    """Sample a plan densely in time (between nodes too) and simulate the reactive manoeuvre from
+    every sample with the actual controller."""
+    settings = settings or CertificateSettings()
+    if len(plan.times) < 2:
+        raise PlanningError("certify: the plan has no trajectory (did planning fail?)")
+    model = problem.model
+    controller = controller if controller is not None else problem.controller
+    if controller is None:
+        raise PlanningError("certify: no reactive controller given")
+    T = plan.final_time
+    t = np.unique(np.concatenate([np.arange(0.0, T, settings.dt), plan.times, [T]]))
+    X, _ = interpolate(model, plan.times, plan.states, plan.controls, t)
+    pts = _manoeuvres(controller, model, X, settings.rollout_dt, settings.points_per_manoeuvre)
+    owner = np.repeat(np.arange(len(t)), pts.shape[1])
+    R, o = (np.asarray(a, dtype=float) for a in model.camera_pose(X))
+    return SampledPlan(times=t, points=pts.reshape(-1, 3), owner=owner, rotations=R, origins=o)
+
+
 def certify(
     plan: PlanResult,
     problem: object,
@@ -95,6 +132,7 @@ def certify(
     controller: object | None = None,
     settings: CertificateSettings | None = None,
     t_from: float = 0.0,
+    sampled: SampledPlan | None = None,
 ) -> Certificate:
     """Check a plan against the paper's safety definition, independently of the planner.
 
@@ -108,6 +146,8 @@ def certify(
     settings : sampling density (:class:`CertificateSettings`).
     t_from : judge only the part of the plan from this time on (views before it still count): used
         to re-certify the rest of a plan in flight (Algorithm 1).
+    sampled : the plan's sampled manoeuvres and camera poses (:func:`sample_plan`): they do not
+        depend on the map, so re-certifying after every camera frame reuses them.
 
     Returns
     -------
@@ -115,23 +155,13 @@ def certify(
         ``ok``, the smallest margins and the first violation (time, point, reason).
     """
     settings = settings or CertificateSettings()
-    if len(plan.times) < 2:
-        raise PlanningError("certify: the plan has no trajectory (did planning fail?)")
     model = problem.model
-    controller = controller if controller is not None else problem.controller
-    if controller is None:
-        raise PlanningError("certify: no reactive controller given")
     r = model.body_radius
     tol = settings.tolerance
-    T = plan.final_time
-    t = np.unique(np.concatenate([np.arange(0.0, T, settings.dt), plan.times, [T]]))
-    X, _ = interpolate(model, plan.times, plan.states, plan.controls, t)
+    if sampled is None:
+        sampled = sample_plan(plan, problem, controller=controller, settings=settings)
+    t, flat, owner, R, o = sampled.times, sampled.points, sampled.owner, sampled.rotations, sampled.origins
     n_t = len(t)
-
-    pts = _manoeuvres(controller, model, X, settings.rollout_dt, settings.points_per_manoeuvre)
-    m = pts.shape[1]
-    flat = pts.reshape(-1, 3)
-    owner = np.repeat(np.arange(n_t), m)  # sample index each point belongs to
 
     # ---- clear of known obstacles and inside the map -------------------------------------------
     lo_b, hi_b = problem.boxes_lo, problem.boxes_hi
@@ -144,7 +174,6 @@ def certify(
     obstacle_margin = np.minimum(dist, in_map) - r
 
     # ---- observed before: start ball, or an earlier view with a clear line of sight -------------
-    R, o = (np.asarray(a, dtype=float) for a in model.camera_pose(X))
     start_margin = np.minimum(flat - problem.start_region_lo, problem.start_region_hi - flat).min(axis=1) - r
     view = _view_margins(flat, R, o, problem.frustum, r)
     earlier = np.arange(n_t)[None, :] < owner[:, None]

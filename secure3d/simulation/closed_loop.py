@@ -157,26 +157,30 @@ class _Loop:
         self.tracker = make_tracker(self.model)
         self.cache = cache if cache is not None else NLPCache()
         self.hidden = set(scenario.hidden_obstacles)
+        self.start_problem = self.problem
+        self.sampled: tuple | None = None  # (plan, SampledPlan) of the plan being re-certified
 
     def refresh_obstacles(self) -> None:
         lo, hi = self.belief.known_obstacle_boxes(close_gaps=self.problem.options.close_gaps)
         self.problem = dataclasses.replace(self.problem, boxes_lo=lo, boxes_hi=hi)
 
 
-def _unexplained_hits(belief: object, points: np.ndarray) -> np.ndarray:
-    """Hits not explained by a known obstacle within one voxel: evidence of something new.
+def observed_cube(belief: object, centre: np.ndarray, half_max: float, half_min: float = 0.0) -> float:
+    """Half-size of the largest cube around ``centre`` (up to ``half_max``) in which every voxel was
+    seen by the camera or is a known obstacle: the start region of a replan in flight. Unknown and
+    merely *claimed* free space never counts as observed (the server may lie)."""
+    from secure3d.mapping.occupancy import Trust
 
-    A surface lying exactly on a voxel boundary (a wall at x = 8.0 m with 0.1 m voxels) is reported
-    in the voxel in front of it half of the time; that is not a new obstacle.
-    """
-    unexplained = ~belief.is_known_obstacle(points)
-    idx = np.flatnonzero(unexplained)
-    if len(idx):
-        res = belief.resolution
-        offsets = res * np.array([o for o in np.ndindex(3, 3, 3)], dtype=float) - res
-        near = belief.is_known_obstacle((points[idx, None, :] + offsets[None]).reshape(-1, 3))
-        unexplained[idx] = ~near.reshape(len(idx), -1).any(axis=1)
-    return unexplained
+    res = belief.resolution
+    allowed = np.array([Trust.SENSED_FREE, Trust.SENSED_OCCUPIED, Trust.CLAIMED_OCCUPIED])
+    half = half_max
+    while half > half_min + 1e-9:
+        ticks = np.arange(-half + 0.5 * res, half, res)
+        grid = np.stack(np.meshgrid(ticks, ticks, ticks, indexing="ij"), axis=-1).reshape(-1, 3) + centre
+        if np.isin(belief.trust(grid), allowed).all():
+            return half
+        half -= res
+    return max(half_min, 0.0)
 
 
 def _path_clearance(loop: _Loop, plan: PlanResult, t_rel: float, lo: np.ndarray, hi: np.ndarray) -> float:
@@ -194,13 +198,15 @@ def _path_clearance(loop: _Loop, plan: PlanResult, t_rel: float, lo: np.ndarray,
 
 def _plan_unsafe(loop: _Loop, plan: PlanResult, plan_problem_: object, t_rel: float) -> str | None:
     """Why the rest of ``plan`` (from ``t_rel`` on) is no longer safe in the updated belief, or None."""
-    from secure3d.planning.certificate import certify
+    from secure3d.planning.certificate import certify, sample_plan
 
     if loop.planner == "secure":
         judged = dataclasses.replace(
             plan_problem_, boxes_lo=loop.problem.boxes_lo, boxes_hi=loop.problem.boxes_hi
         )
-        cert = certify(plan, judged, t_from=t_rel)
+        if loop.sampled is None or loop.sampled[0] is not plan:
+            loop.sampled = (plan, sample_plan(plan, judged))
+        cert = certify(plan, judged, t_from=t_rel, sampled=loop.sampled[1])
         return None if cert.ok else str(cert.first_violation)
     # The baseline only promises a collision-free path: react when the new evidence brings an obstacle
     # into the body's planned path.
@@ -310,7 +316,9 @@ def _run(loop, rec, dt, frame_period, r, goal, time_limit, max_replans, frame_lo
         pts = frame.points_world()
         new = False
         if len(pts):
-            new = int(_unexplained_hits(loop.belief, pts).sum()) >= NEW_EVIDENCE_PIXELS
+            # strict: a hit in any voxel that was not a known obstacle is news (a tolerance here
+            # once let a surface whose voxels flicker between free and occupied go unnoticed)
+            new = int((~loop.belief.is_known_obstacle(pts)).sum()) >= NEW_EVIDENCE_PIXELS
         cam = loop.camera
         # Insert hits a hair (0.1 mm) in front of the surface: a wall lying exactly on a voxel
         # boundary then marks the voxel in front of it (which its claim covers) instead of flipping
@@ -328,7 +336,13 @@ def _run(loop, rec, dt, frame_period, r, goal, time_limit, max_replans, frame_lo
 
     def make_plan(t: float, x: np.ndarray) -> PlanResult | None:
         loop.refresh_obstacles()
-        problem = loop.problem if t == 0.0 else loop.problem.with_start(x)
+        if t == 0.0:
+            problem = loop.problem  # the paper's premise: the start region was observed before take-off
+        else:
+            # In flight only what the camera has actually seen counts as observed around the robot.
+            p = np.asarray(model.position(x), dtype=float).ravel()
+            problem = loop.problem.with_start(x, half_size=observed_cube(loop.belief, p, loop.problem.options.start_region_radius))
+        loop.start_problem = problem
         t0 = time.perf_counter()
         result = plan_problem(problem, loop.planner, cache=loop.cache)
         solve_times.append(time.perf_counter() - t0)
@@ -410,7 +424,7 @@ def _run(loop, rec, dt, frame_period, r, goal, time_limit, max_replans, frame_lo
                 new_plan = make_plan(t, x)
                 if new_plan is not None:
                     current, plan_start, mode = new_plan, t, "follow"
-                    plan_problem_snapshot = loop.problem.with_start(x)
+                    plan_problem_snapshot = loop.start_problem
         # ---- integrate and check against the truth ---------------------------------------------
         p_prev = np.asarray(model.position(x), float).ravel()
         x = np.asarray(model.step(x, u, dt), dtype=float)
