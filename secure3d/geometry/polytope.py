@@ -162,6 +162,16 @@ def min_box_distance(points: object, lo: object, hi: object) -> np.ndarray:
     return _kernels().min_signed_distance(p, np.ascontiguousarray(lo.reshape(-1, 3)), np.ascontiguousarray(hi.reshape(-1, 3)))
 
 
+def _segments_and_boxes(p0: object, p1: object, lo: object, hi: object, what: str = "segments") -> tuple:
+    """Validated contiguous (n, 3) segment ends and (m, 3) box corners for the compiled kernels."""
+    p0 = np.asarray(p0, dtype=float).reshape(-1, 3)
+    p1 = np.asarray(p1, dtype=float).reshape(-1, 3)
+    if p0.shape != p1.shape:
+        raise GeometryError(f"{what}: the two end arrays differ in shape, {p0.shape} vs {p1.shape}")
+    lo, hi = _boxes(lo, hi)
+    return tuple(np.ascontiguousarray(a.reshape(-1, 3)) for a in (p0, p1, lo, hi))
+
+
 def segment_box_intersects(p0: object, p1: object, lo: object, hi: object) -> np.ndarray:
     """Whether each segment ``[p0_i, p1_i]`` touches each closed box (slab test).
 
@@ -174,14 +184,7 @@ def segment_box_intersects(p0: object, p1: object, lo: object, hi: object) -> np
     -------
     (n, m) bool
     """
-    p0 = np.asarray(p0, dtype=float).reshape(-1, 3)
-    p1 = np.asarray(p1, dtype=float).reshape(-1, 3)
-    if p0.shape != p1.shape:
-        raise GeometryError(f"segments: p0 and p1 shapes differ, {p0.shape} vs {p1.shape}")
-    lo, hi = _boxes(lo, hi)
-    lo = np.ascontiguousarray(lo.reshape(-1, 3))
-    hi = np.ascontiguousarray(hi.reshape(-1, 3))
-    return _kernels().segment_box_matrix(np.ascontiguousarray(p0), np.ascontiguousarray(p1), lo, hi)
+    return _kernels().segment_box_matrix(*_segments_and_boxes(p0, p1, lo, hi))
 
 
 def segments_blocked(p0: object, p1: object, lo: object, hi: object) -> np.ndarray:
@@ -192,14 +195,7 @@ def segments_blocked(p0: object, p1: object, lo: object, hi: object) -> np.ndarr
     -------
     (n,) bool
     """
-    p0 = np.asarray(p0, dtype=float).reshape(-1, 3)
-    p1 = np.asarray(p1, dtype=float).reshape(-1, 3)
-    if p0.shape != p1.shape:
-        raise GeometryError(f"segments: p0 and p1 shapes differ, {p0.shape} vs {p1.shape}")
-    lo, hi = _boxes(lo, hi)
-    lo = np.ascontiguousarray(lo.reshape(-1, 3))
-    hi = np.ascontiguousarray(hi.reshape(-1, 3))
-    return _kernels().segment_box_any(np.ascontiguousarray(p0), np.ascontiguousarray(p1), lo, hi)
+    return _kernels().segment_box_any(*_segments_and_boxes(p0, p1, lo, hi))
 
 
 def cones_blocked(apex: object, centre: object, lo: object, hi: object, radius: float) -> np.ndarray:
@@ -211,17 +207,9 @@ def cones_blocked(apex: object, centre: object, lo: object, hi: object, radius: 
     -------
     (n,) bool
     """
-    apex = np.asarray(apex, dtype=float).reshape(-1, 3)
-    centre = np.asarray(centre, dtype=float).reshape(-1, 3)
-    if apex.shape != centre.shape:
-        raise GeometryError(f"cones: apex and centre shapes differ, {apex.shape} vs {centre.shape}")
     if not np.isfinite(radius) or radius < 0:
         raise GeometryError(f"radius: must be finite and >= 0, got {radius!r}")
-    lo, hi = _boxes(lo, hi)
-    return _kernels().cone_box_blocked_any(
-        np.ascontiguousarray(apex), np.ascontiguousarray(centre),
-        np.ascontiguousarray(lo.reshape(-1, 3)), np.ascontiguousarray(hi.reshape(-1, 3)), float(radius),
-    )
+    return _kernels().cone_box_blocked_any(*_segments_and_boxes(apex, centre, lo, hi, "cones"), float(radius))
 
 
 @functools.cache
