@@ -162,6 +162,9 @@ def certify(
         sampled = sample_plan(plan, problem, controller=controller, settings=settings)
     t, flat, owner, R, o = sampled.times, sampled.points, sampled.owner, sampled.rotations, sampled.origins
     n_t = len(t)
+    # only the part of the plan from t_from on is judged (views from before it still count)
+    keep = t[owner] >= t_from - 1e-9
+    flat, owner = flat[keep], owner[keep]
 
     # ---- clear of known obstacles and inside the map -------------------------------------------
     lo_b, hi_b = problem.boxes_lo, problem.boxes_hi
@@ -211,10 +214,9 @@ def certify(
         unseen = np.where(np.isfinite(raw), np.minimum(raw, 0.0) - 0.01, -1.0)
         vis_margin[unresolved] = np.maximum(start_margin[unresolved], np.where(found, best, unseen))
 
-    judged = t[owner] >= t_from - 1e-9
-    vis_margin = np.where(judged, vis_margin, np.inf)
-    obstacle_margin = np.where(judged, obstacle_margin, np.inf)
     margin = np.minimum(vis_margin, obstacle_margin)
+    if len(margin) == 0:  # nothing left to judge (t_from past the end of the plan)
+        return Certificate(True, np.inf, np.inf, np.inf, None, 0, 0)
     bad = margin < -tol
     first = None
     if bad.any():
