@@ -13,25 +13,21 @@ Run headless::
 
 from __future__ import annotations
 
-import argparse
+import sys
 from pathlib import Path
 
 from secure3d.planning import NLPCache, plan
 from secure3d.viz.figures import top_down_figure
 from secure3d.world import load_scenario, server_claim
 
-MAPS = Path(__file__).resolve().parents[1] / "maps"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import MAPS, parse_example_args, planner_options
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("out/examples"), help="output folder")
-    parser.add_argument("--quick", action="store_true", help="20 collocation nodes instead of 40")
-    args = parser.parse_args(argv)
-    args.out.mkdir(parents=True, exist_ok=True)
-
+    args = parse_example_args(__doc__, argv)
     scenario = load_scenario(MAPS / "blind_corner.yaml")
-    options = {"nodes": 20} if args.quick else {}
+    options = planner_options(args.quick)
     cache = NLPCache()
     results = [
         plan(scenario, planner, cache=cache, **options) for planner in ("secure", "baseline")

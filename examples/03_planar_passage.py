@@ -14,26 +14,23 @@ Run headless::
 
 from __future__ import annotations
 
-import argparse
+import sys
 from pathlib import Path
 
 from secure3d.planning import NLPCache, plan
 from secure3d.viz.figures import top_down_figure
 from secure3d.world import load_scenario
 
-MAPS = Path(__file__).resolve().parents[1] / "maps"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import MAPS, parse_example_args, planner_options
+
 #: Final times (s) of the paper's secure planner through each passage (its Fig. ThreadNeedle).
 PAPER = {"planar_passage_50cm": 1.60, "planar_passage_20cm": 2.12}
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("out/examples"), help="output folder")
-    parser.add_argument("--quick", action="store_true", help="20 collocation nodes instead of 40")
-    args = parser.parse_args(argv)
-    args.out.mkdir(parents=True, exist_ok=True)
-
-    options = {"nodes": 20} if args.quick else {}
+    args = parse_example_args(__doc__, argv)
+    options = planner_options(args.quick)
     cache = NLPCache()
     print(f"{'passage':<22} {'planner':<9} {'status':<15} {'final time':>10}  paper")
     for name, paper_time in PAPER.items():

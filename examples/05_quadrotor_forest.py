@@ -13,42 +13,20 @@ Run headless::
 
 from __future__ import annotations
 
-import argparse
+import sys
 from pathlib import Path
 
-from secure3d.simulation.campaign import comparison_figures, comparison_table, fly_planners
 from secure3d.world import load_scenario
 
-MAPS = Path(__file__).resolve().parents[1] / "maps"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import MAPS, fly_and_compare, parse_example_args
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("out/examples"), help="output folder")
-    parser.add_argument("--quick", action="store_true", help="20 collocation nodes instead of 40")
-    parser.add_argument("--seed", type=int, default=0, help="camera noise seed")
-    args = parser.parse_args(argv)
-    args.out.mkdir(parents=True, exist_ok=True)
-
+    args = parse_example_args(__doc__, argv, seed=True)
     scenario = load_scenario(MAPS / "forest.yaml")
     print(f"{scenario.name}: hidden trunks {', '.join(scenario.hidden_obstacles)}")
-    options = {"nodes": 20} if args.quick else {}
-    results = fly_planners(
-        scenario,
-        seed=args.seed,
-        rrd=lambda planner: args.out / f"05_forest_{planner}.rrd",
-        report=lambda result: print(result.summary()),
-        **options,
-    )
-    figures = comparison_figures(
-        scenario,
-        results,
-        top_down=args.out / "05_forest_top_down.png",
-        speed=args.out / "05_forest_speed.png",
-    )
-    print(comparison_table(results))
-    for path in (*(r.outputs["rrd"] for r in results), *figures.values()):
-        print(f"wrote {path}")
+    fly_and_compare(scenario, args.out, "05_forest", seed=args.seed, quick=args.quick)
     return 0
 
 

@@ -15,21 +15,19 @@ Run headless::
 
 from __future__ import annotations
 
-import argparse
+import sys
 from pathlib import Path
 
 from secure3d.simulation.campaign import run_campaign
 
-MAPS = Path(__file__).resolve().parents[1] / "maps"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import MAPS, example_parser, planner_options
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("out/examples"), help="output folder")
-    parser.add_argument(
-        "--quick",
-        action="store_true",
-        help="smoke test: 2 variants, baseline only, 20 collocation nodes, in this process",
+    parser = example_parser(
+        __doc__,
+        quick_help="smoke test: 2 variants, baseline only, 20 collocation nodes, in this process",
     )
     parser.add_argument("-n", type=int, default=6, help="number of variants")
     parser.add_argument("--workers", type=int, help="worker processes (default: CPU count)")
@@ -38,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
 
     n, workers, planners, options = args.n, args.workers, ("secure", "baseline"), {}
     if args.quick:
-        n, workers, planners, options = 2, 1, ("baseline",), {"nodes": 20}
+        n, workers, planners, options = 2, 1, ("baseline",), planner_options(quick=True)
     result = run_campaign(
         MAPS / "blind_corner.yaml",
         n,
