@@ -20,21 +20,28 @@ earlier node j. Here stage k carries
     the model state; the control at node k (a state, because controls are linear in time between
     nodes: the reading of :func:`secure3d.planning.trajectory.interpolate`, which the certificate
     and the tracker use); a copy of the final time (``T_{k+1} = T_k``); and a shift register
-    ``r_k = (c(x_{k-1}), c(x_{k-2}), ..., c(x_{k-D}))`` of the camera coordinates of the last D
-    nodes;
-``v_k = [u_{k+1}, lam_k]``
-    the next node's control (absent at the last stage) and the dual vectors of node k's obstacle
-    slots.
+    ``r_k = (c(x_{k-1}), c(x_{k-2}), ..., c(x_{k-D}))`` of the last D nodes' entries that later
+    rows read;
+``v_k = [u_{k+1}, lam]``
+    the next node's control (absent at the last stage) and the obstacle duals of the node(s) whose
+    rows live in stage k.
 
 Dynamics: ``x_{k+1}`` is the explicit RK4 integral (:data:`RK4_SUBSTEPS` steps) over
 h = T_k / (K - 1) of ``xdot = f(x, u(t))`` with u linear from u_k to u_{k+1}; for the point mass
 (a chain of integrators) this is exact, so a fatrop plan and an IPOPT (trapezoidal) plan differ
 only by the collocation error of the latter. The register shifts, ``r_{k+1} = (c(x_k), r_k[0],
-..., r_k[D-2])``, so the visibility row of node i with look-back j = i - s (1 <= s <= D) reads
-``r_i[s - 1]`` and stays stage-local. ``c(x)`` is exactly the part of the state the camera pose
-depends on (found from the kernels' sparsity: position and yaw for the point mass, position and
-attitude quaternion for the quadrotor), not the whole state: the register costs D * len(c) states
-per stage and fatrop's Riccati recursion grows with the cube of the stage size.
+..., r_k[D-2])``, so rows that read an earlier node stay stage-local:
+
+- secure planner: the visibility and occlusion rows of node i with look-back j = i - s
+  (1 <= s <= D) read ``r_i[s - 1]``; c(x) holds the entries the camera pose depends on (position
+  and yaw for the point mass, position and attitude quaternion for the quadrotor), D is the
+  largest look-back span;
+- baseline: node k's rows keep the segment from p_k to p_{k+1} clear with node k's duals; they
+  live in stage k+1 (reading p_k from ``r_{k+1}[0]``, D = 1, c(x) = the position) and node k's
+  duals with them, except the last node's, which only reads itself.
+
+c(x) is found from the kernels' sparsity, not assumed; carrying the whole state instead would cost
+D * nx states per stage, and fatrop's Riccati recursion grows with the cube of the stage size.
 
 The constraint rows are the same :class:`~secure3d.planning.collocation.NodeKernels` as IPOPT's
 (limits, bounds, frustum, start region, obstacle duals), so both solvers enforce the same
@@ -80,20 +87,17 @@ from secure3d.planning.result import PlanStatus
 RK4_SUBSTEPS = 2
 
 #: Convergence tolerance. fatrop measures the unscaled KKT error, IPOPT (tol 1e-6) a scaled one
-#: whose dual part is divided by the multipliers' size; at 1e-6 fatrop was measured to stall at
-#: mu = 1e-7 on blind_corner (125 iterations instead of 31, same T to 1e-5).
+#: whose dual part is divided by the multipliers' size. With 1e-6 on blind_corner fatrop's baseline
+#: never met it (it stopped at the acceptable level) and the secure solve took 43 iterations
+#: instead of 34, for the same T to 1e-4.
 TOL, ACCEPTABLE_TOL, ACCEPTABLE_ITER = 1e-5, 1e-4, 5
 
-#: Initial barrier parameter. fatrop's barrier update is monotone (IPOPT's here is adaptive); from
-#: fatrop's default 0.1 the first iterations wander far from the guess (T up to 4x the guess's)
-#: and blind_corner took 66-92 iterations instead of about 30.
-MU_INIT = 1e-2
-
-#: How far the initial point is pushed inside its bounds (fatrop's default 1e-2). fatrop takes no
-#: multiplier warm start, so re-solves from a near-optimal primal point (obstacle-slot refreshes,
-#: warm replans) lean on the primal alone; moved less, blind_corner's secure warm replans took
-#: 36-39 iterations instead of 75-124 (cold plans 58 instead of 86).
-BOUND_PUSH = 1e-4
+#: Initial barrier parameter. fatrop's barrier update is monotone (IPOPT's here is adaptive), so
+#: the start matters. Measured, one solve from the graph-search guess, baseline and secure planners
+#: on six scenarios (blind_corner, its quadrotor version, warehouse, office_bt, narrow_passage_50cm,
+#: planar_blind_corner): 901 / 714 / 565 iterations in all for 0.1 (fatrop's default) / 1e-2 /
+#: 3e-3, all successful; 3e-3 cut blind_corner from 119 / 64 (baseline / secure) to 29 / 31.
+MU_INIT = 3e-3
 
 #: Linear cost on the duals of node 0 (x_0 is fixed, so no row uses them; the layout keeps them
 #: for compatibility). Without it their only term is the barrier -mu log(lam), which pushes them
@@ -113,8 +117,9 @@ class StageLayout:
     Attributes
     ----------
     K, nx, nu, slots : nodes, model states, model controls, obstacle slots per node.
-    depth : register depth D (0 when no node looks back).
-    cam_idx : (nc,) int, the state entries the camera pose depends on.
+    depth : register depth D (0: no register).
+    reg_idx : (nc,) int, the state entries c(x) the register carries.
+    lam_stage : (K,) int, the stage holding node k's duals (default: stage k).
     i_T : index of T in stage 0 (the bounded copy; the gap rows make all copies equal).
     i_Ts : (K,) int, T_k. i_X : (K, nx). i_U : (K, nu), the state copies u_k.
     i_Unext : (K-1, nu), the control copies u_{k+1} in v_k. i_L : (K, slots, 6).
@@ -128,7 +133,8 @@ class StageLayout:
     nu: int
     slots: int
     depth: int
-    cam_idx: np.ndarray
+    reg_idx: np.ndarray
+    lam_stage: np.ndarray | None = None
     hermite: bool = False
     i_T: int = 0
     i_Ts: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
@@ -143,12 +149,19 @@ class StageLayout:
 
     def __post_init__(self) -> None:
         K, nx, nu, S, D = self.K, self.nx, self.nu, self.slots, self.depth
-        self.cam_idx = np.asarray(self.cam_idx, dtype=int)
-        nc = len(self.cam_idx)
+        self.reg_idx = np.asarray(self.reg_idx, dtype=int)
+        stage = np.arange(K) if self.lam_stage is None else np.asarray(self.lam_stage, dtype=int)
+        if stage.shape != (K,) or stage.min() < 0 or stage.max() >= K:
+            raise ConfigError(
+                f"StageLayout.lam_stage: expected {K} stages in [0, {K}), got {stage}"
+            )
+        self.lam_stage = stage
+        nc = len(self.reg_idx)
         self.n_z = nx + nu + 1 + D * nc
-        n_v = np.full(K, nu + 6 * S)
-        n_v[-1] = 6 * S  # no next control after the last node
-        start = np.concatenate([[0], np.cumsum(self.n_z + n_v)])
+        n_next = np.full(K, nu)
+        n_next[-1] = 0  # no next control after the last node
+        n_lam = np.bincount(stage, minlength=K)
+        start = np.concatenate([[0], np.cumsum(self.n_z + n_next + 6 * S * n_lam)])
         z0 = start[:-1, None]
         self.stage_start = start
         self.i_X = z0 + np.arange(nx)
@@ -157,14 +170,16 @@ class StageLayout:
         self.i_T = int(self.i_Ts[0])
         self.i_R = (z0 + nx + nu + 1 + np.arange(D * nc)).reshape(K, D, nc)
         self.i_Unext = z0[:-1] + self.n_z + np.arange(nu)
-        self.i_L = (z0 + self.n_z + n_v[:, None] - 6 * S + np.arange(6 * S)).reshape(K, S, 6)
+        rank = np.array([np.count_nonzero(stage[:k] == stage[k]) for k in range(K)])
+        first = start[stage] + self.n_z + n_next[stage] + 6 * S * rank
+        self.i_L = (first[:, None] + np.arange(6 * S)).reshape(K, S, 6)
         self.n_w = int(start[-1])
 
     def register_values(self, X: np.ndarray) -> np.ndarray:
         """(K, D, nc) register contents implied by node states X (K, nx): r_k[m] = c(x_{k-1-m}),
         with the start state filling the slots before node 0."""
         k = np.arange(self.K)[:, None] - 1 - np.arange(self.depth)[None, :]
-        return np.asarray(X, dtype=float)[np.maximum(k, 0)][..., self.cam_idx]
+        return np.asarray(X, dtype=float)[np.maximum(k, 0)][..., self.reg_idx]
 
     def pack(
         self, T: float, X: np.ndarray, U: np.ndarray, L: np.ndarray, Um: np.ndarray | None = None
@@ -189,20 +204,25 @@ class StageLayout:
         return float(w[self.i_Ts[-1]]), w[self.i_X], w[self.i_U], w[self.i_L]
 
 
-def camera_state_indices(kernels: NodeKernels, nx: int) -> np.ndarray:
-    """State entries of x_j that the visibility kernels read (the camera pose's arguments).
+def read_indices(fun: ca.Function, arg: int, nx: int) -> np.ndarray:
+    """Entries of input ``arg`` (a state, length nx) that ``fun``'s outputs depend on.
 
     Returns
     -------
     (nc,) int, sorted.
     """
-    xi, xj = ca.SX.sym("xi", nx), ca.SX.sym("xj", nx)
-    outs = [kernels.vis(xi, xj)]
-    n_in = kernels.obs_view.n_in()
-    extra = [ca.SX.sym(f"a{i}", kernels.obs_view.size1_in(i)) for i in range(2, n_in)]
-    outs.append(kernels.obs_view(xi, xj, *extra))
-    expr = ca.vertcat(*outs)
-    return np.array([d for d in range(nx) if ca.depends_on(expr, xj[d])], dtype=int)
+    args = [ca.SX.sym(f"a{i}", fun.sparsity_in(i)) for i in range(fun.n_in())]
+    if args[arg].numel() != nx:
+        raise ConfigError(f"read_indices: input {arg} of {fun.name()} is not a state of size {nx}")
+    expr = ca.vertcat(*[ca.vec(out) for out in fun.call(args)])
+    return np.array([d for d in range(nx) if ca.depends_on(expr, args[arg][d])], dtype=int)
+
+
+def camera_state_indices(kernels: NodeKernels, nx: int) -> np.ndarray:
+    """State entries of x_j that the visibility and occlusion kernels read (the camera pose's
+    arguments): (nc,) int, sorted."""
+    both = np.union1d(read_indices(kernels.vis, 1, nx), read_indices(kernels.obs_view, 1, nx))
+    return both.astype(int)
 
 
 def rk4_foh(
@@ -277,7 +297,6 @@ def _solver_options(problem: PlanningProblem, equality: list[bool]) -> dict:
             "max_iter": o.max_iter,
             "tol": TOL,
             "mu_init": MU_INIT,
-            "bound_push": BOUND_PUSH,
             "tol_acceptable": ACCEPTABLE_TOL,
             "acceptable_iter": ACCEPTABLE_ITER,
         },
@@ -355,10 +374,18 @@ def build_fatrop_nlp(
     spans = [k - j for k, j in enumerate(assignment) if secure and k > 0 and j >= 0]
     if any(s < 1 for s in spans):
         raise ConfigError(f"assignment: every look-back must be an earlier node, got {assignment}")
-    depth = max(spans, default=0)
-    cam_idx = camera_state_indices(kern, nx) if depth else np.zeros(0, int)
-    lay = StageLayout(K=K, nx=nx, nu=nu, slots=S, depth=depth, cam_idx=cam_idx)
-    nc = len(cam_idx)
+    if secure:
+        depth = max(spans, default=0)
+        reg_idx = camera_state_indices(kern, nx) if depth else np.zeros(0, int)
+        lam_stage = np.arange(K)
+    else:  # node k's segment rows (and duals) move to stage k+1, where p_k is r_{k+1}[0]
+        depth, reg_idx = 1, read_indices(kern.obs_base, 0, nx)
+        lam_stage = np.minimum(np.arange(K) + 1, K - 1)
+        lam_stage[0] = 0
+    lay = StageLayout(K=K, nx=nx, nu=nu, slots=S, depth=depth, reg_idx=reg_idx, lam_stage=lam_stage)
+    nc = len(reg_idx)
+    # x rebuilt from register entries: c(x) in place, zeros elsewhere (the kernels skip them)
+    scatter = ca.DM(ca.Sparsity.triplet(nx, nc, reg_idx.tolist(), list(range(nc))), 1.0)
 
     # ---- decision variables and parameters ----------------------------------------------------
     w = ca.SX.sym("w", lay.n_w)
@@ -396,7 +423,7 @@ def build_fatrop_nlp(
         ca.SX.sym("T"),
     )
     rs = ca.SX.sym("r", depth * nc)
-    r_next = ca.vertcat(xs[cam_idx.tolist()], rs[: (depth - 1) * nc]) if depth else ca.SX(0, 1)
+    r_next = ca.vertcat(xs[reg_idx.tolist()], rs[: (depth - 1) * nc]) if depth else ca.SX(0, 1)
     step = ca.Function(
         "stage_step",
         [xs, u0s, u1s, Tsym, rs],
@@ -408,9 +435,9 @@ def build_fatrop_nlp(
     gap_rows = [("dynamics", 0.0, 0.0)] * nx + [("stage_copy", 0.0, 0.0)] * (nu + 1 + depth * nc)
     rows.add(Z_next - F, gap_rows, list(range(K - 1)), gap=True)
 
-    # ---- stage 0: register filled with the start camera, control limits over the first interval --
+    # ---- stage 0: register filled with the start state, control limits over the first interval --
     if depth:
-        fill = ca.repmat(X[cam_idx.tolist(), 0], depth, 1)
+        fill = ca.repmat(X[reg_idx.tolist(), 0], depth, 1)
         rows.add(R[:, 0] - fill, [("stage_copy", 0.0, 0.0)] * (depth * nc), [0])
     us = ca.SX.sym("u", nu)
     path_sym = kern.path(xs, us)
@@ -432,15 +459,22 @@ def build_fatrop_nlp(
 
     # ---- obstacles and visibility (eq. NLP), stage-local through the register --------------------
     if not secure:
+        seg = nodes[:-1]  # node k: segment p_k -> p_{k+1}, in stage k+1
+        Xk = ca.mtimes(scatter, block(lay.i_R[[k + 1 for k in seg], 0]))
+        Xk1 = X[:, [k + 1 for k in seg]]
         rows.add(
-            kern.obs_base.map(K - 1)(X[:, 1:], Boxes[:, 1:], L[:, 1:]), kern.obs_base_rows, nodes
+            kern.obs_base.map(len(seg))(Xk, Xk1, Boxes[:, seg], L[:, seg]),
+            kern.obs_base_rows,
+            [k + 1 for k in seg],
+        )
+        x_last = X[:, K - 1]  # the last node's "segment" is the node itself
+        rows.add(
+            kern.obs_base(x_last, x_last, Boxes[:, K - 1], L[:, K - 1]), kern.obs_base_rows, [K - 1]
         )
     else:
         view = [k for k in nodes if assignment[k] >= 0]
         start = [k for k in nodes if assignment[k] < 0]
         if view:
-            # x_j rebuilt from the register: camera entries, zeros elsewhere (the kernels skip them)
-            scatter = ca.DM(ca.Sparsity.triplet(nx, nc, cam_idx.tolist(), list(range(nc))), 1.0)
             cam = block(np.stack([lay.i_R[k, k - assignment[k] - 1] for k in view]))
             Xi, Xj = X[:, view], ca.mtimes(scatter, cam)
             n_faces = problem.frustum.n_faces

@@ -18,6 +18,7 @@ from secure3d.planning.fatrop_transcription import (
     build_fatrop_nlp,
     camera_state_indices,
     fatrop_status,
+    read_indices,
     rk4_foh,
 )
 
@@ -53,17 +54,26 @@ def ipopt_plans(problem):
 
 
 @pytest.fixture(scope="module")
-def secure_nlp(problem, cache, plans):
-    nlp, cached = cache.get(problem, "secure", lb.fixed_assignment(problem.options.nodes, LOOKBACK))
-    assert cached, "the secure plan should have built this NLP"
-    return nlp
+def nlps(problem, cache, plans):
+    """The NLPs the two plans were solved with (from the cache, not rebuilt)."""
+    K = problem.options.nodes
+    out = {}
+    for planner, assignment in (
+        ("baseline", (-1,) * K),
+        ("secure", lb.fixed_assignment(K, LOOKBACK)),
+    ):
+        out[planner], cached = cache.get(problem, planner, assignment)
+        assert cached, f"the {planner} plan should have built this NLP"
+    return out
 
 
 # ---- layout and dynamics (no solver) -------------------------------------------------------------
-def test_layout_is_stage_ordered_and_packs_every_copy(rng):
+@pytest.mark.parametrize("lam_stage", [None, [0, 2, 3, 4, 5, 5]])
+def test_layout_is_stage_ordered_and_packs_every_copy(rng, lam_stage):
     K, nx, nu, S, D = 6, 7, 4, 2, 3
     cam = np.array([0, 1, 2, 6])
-    lay = StageLayout(K=K, nx=nx, nu=nu, slots=S, depth=D, cam_idx=cam)
+    lay = StageLayout(K=K, nx=nx, nu=nu, slots=S, depth=D, reg_idx=cam, lam_stage=lam_stage)
+    hosts = np.arange(K) if lam_stage is None else np.array(lam_stage)
     blocks = [lay.i_X, lay.i_U, lay.i_Ts, lay.i_R, lay.i_Unext, lay.i_L]
     every = np.concatenate([b.ravel() for b in blocks])
     np.testing.assert_array_equal(
@@ -71,9 +81,11 @@ def test_layout_is_stage_ordered_and_packs_every_copy(rng):
     )
     for k in range(K):  # stage k = [z_k, v_k], contiguous, states first
         z = np.concatenate([lay.i_X[k], lay.i_U[k], [lay.i_Ts[k]], lay.i_R[k].ravel()])
-        v = np.concatenate([lay.i_Unext[k] if k < K - 1 else [], lay.i_L[k].ravel()]).astype(int)
+        duals = lay.i_L[hosts == k].ravel()
+        v = np.concatenate([lay.i_Unext[k] if k < K - 1 else [], duals]).astype(int)
         np.testing.assert_array_equal(np.sort(z), lay.stage_start[k] + np.arange(lay.n_z))
         np.testing.assert_array_equal(np.sort(v), lay.stage_start[k] + lay.n_z + np.arange(len(v)))
+        assert lay.stage_start[k + 1] == lay.stage_start[k] + lay.n_z + len(v)
 
     T, X, U, L = (
         3.5,
@@ -130,13 +142,14 @@ def test_rk4_foh_is_exact_for_the_point_mass_and_fourth_order_for_the_quadrotor(
     assert 8.0 < e1 / e2 < 32.0 and 8.0 < e2 / e4 < 32.0, f"errors {e1:.2e} {e2:.2e} {e4:.2e}"
 
 
-def test_register_carries_exactly_the_camera_state(problem):
+def test_register_carries_exactly_what_later_rows_read(problem):
     from secure3d.planning.collocation import node_kernels
 
-    # the point mass's camera pose is its position and yaw (secure3d.dynamics.point_mass)
-    np.testing.assert_array_equal(
-        camera_state_indices(node_kernels(problem), problem.model.nx), [0, 1, 2, 6]
-    )
+    kern, nx = node_kernels(problem), problem.model.nx
+    # the point mass's camera pose is its position and yaw (secure3d.dynamics.point_mass) ...
+    np.testing.assert_array_equal(camera_state_indices(kern, nx), [0, 1, 2, 6])
+    # ... and the baseline's segment rows read the start node's position only
+    np.testing.assert_array_equal(read_indices(kern.obs_base, 0, nx), [0, 1, 2])
 
 
 def test_adaptive_lookback_and_hermite_simpson_are_refused(problem):
@@ -159,18 +172,19 @@ def test_fatrop_status_names():
 
 
 # ---- the built NLP ------------------------------------------------------------------------------
-def test_nlp_has_the_structure_fatrop_detects(secure_nlp, plans, problem):
+@pytest.mark.parametrize("planner", ["baseline", "secure"])
+def test_nlp_has_the_structure_fatrop_detects(nlps, plans, problem, planner):
     """The rules of CasADi's structure detection (casadi/interfaces/fatrop/fatrop_interface.cpp):
     rows ordered by stage; each row touches one stage, except gap rows, which also touch exactly one
     entry of the next stage's states with coefficient +1; the Lagrangian Hessian is block-diagonal
     by stage (the interface drops anything else without a word)."""
-    lay, solver = secure_nlp.layout, secure_nlp.solver
+    lay, solver = nlps[planner].layout, nlps[planner].solver
     stage = np.searchsorted(lay.stage_start, np.arange(lay.n_w), side="right") - 1
     jac = solver.get_function("nlp_jac_g")
     jsp = jac.sparsity_out(1)
     rows, cols = (np.array(a) for a in jsp.get_triplet())
-    w = plans["secure"].warm["w"]
-    p = parameter_vector(problem, plans["secure"].warm["slots"])
+    w = plans[planner].warm["w"]
+    p = parameter_vector(problem, plans[planner].warm["slots"])
     J = np.asarray(jac(w, p)[1].full())
 
     first = np.full(jsp.size1(), lay.K)
@@ -195,11 +209,11 @@ def test_nlp_has_the_structure_fatrop_detects(secure_nlp, plans, problem):
     assert np.array_equal(stage[hrows], stage[hcols]), "the Lagrangian Hessian couples two stages"
 
 
-def test_visibility_rows_use_the_camera_of_node_i_minus_lookback(secure_nlp, plans, problem):
+def test_visibility_rows_use_the_camera_of_node_i_minus_lookback(nlps, plans, problem):
     res = plans["secure"]
     w, slots = res.warm["w"], res.warm["slots"]
-    g = np.asarray(secure_nlp.g_fun(w, parameter_vector(problem, slots))).ravel()
-    vis = g[secure_nlp.families["visibility"]].reshape(-1, problem.frustum.n_faces)
+    g = np.asarray(nlps["secure"].g_fun(w, parameter_vector(problem, slots))).ravel()
+    vis = g[nlps["secure"].families["visibility"]].reshape(-1, problem.frustum.n_faces)
     # independent numpy twin: margin of E_i inside the frustum of camera j (min over faces)
     margins = lb.frustum_margins(problem, lb.node_geometry(problem, res.states))
     K = problem.options.nodes
@@ -207,6 +221,26 @@ def test_visibility_rows_use_the_camera_of_node_i_minus_lookback(secure_nlp, pla
     np.testing.assert_allclose(
         vis.min(axis=1), expected, atol=1e-9, err_msg="row of node i vs frustum of i-D"
     )
+
+
+def test_baseline_rows_keep_each_segment_clear_with_its_start_nodes_duals(nlps, plans, problem):
+    res = plans["baseline"]
+    w, slots = res.warm["w"], res.warm["slots"]
+    g = np.asarray(nlps["baseline"].g_fun(w, parameter_vector(problem, slots))).ravel()
+    rows = np.sort(g[nlps["baseline"].families["obstacle"]])
+    # numpy twin: lam.(A p - b) for p_k and p_{k+1} (p_{K-1} twice at the last node), node k's duals
+    P, L = res.positions, res.warm["L"]
+    K = len(P)
+    nxt = np.minimum(np.arange(K) + 1, K - 1)
+    b = np.concatenate([slots[..., 3:6], -slots[..., 0:3]], axis=-1)  # (K, S, 6)
+
+    def clearance(p):  # (K, 3) -> (K, S)
+        Ap = np.concatenate([p, -p], axis=-1)[:, None, :]
+        return np.einsum("ksf,ksf->ks", L, Ap - b)
+
+    expected = np.sort(np.concatenate([clearance(P)[1:], clearance(P[nxt])[1:]], axis=None))
+    np.testing.assert_allclose(rows, expected, atol=1e-9, err_msg="baseline obstacle rows")
+    assert rows.min() >= problem.model.body_radius + problem.options.margin - 1e-6
 
 
 # ---- fatrop solves of blind_corner --------------------------------------------------------------
