@@ -32,7 +32,7 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 if TYPE_CHECKING:  # pragma: no cover
-    from secure3d.world.spec import Scenario
+    from secure3d.world.spec import Scenario as Scenario
 
 
 def __getattr__(name: str) -> Any:

@@ -126,8 +126,12 @@ def cone_box_blocked_any(apex, centre, lo, hi, radius):  # pragma: no cover - co
                     a_, c_, fc = c_, e_, fe
                     e_ = a_ + g * (b_ - a_)
                     fe = _cone_gap(p0, d0, d1, d2, e_, lo[j], hi[j], radius)
-            best = min(fc, fe, _cone_gap(p0, d0, d1, d2, 0.0, lo[j], hi[j], radius),
-                       _cone_gap(p0, d0, d1, d2, 1.0, lo[j], hi[j], radius))
+            best = min(
+                fc,
+                fe,
+                _cone_gap(p0, d0, d1, d2, 0.0, lo[j], hi[j], radius),
+                _cone_gap(p0, d0, d1, d2, 1.0, lo[j], hi[j], radius),
+            )
             if best < 0.0:
                 out[i] = True
                 break

@@ -159,10 +159,14 @@ def min_box_distance(points: object, lo: object, hi: object) -> np.ndarray:
     """
     p = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 3))
     lo, hi = _boxes(lo, hi)
-    return _kernels().min_signed_distance(p, np.ascontiguousarray(lo.reshape(-1, 3)), np.ascontiguousarray(hi.reshape(-1, 3)))
+    return _kernels().min_signed_distance(
+        p, np.ascontiguousarray(lo.reshape(-1, 3)), np.ascontiguousarray(hi.reshape(-1, 3))
+    )
 
 
-def _segments_and_boxes(p0: object, p1: object, lo: object, hi: object, what: str = "segments") -> tuple:
+def _segments_and_boxes(
+    p0: object, p1: object, lo: object, hi: object, what: str = "segments"
+) -> tuple:
     """Validated contiguous (n, 3) segment ends and (m, 3) box corners for the compiled kernels."""
     p0 = np.asarray(p0, dtype=float).reshape(-1, 3)
     p1 = np.asarray(p1, dtype=float).reshape(-1, 3)
@@ -198,7 +202,9 @@ def segments_blocked(p0: object, p1: object, lo: object, hi: object) -> np.ndarr
     return _kernels().segment_box_any(*_segments_and_boxes(p0, p1, lo, hi))
 
 
-def cones_blocked(apex: object, centre: object, lo: object, hi: object, radius: float) -> np.ndarray:
+def cones_blocked(
+    apex: object, centre: object, lo: object, hi: object, radius: float
+) -> np.ndarray:
     """Whether some box meets each sight cone conv({apex_i} ∪ B(centre_i, radius)): the lines of
     sight from a camera at ``apex`` to every point of a ball (exact, via the convex gap
     dist(apex + t (centre - apex), box) - t radius over t in [0, 1]).
@@ -209,7 +215,9 @@ def cones_blocked(apex: object, centre: object, lo: object, hi: object, radius: 
     """
     if not np.isfinite(radius) or radius < 0:
         raise GeometryError(f"radius: must be finite and >= 0, got {radius!r}")
-    return _kernels().cone_box_blocked_any(*_segments_and_boxes(apex, centre, lo, hi, "cones"), float(radius))
+    return _kernels().cone_box_blocked_any(
+        *_segments_and_boxes(apex, centre, lo, hi, "cones"), float(radius)
+    )
 
 
 @functools.cache

@@ -1,11 +1,13 @@
 """The independent safety certificate: does a plan satisfy the paper's definition of *safe*?
 
-A planned path is safe (paper, Definition before Theorem "Safety") if every reactive set S_r(x(t)) was
+A planned path is safe (paper, Definition before Theorem "Safety") if every reactive set S_r(x(t))
+was
 observed before t (eq. FullConstraint: S_r(x(t)) ⊂ ∪_{τ<t} S_s(x(τ))) and never meets a known
 obstacle. The NLP enforces a tightened, ellipsoidal version of this at the nodes; this module checks
 the real thing, with none of the NLP's constraint code:
 
-- time is sampled densely, between collocation nodes too (the paper's Prop. 1 is about exactly this);
+- time is sampled densely, between collocation nodes too (the paper's Prop. 1 is about exactly
+this);
 - the reactive manoeuvre is *simulated* from every sampled state with the actual controller (not the
   fitted ellipsoid), and every manoeuvre point, grown by the body radius, is checked;
 - "observed" means: inside the start box, or inside the camera's field of view at an earlier sampled
@@ -71,7 +73,9 @@ def _manoeuvres(controller: object, model: object, X: np.ndarray, dt: float, m: 
     return pos.reshape(sel.shape[0], sel.shape[1], 3)
 
 
-def _view_margins(points: np.ndarray, R: np.ndarray, o: np.ndarray, frustum: object, radius: float) -> np.ndarray:
+def _view_margins(
+    points: np.ndarray, R: np.ndarray, o: np.ndarray, frustum: object, radius: float
+) -> np.ndarray:
     """(n_points, n_cams) signed margin of a ball of ``radius`` at each point inside each camera's
     field of view, computed in the camera frame from the FOV angles (independent of the NLP's
     half-space code). Positive: the whole ball is inside."""
@@ -160,7 +164,13 @@ def certify(
     tol = settings.tolerance
     if sampled is None:
         sampled = sample_plan(plan, problem, controller=controller, settings=settings)
-    t, flat, owner, R, o = sampled.times, sampled.points, sampled.owner, sampled.rotations, sampled.origins
+    t, flat, owner, R, o = (
+        sampled.times,
+        sampled.points,
+        sampled.owner,
+        sampled.rotations,
+        sampled.origins,
+    )
     n_t = len(t)
     # only the part of the plan from t_from on is judged (views from before it still count)
     keep = t[owner] >= t_from - 1e-9
@@ -177,7 +187,9 @@ def certify(
     obstacle_margin = np.minimum(dist, in_map) - r
 
     # ---- observed before: start ball, or an earlier view with a clear line of sight -------------
-    start_margin = np.minimum(flat - problem.start_region_lo, problem.start_region_hi - flat).min(axis=1) - r
+    start_margin = (
+        np.minimum(flat - problem.start_region_lo, problem.start_region_hi - flat).min(axis=1) - r
+    )
     view = _view_margins(flat, R, o, problem.frustum, r)
     earlier = np.arange(n_t)[None, :] < owner[:, None]
     view = np.where(earlier, view, -np.inf)
@@ -195,7 +207,9 @@ def certify(
             cams = order[:, rank]
             cand = V[np.arange(len(unresolved)), cams]
             active = ~found & np.isfinite(cand)
-            if rank >= TOP_VIEWS:  # past the best few views only a passing one can change the verdict
+            if (
+                rank >= TOP_VIEWS
+            ):  # past the best few views only a passing one can change the verdict
                 active &= cand > -tol
             if not active.any():
                 break
@@ -231,7 +245,9 @@ def certify(
                 if hidden
                 else "manoeuvre point not observed at any earlier time"
             )
-        first = Violation(time=float(t[owner[k]]), point=flat[k].copy(), reason=reason, margin=float(margin[k]))
+        first = Violation(
+            time=float(t[owner[k]]), point=flat[k].copy(), reason=reason, margin=float(margin[k])
+        )
     return Certificate(
         ok=not bad.any(),
         min_margin=float(margin.min()),

@@ -68,7 +68,9 @@ class NLPLayout:
         w = np.asarray(w, dtype=float).ravel()
         return float(w[self.i_T]), w[self.i_X], w[self.i_U], w[self.i_L]
 
-    def pack(self, T: float, X: np.ndarray, U: np.ndarray, L: np.ndarray, Um: np.ndarray | None = None) -> np.ndarray:
+    def pack(
+        self, T: float, X: np.ndarray, U: np.ndarray, L: np.ndarray, Um: np.ndarray | None = None
+    ) -> np.ndarray:
         w = np.zeros(self.n_w)
         w[self.i_T] = T
         w[self.i_X] = X
@@ -120,7 +122,9 @@ class TranscribedNLP:
 
 def parameter_vector(problem: PlanningProblem, slot_boxes: np.ndarray) -> np.ndarray:
     """NLP parameters: start box lo (3), hi (3), goal (3), slot boxes (K*S*6)."""
-    return np.concatenate([problem.start_region_lo, problem.start_region_hi, problem.goal, slot_boxes.ravel()])
+    return np.concatenate(
+        [problem.start_region_lo, problem.start_region_hi, problem.goal, slot_boxes.ravel()]
+    )
 
 
 def _solver_options(problem: PlanningProblem) -> tuple[str, dict]:
@@ -171,7 +175,9 @@ class NodeKernels:
     obs_base_rows: list[tuple[str, float, float]]
 
 
-def _rows_function(name: str, inputs: list[ca.SX], rows: list[cons.Row]) -> tuple[ca.Function, list]:
+def _rows_function(
+    name: str, inputs: list[ca.SX], rows: list[cons.Row]
+) -> tuple[ca.Function, list]:
     expr = ca.vertcat(*[r[1] for r in rows]) if rows else ca.SX(0, 1)
     meta = [(r[0], float(r[2]), float(r[3])) for r in rows]
     return ca.Function(name, inputs, [expr]), meta
@@ -209,7 +215,9 @@ def node_kernels(problem: PlanningProblem) -> NodeKernels:
 
     c, M = family.ellipsoid(xi)
     R_cam, o_cam = model.camera_pose(xj)
-    vis, _ = _rows_function("vis", [xi, xj], cons.frustum_rows(c, M, R_cam, o_cam, problem.frustum, o.margin))
+    vis, _ = _rows_function(
+        "vis", [xi, xj], cons.frustum_rows(c, M, R_cam, o_cam, problem.frustum, o.margin)
+    )
     start, _ = _rows_function("start", [xi, lo, hi], cons.start_region_rows(c, M, lo, hi, o.margin))
 
     view_rows, start_rows, base_rows = [], [], []
@@ -231,12 +239,26 @@ def node_kernels(problem: PlanningProblem) -> NodeKernels:
     obs_view, view_meta = _rows_function("obs_view", [xi, xj, boxes, lams], view_rows)
     obs_start, start_meta = _rows_function("obs_start", [xi, boxes, lams], start_rows)
     obs_base, base_meta = _rows_function("obs_base", [xi, xk1, boxes, lams], base_rows)
-    return NodeKernels(dyn, path, path_meta, vis, start, obs_view, obs_start, obs_base,
-                       view_meta, start_meta, base_meta)
+    return NodeKernels(
+        dyn,
+        path,
+        path_meta,
+        vis,
+        start,
+        obs_view,
+        obs_start,
+        obs_base,
+        view_meta,
+        start_meta,
+        base_meta,
+    )
 
 
 def build_nlp(
-    problem: PlanningProblem, planner: str, assignment: tuple[int, ...], kernels: NodeKernels | None = None
+    problem: PlanningProblem,
+    planner: str,
+    assignment: tuple[int, ...],
+    kernels: NodeKernels | None = None,
 ) -> TranscribedNLP:
     """Transcribe the problem for a given look-back assignment (tuple of K ints, -1 = start region).
 
@@ -262,7 +284,11 @@ def build_nlp(
     T = w[0]
     X = ca.reshape(w[int(lay.i_X[0, 0]) : int(lay.i_X[-1, -1]) + 1], nx, K)
     U = ca.reshape(w[int(lay.i_U[0, 0]) : int(lay.i_U[-1, -1]) + 1], nu, K)
-    Um = ca.reshape(w[int(lay.i_Um[0, 0]) : int(lay.i_Um[-1, -1]) + 1], nu, K - 1) if hermite else SYM.zeros(nu, K - 1)
+    Um = (
+        ca.reshape(w[int(lay.i_Um[0, 0]) : int(lay.i_Um[-1, -1]) + 1], nu, K - 1)
+        if hermite
+        else SYM.zeros(nu, K - 1)
+    )
     Lam = ca.reshape(w[int(lay.i_L[0, 0, 0]) : int(lay.i_L[-1, -1, -1]) + 1], 6 * S, K)
     n_p = 9 + K * S * 6
     p = SYM.sym("p", n_p)
@@ -279,20 +305,24 @@ def build_nlp(
     def cols(M_: object, idx: list[int]) -> object:
         return M_[:, idx]
 
-    # ---- objective: minimum time (+ a small normalised effort term) -------------------------------
+    # ---- objective: minimum time (+ a small normalised effort term)
+    # -------------------------------
     u_mid = 0.5 * (model.u_lo + model.u_hi)
     u_scale = np.maximum(0.5 * (model.u_hi - model.u_lo), 1e-6)
     J = T + o.effort_weight * h * ca.sumsqr((U - ca.repmat(u_mid, 1, K)) / ca.repmat(u_scale, 1, K))
 
     # ---- dynamics defects ------------------------------------------------------------------------
-    dyn = kern.dyn.map(K - 1)(X[:, : K - 1], U[:, : K - 1], X[:, 1:], U[:, 1:], Um, ca.repmat(h, 1, K - 1))
+    dyn = kern.dyn.map(K - 1)(
+        X[:, : K - 1], U[:, : K - 1], X[:, 1:], U[:, 1:], Um, ca.repmat(h, 1, K - 1)
+    )
     add(dyn, [("dynamics", 0.0, 0.0)] * nx, K - 1)
 
     # ---- path constraints: model limits and world bounds -----------------------------------------
     if kern.path_rows:
         add(kern.path.map(K - 1)(X[:, 1:], U[:, 1:]), kern.path_rows, K - 1)
 
-    # ---- boundary conditions: x(0) fixed through variable bounds; at rest at the goal -------------
+    # ---- boundary conditions: x(0) fixed through variable bounds; at rest at the goal
+    # -------------
     x_end = X[:, K - 1]
     pos_end, vel_end = model.position(x_end), model.velocity(x_end)
     for d in range(3):
@@ -308,22 +338,40 @@ def build_nlp(
     nodes = list(range(1, K))
     if not secure:
         X_next = ca.horzcat(X[:, 2:], X[:, K - 1])
-        add(kern.obs_base.map(K - 1)(X[:, 1:], X_next, Boxes[:, 1:], Lam[:, 1:]), kern.obs_base_rows, K - 1)
+        add(
+            kern.obs_base.map(K - 1)(X[:, 1:], X_next, Boxes[:, 1:], Lam[:, 1:]),
+            kern.obs_base_rows,
+            K - 1,
+        )
     else:
         view = [k for k in nodes if assignment[k] >= 0]
         start = [k for k in nodes if assignment[k] < 0]
         if view:
             Xi, Xj = cols(X, view), cols(X, [assignment[k] for k in view])
-            add(kern.vis.map(len(view))(Xi, Xj), [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
-                len(view))
-            add(kern.obs_view.map(len(view))(Xi, Xj, cols(Boxes, view), cols(Lam, view)),
-                kern.obs_view_rows, len(view))
+            add(
+                kern.vis.map(len(view))(Xi, Xj),
+                [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
+                len(view),
+            )
+            add(
+                kern.obs_view.map(len(view))(Xi, Xj, cols(Boxes, view), cols(Lam, view)),
+                kern.obs_view_rows,
+                len(view),
+            )
         if start:
             Xs = cols(X, start)
-            add(kern.start.map(len(start))(Xs, ca.repmat(start_lo, 1, len(start)), ca.repmat(start_hi, 1, len(start))),
-                [("start_region", o.margin, ca.inf)] * 6, len(start))
-            add(kern.obs_start.map(len(start))(Xs, cols(Boxes, start), cols(Lam, start)),
-                kern.obs_start_rows, len(start))
+            add(
+                kern.start.map(len(start))(
+                    Xs, ca.repmat(start_lo, 1, len(start)), ca.repmat(start_hi, 1, len(start))
+                ),
+                [("start_region", o.margin, ca.inf)] * 6,
+                len(start),
+            )
+            add(
+                kern.obs_start.map(len(start))(Xs, cols(Boxes, start), cols(Lam, start)),
+                kern.obs_start_rows,
+                len(start),
+            )
 
     names = [m_[0] for m_ in meta]
     g_all = ca.vertcat(*exprs)
@@ -370,10 +418,22 @@ def model_identity(model: object) -> tuple:
 def family_identity(family: object) -> tuple:
     """What makes two reactive-set families interchangeable: class, model, controller, latency and,
     for fitted families, the coefficients' data file content."""
-    coefs = [getattr(family, a) for a in ("centre_coef", "beta_coef", "gamma_coef", "eta_coef") if hasattr(family, a)]
-    digest = hash(b"".join(np.asarray(c_, dtype=float).tobytes() for c_ in coefs)) if coefs else None
-    return (type(family).__name__, getattr(family, "kind", None), getattr(family, "controller_name", None),
-            float(getattr(family, "latency", 0.0)), model_identity(family.model), digest)
+    coefs = [
+        getattr(family, a)
+        for a in ("centre_coef", "beta_coef", "gamma_coef", "eta_coef")
+        if hasattr(family, a)
+    ]
+    digest = (
+        hash(b"".join(np.asarray(c_, dtype=float).tobytes() for c_ in coefs)) if coefs else None
+    )
+    return (
+        type(family).__name__,
+        getattr(family, "kind", None),
+        getattr(family, "controller_name", None),
+        float(getattr(family, "latency", 0.0)),
+        model_identity(family.model),
+        digest,
+    )
 
 
 def nlp_key(problem: PlanningProblem, planner: str, assignment: tuple[int, ...]) -> tuple:
@@ -414,7 +474,9 @@ class NLPCache:
         self.hits = 0
         self.misses = 0
 
-    def get(self, problem: PlanningProblem, planner: str, assignment: tuple[int, ...]) -> tuple[TranscribedNLP, bool]:
+    def get(
+        self, problem: PlanningProblem, planner: str, assignment: tuple[int, ...]
+    ) -> tuple[TranscribedNLP, bool]:
         """The NLP for this structure and whether it came from the cache."""
         key = nlp_key(problem, planner, assignment)
         item = self._items.get(key)

@@ -3,13 +3,15 @@
 Each builder returns a list of ``(name, expression, lower, upper)`` rows so that the transcription
 (:mod:`secure3d.planning.collocation`) can report violations per family. The numbers they encode
 come from the geometry kernels (:mod:`secure3d.geometry`), whose numpy twins are tested against
-independent methods; the certificate (:mod:`secure3d.planning.certificate`) shares none of this code.
+independent methods; the certificate (:mod:`secure3d.planning.certificate`) shares none of this
+code.
 
 Obstacles are axis-aligned boxes P = {y : A y <= b} with A = [I; -I], b = [hi; -lo]; each box in a
 node's slot carries a dual vector lam >= 0 with |A^T lam| <= 1 (DESIGN.md section 4):
 
 - body or reactive set E = {c + M z}: ``lam.(A c - b) - |M A^T lam| >= m``  (dist(E, P) >= m);
-- line-of-sight hull conv({o} u E) (occlusion, beyond the paper): in addition ``lam.(A o - b) >= m``.
+- line-of-sight hull conv({o} u E) (occlusion, beyond the paper): in addition ``lam.(A o - b) >=
+m``.
 """
 
 from __future__ import annotations
@@ -43,7 +45,9 @@ def dual_norm_row(lam: ca.SX) -> Row:
     return ("dual_norm", ca.sumsqr(at_lam), -ca.inf, 1.0)
 
 
-def point_clearance_row(name: str, p: ca.SX, radius: float, box: ca.SX, lam: ca.SX, margin: float) -> Row:
+def point_clearance_row(
+    name: str, p: ca.SX, radius: float, box: ca.SX, lam: ca.SX, margin: float
+) -> Row:
     """Sphere of ``radius`` at ``p`` at least ``margin`` from the box: lam.(A p - b) >= radius + margin."""
     expr = ca.dot(lam, ca.mtimes(BOX_NORMALS, p) - box_b(box))
     return (name, expr, radius + margin, ca.inf)
@@ -68,7 +72,9 @@ def frustum_rows(
     rows = []
     for k in range(A.shape[0]):
         n = A[k, :].T
-        rows.append(("visibility", b[k] - ca.dot(n, c) - ca.norm_2(ca.mtimes(M, n)), margin, ca.inf))
+        rows.append(
+            ("visibility", b[k] - ca.dot(n, c) - ca.norm_2(ca.mtimes(M, n)), margin, ca.inf)
+        )
     return rows
 
 

@@ -1,6 +1,7 @@
 """Initial guesses: a graph search on a voxel grid of the belief, then a feasible time scaling.
 
-The paper notes that poor (infeasible) guesses stop convergence; a collision-free path with clearance,
+The paper notes that poor (infeasible) guesses stop convergence; a collision-free path with
+clearance,
 flown at a moderate speed with a trapezoidal speed profile, is a good start for both planners.
 """
 
@@ -59,7 +60,9 @@ def _clearance_grid(
         if int(np.prod(shape)) <= MAX_GRID_CELLS:
             break
         res *= 1.25
-    axes = [np.linspace(lo[d], hi[d], shape[d]) if shape[d] > 1 else np.array([lo[d]]) for d in range(3)]
+    axes = [
+        np.linspace(lo[d], hi[d], shape[d]) if shape[d] > 1 else np.array([lo[d]]) for d in range(3)
+    ]
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     clearance = np.full(len(centres), np.inf)
     for d in range(3):
@@ -69,7 +72,9 @@ def _clearance_grid(
     n = len(problem.boxes_lo)
     for start in range(0, n, 256):
         sl = slice(start, start + 256)
-        clearance = np.minimum(clearance, min_box_distance(centres, problem.boxes_lo[sl], problem.boxes_hi[sl]))
+        clearance = np.minimum(
+            clearance, min_box_distance(centres, problem.boxes_lo[sl], problem.boxes_hi[sl])
+        )
     return centres, clearance.reshape(shape), res
 
 
@@ -163,7 +168,9 @@ def _shortcut(points: np.ndarray, is_free: object) -> np.ndarray:
     while i < n - 1:
         j = n - 1
         while j > i + 1:
-            seg = np.linspace(points[i], points[j], max(2, int(np.linalg.norm(points[j] - points[i]) / 0.05)))
+            seg = np.linspace(
+                points[i], points[j], max(2, int(np.linalg.norm(points[j] - points[i]) / 0.05))
+            )
             if np.all(is_free(seg[1:-1])) if len(seg) > 2 else True:
                 break
             j -= 1
@@ -196,7 +203,12 @@ def look_ahead_yaw(points: np.ndarray, arc: np.ndarray, distance: float, yaw0: f
 
 
 def secure_speed_caps(
-    problem: PlanningProblem, points: np.ndarray, tangents: np.ndarray, yaws: np.ndarray, v_cap: float, levels: int = 12
+    problem: PlanningProblem,
+    points: np.ndarray,
+    tangents: np.ndarray,
+    yaws: np.ndarray,
+    v_cap: float,
+    levels: int = 12,
 ) -> np.ndarray:
     """Largest speed at each path point whose reactive set is already observed: inside the start
     ball, or inside the frustum of an earlier path point with a clear line of sight (the paper's
@@ -208,7 +220,11 @@ def secure_speed_caps(
     n = len(points)
     speeds = np.linspace(0.0, v_cap, levels)
     X = np.stack(
-        [model.initial_state(points[i], speeds[g] * tangents[i], yaws[i]) for i in range(n) for g in range(levels)]
+        [
+            model.initial_state(points[i], speeds[g] * tangents[i], yaws[i])
+            for i in range(n)
+            for g in range(levels)
+        ]
     )
     cams = np.stack([model.initial_state(points[i], 0.0 * tangents[i], yaws[i]) for i in range(n)])
     from secure3d.planning.lookback import node_geometry
@@ -238,7 +254,9 @@ def secure_speed_caps(
     return speeds[np.maximum(first_bad - 1, 0)]
 
 
-def profile_guess(problem: PlanningProblem, path: np.ndarray, speed_fraction: float, secure: bool) -> Guess:
+def profile_guess(
+    problem: PlanningProblem, path: np.ndarray, speed_fraction: float, secure: bool
+) -> Guess:
     """Time-parametrise ``path``: speed caps (limit, yaw rate, and for the secure planner the
     visibility of the reactive set), then forward/backward acceleration passes; K nodes equally
     spaced in time."""
@@ -249,7 +267,9 @@ def profile_guess(problem: PlanningProblem, path: np.ndarray, speed_fraction: fl
     tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
     v_max = float(getattr(model.limits, "max_speed", 2.0))
     a_max = 0.6 * float(getattr(model.limits, "max_accel", 3.0))
-    yaw_rate = float(getattr(model.limits, "max_yaw_rate", getattr(model.limits, "max_ang_speed", 2.0)))
+    yaw_rate = float(
+        getattr(model.limits, "max_yaw_rate", getattr(model.limits, "max_ang_speed", 2.0))
+    )
     yaw0 = float(model.yaw(problem.x0))
     if model.name == "diff_drive":
         yaw = look_ahead_yaw(pts, arc, 0.0, yaw0)
@@ -282,7 +302,9 @@ def profile_guess(problem: PlanningProblem, path: np.ndarray, speed_fraction: fl
     return Guess(times=times, states=states, controls=controls, path=path)
 
 
-def centre_path(problem: PlanningProblem, path: np.ndarray, pad: float = 0.3, iterations: int = 40) -> np.ndarray:
+def centre_path(
+    problem: PlanningProblem, path: np.ndarray, pad: float = 0.3, iterations: int = 40
+) -> np.ndarray:
     """Push a grid path away from obstacles where its clearance is below body radius + ``pad``
     (an elastic band: clearance gradient plus Laplacian smoothing, end points fixed). A grid cell
     0.1 m off the axis of a 0.5 m slot is enough to make the reactive set hit its sides."""
@@ -313,12 +335,16 @@ def centre_path(problem: PlanningProblem, path: np.ndarray, pad: float = 0.3, it
         push = grad * np.minimum(deficit, 0.02)[:, None]
         smooth = 0.5 * (pts[:-2] + pts[2:]) - inner
         moved = inner + push + 0.3 * smooth * (deficit > 0)[:, None]
-        ok = clearance(moved) >= np.minimum(c0, r)  # never move a point closer to an obstacle than the body
+        ok = clearance(moved) >= np.minimum(
+            c0, r
+        )  # never move a point closer to an obstacle than the body
         pts[1:-1] = np.where(ok[:, None], moved, inner)
     return pts
 
 
-def initial_guess(problem: PlanningProblem, secure: bool = False, speed_fraction: float | None = None) -> Guess:
+def initial_guess(
+    problem: PlanningProblem, secure: bool = False, speed_fraction: float | None = None
+) -> Guess:
     """Graph search on the belief, centred in narrow places, then a time scaling (visibility-aware
     for the secure planner)."""
     path = centre_path(problem, graph_path(problem))
@@ -331,4 +357,11 @@ def clearance_field(problem: PlanningProblem) -> tuple[np.ndarray, np.ndarray, f
     return _clearance_grid(problem, problem.options.grid_resolution, _planar(problem))
 
 
-__all__ = ["Guess", "NoPathError", "clearance_field", "graph_path", "initial_guess", "profile_guess"]
+__all__ = [
+    "Guess",
+    "NoPathError",
+    "clearance_field",
+    "graph_path",
+    "initial_guess",
+    "profile_guess",
+]

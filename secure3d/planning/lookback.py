@@ -20,7 +20,8 @@ from secure3d.geometry.polytope import (
 )
 from secure3d.planning.problem import PlanningProblem
 
-#: Penalty (m) on a candidate camera whose line of sight to the reactive set crosses a known obstacle.
+# : Penalty (m) on a candidate camera whose line of sight to the reactive set crosses a known
+# obstacle.
 OCCLUSION_PENALTY = 5.0
 
 
@@ -74,7 +75,9 @@ def fixed_assignment(K: int, steps: int) -> tuple[int, ...]:
     return tuple(i - steps if i - steps >= 0 else -1 for i in range(K))
 
 
-def adaptive_assignment(problem: PlanningProblem, states: np.ndarray) -> tuple[tuple[int, ...], np.ndarray]:
+def adaptive_assignment(
+    problem: PlanningProblem, states: np.ndarray
+) -> tuple[tuple[int, ...], np.ndarray]:
     """Best earlier view of each node's reactive set on ``states``; returns (assignment, margins)."""
     geo = node_geometry(problem, states)
     K = len(states)
@@ -118,8 +121,9 @@ def refine_assignment(
     return tuple(out)
 
 
-def _hull_box_distances(problem: PlanningProblem, planner: str, states: np.ndarray,
-                        assignment: tuple[int, ...]) -> np.ndarray:
+def _hull_box_distances(
+    problem: PlanningProblem, planner: str, states: np.ndarray, assignment: tuple[int, ...]
+) -> np.ndarray:
     """(K, n_boxes) screening distance from what node k constrains to every known box: the body
     (baseline) or samples of the line-of-sight hull from camera j to E_k minus its largest
     semi-axis (secure)."""
@@ -143,8 +147,13 @@ def _hull_box_distances(problem: PlanningProblem, planner: str, states: np.ndarr
     return d.reshape(K, -1, n).min(axis=1) - reach[:, None]
 
 
-def _exact_distance(problem: PlanningProblem, geo: dict[str, np.ndarray], assignment: tuple[int, ...],
-                    k: int, b_idx: int) -> float:
+def _exact_distance(
+    problem: PlanningProblem,
+    geo: dict[str, np.ndarray],
+    assignment: tuple[int, ...],
+    k: int,
+    b_idx: int,
+) -> float:
     A, b = box_halfspaces(problem.boxes_lo[b_idx], problem.boxes_hi[b_idx])
     j = assignment[k]
     if problem.options.occlusion and j >= 0:
@@ -152,8 +161,13 @@ def _exact_distance(problem: PlanningProblem, geo: dict[str, np.ndarray], assign
     return float(ellipsoid_polytope_distance(geo["C"][k], geo["M"][k], A, b)[0])
 
 
-def _refine_distances(problem: PlanningProblem, states: np.ndarray, assignment: tuple[int, ...],
-                      screen: np.ndarray, keep: int) -> np.ndarray:
+def _refine_distances(
+    problem: PlanningProblem,
+    states: np.ndarray,
+    assignment: tuple[int, ...],
+    screen: np.ndarray,
+    keep: int,
+) -> np.ndarray:
     """Replace the screening distances of each node's ``keep`` nearest boxes by exact ones (the
     screening subtracts the largest semi-axis, which ranks boxes poorly beside long reactive sets)."""
     geo = node_geometry(problem, states)
@@ -165,8 +179,14 @@ def _refine_distances(problem: PlanningProblem, states: np.ndarray, assignment: 
     return out
 
 
-def slots_missing(problem: PlanningProblem, planner: str, states: np.ndarray,
-                  assignment: tuple[int, ...], slots: np.ndarray, slack: float = 0.05) -> bool:
+def slots_missing(
+    problem: PlanningProblem,
+    planner: str,
+    states: np.ndarray,
+    assignment: tuple[int, ...],
+    slots: np.ndarray,
+    slack: float = 0.05,
+) -> bool:
     """Whether some box left out of a node's slots comes within ``margin + slack`` of what that
     node constrains on ``states`` (then the slots must be re-selected and the NLP re-solved)."""
     if len(problem.boxes_lo) == 0:
@@ -181,7 +201,9 @@ def slots_missing(problem: PlanningProblem, planner: str, states: np.ndarray,
         return bool(len(flagged))
     # the screening bound is loose for elongated reactive sets: confirm with exact distances
     geo = node_geometry(problem, states)
-    return any(_exact_distance(problem, geo, assignment, int(k), int(b)) < limit for k, b in flagged)
+    return any(
+        _exact_distance(problem, geo, assignment, int(k), int(b)) < limit for k, b in flagged
+    )
 
 
 def select_slots(
@@ -217,8 +239,13 @@ def min_box_distance_all(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> 
     return np.linalg.norm(points[:, None, :] - q, axis=-1)
 
 
-def initial_duals(problem: PlanningProblem, planner: str, states: np.ndarray, slots: np.ndarray,
-                  assignment: tuple[int, ...]) -> np.ndarray:
+def initial_duals(
+    problem: PlanningProblem,
+    planner: str,
+    states: np.ndarray,
+    slots: np.ndarray,
+    assignment: tuple[int, ...],
+) -> np.ndarray:
     """(K, S, 6) dual vectors: the outward normal at the box point nearest to the constrained set,
     split into its positive face components (so |A^T lam| = 1 and lam.(A c - b) = distance)."""
     geo = node_geometry(problem, states)

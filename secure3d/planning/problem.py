@@ -30,7 +30,9 @@ def _check_positive(name: str, value: float, *, allow_zero: bool = False) -> Non
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ConfigError(f"planner option {name}: expected a finite number, got {value!r}")
     if value < 0 or (value == 0 and not allow_zero):
-        raise ConfigError(f"planner option {name}: must be {'>= 0' if allow_zero else '> 0'}, got {value!r}")
+        raise ConfigError(
+            f"planner option {name}: must be {'>= 0' if allow_zero else '> 0'}, got {value!r}"
+        )
 
 
 @dataclass(frozen=True)
@@ -41,7 +43,8 @@ class PlannerOptions:
     ----------
     nodes : collocation nodes K (the paper's K).
     collocation : ``"trapezoidal"`` (default) or ``"hermite_simpson"``.
-    lookback : ``"fixed"`` (the paper's constant Δi, eq. NLP) or ``"adaptive"`` (each node i is tied to
+    lookback : ``"fixed"`` (the paper's constant Δi, eq. NLP) or ``"adaptive"`` (each node i is
+    tied to
         the earlier node whose frustum contains its reactive set with the largest margin on the
         current iterate; re-solved until the assignment is stable: the relaxation the paper leaves
         open).
@@ -88,33 +91,53 @@ class PlannerOptions:
     verbose: bool = False
 
     def __post_init__(self) -> None:
-        if isinstance(self.nodes, bool) or not isinstance(self.nodes, int) or not 5 <= self.nodes <= 400:
-            raise ConfigError(f"planner option nodes: must be an integer in [5, 400], got {self.nodes!r}")
+        if (
+            isinstance(self.nodes, bool)
+            or not isinstance(self.nodes, int)
+            or not 5 <= self.nodes <= 400
+        ):
+            raise ConfigError(
+                f"planner option nodes: must be an integer in [5, 400], got {self.nodes!r}"
+            )
         if self.collocation not in ("trapezoidal", "hermite_simpson"):
             raise ConfigError(
                 f"planner option collocation: 'trapezoidal' or 'hermite_simpson', got {self.collocation!r}"
             )
         if self.lookback not in ("adaptive", "fixed"):
-            raise ConfigError(f"planner option lookback: 'adaptive' or 'fixed', got {self.lookback!r}")
+            raise ConfigError(
+                f"planner option lookback: 'adaptive' or 'fixed', got {self.lookback!r}"
+            )
         if not isinstance(self.lookback_steps, int) or not 1 <= self.lookback_steps < self.nodes:
             raise ConfigError(
                 f"planner option lookback_steps: must be an integer in [1, nodes), got {self.lookback_steps!r}"
             )
         if not isinstance(self.lookback_rounds, int) or self.lookback_rounds < 1:
-            raise ConfigError(f"planner option lookback_rounds: must be >= 1, got {self.lookback_rounds!r}")
+            raise ConfigError(
+                f"planner option lookback_rounds: must be >= 1, got {self.lookback_rounds!r}"
+            )
         if self.solver not in ("ipopt", "fatrop"):
             raise ConfigError(f"planner option solver: 'ipopt' or 'fatrop', got {self.solver!r}")
         _check_positive("margin", self.margin, allow_zero=True)
         if not isinstance(self.obstacle_slots, int) or not 1 <= self.obstacle_slots <= 64:
-            raise ConfigError(f"planner option obstacle_slots: integer in [1, 64], got {self.obstacle_slots!r}")
+            raise ConfigError(
+                f"planner option obstacle_slots: integer in [1, 64], got {self.obstacle_slots!r}"
+            )
         _check_positive("obstacle_radius", self.obstacle_radius)
         _check_positive("start_region_radius", self.start_region_radius, allow_zero=True)
         _check_positive("effort_weight", self.effort_weight, allow_zero=True)
         if not isinstance(self.max_iter, int) or self.max_iter < 1:
-            raise ConfigError(f"planner option max_iter: must be a positive integer, got {self.max_iter!r}")
+            raise ConfigError(
+                f"planner option max_iter: must be a positive integer, got {self.max_iter!r}"
+            )
         _check_positive("time_limit", self.time_limit)
-        if isinstance(self.close_gaps, bool) or not isinstance(self.close_gaps, int) or self.close_gaps < 0:
-            raise ConfigError(f"planner option close_gaps: must be an integer >= 0, got {self.close_gaps!r}")
+        if (
+            isinstance(self.close_gaps, bool)
+            or not isinstance(self.close_gaps, int)
+            or self.close_gaps < 0
+        ):
+            raise ConfigError(
+                f"planner option close_gaps: must be an integer >= 0, got {self.close_gaps!r}"
+            )
         _check_positive("grid_resolution", self.grid_resolution)
         if not 0 < self.guess_speed_fraction <= 1:
             raise ConfigError(
@@ -157,7 +180,16 @@ class PlanningProblem:
     name: str = ""
 
     def __post_init__(self) -> None:
-        for attr in ("x0", "goal", "bounds_lo", "bounds_hi", "boxes_lo", "boxes_hi", "start_region_lo", "start_region_hi"):
+        for attr in (
+            "x0",
+            "goal",
+            "bounds_lo",
+            "bounds_hi",
+            "boxes_lo",
+            "boxes_hi",
+            "start_region_lo",
+            "start_region_hi",
+        ):
             arr = np.array(getattr(self, attr), dtype=float)
             arr.flags.writeable = False
             object.__setattr__(self, attr, arr)
@@ -171,7 +203,9 @@ class PlanningProblem:
             object.__setattr__(self, "boxes_lo", np.zeros((0, 3)))
             object.__setattr__(self, "boxes_hi", np.zeros((0, 3)))
         if self.boxes_lo.shape != self.boxes_hi.shape or self.boxes_lo.ndim != 2:
-            raise ConfigError(f"boxes: lo/hi shapes differ or are not (n, 3): {self.boxes_lo.shape}")
+            raise ConfigError(
+                f"boxes: lo/hi shapes differ or are not (n, 3): {self.boxes_lo.shape}"
+            )
 
     @property
     def start_position(self) -> np.ndarray:
@@ -183,7 +217,9 @@ class PlanningProblem:
 
         updated = replace(self, options=replace(self.options, **changes))
         if "start_region_radius" in changes:
-            lo, hi = start_region(self.model, self.family, self.x0, updated.options.start_region_radius)
+            lo, hi = start_region(
+                self.model, self.family, self.x0, updated.options.start_region_radius
+            )
             updated = replace(updated, start_region_lo=lo, start_region_hi=hi)
         return updated
 
@@ -228,7 +264,8 @@ def problem_from_scenario(
     Parameters
     ----------
     scenario : the scenario (vehicle, camera, start, goal, planner settings).
-    belief : the robot's map; default: the server's claim only (:func:`secure3d.world.attacks.belief_map`).
+    belief : the robot's map; default: the server's claim only
+    (:func:`secure3d.world.attacks.belief_map`).
     x0 : start state; default: the scenario's start.
     **options : :class:`PlannerOptions` fields overriding the scenario's planner settings.
     """

@@ -1,7 +1,8 @@
 """What the planner returns: a status code plus a result record (never an exception for a solver
 failure), in the style of toppra.
 
-A :class:`PlanResult` carries the discretised trajectory of the NLP (the paper's eq. NLP), the camera
+A :class:`PlanResult` carries the discretised trajectory of the NLP (the paper's eq. NLP), the
+camera
 poses and reactive-set ellipsoids at every node (eq. ReactEllipse, E = {c + M z : |z| <= 1}), the
 look-back assignment of the visibility constraint, timings and, for failures, which constraint
 families are violated and by how much.
@@ -131,7 +132,11 @@ class PlanResult:
 
     def summary(self) -> str:
         """One readable line."""
-        cert = "" if self.certificate is None else ("certified" if self.certificate.ok else "NOT certified")
+        cert = (
+            ""
+            if self.certificate is None
+            else ("certified" if self.certificate.ok else "NOT certified")
+        )
         return (
             f"{self.planner:8s} {self.status.value:15s} T={self.final_time:6.2f}s"
             f" build={self.build_time * 1e3:7.1f}ms solve={self.solve_time * 1e3:8.1f}ms"

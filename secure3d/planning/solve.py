@@ -79,7 +79,9 @@ class _Solve:
 T_GUESS_FACTOR = 3.0
 
 
-def _variable_bounds(problem: PlanningProblem, nlp: TranscribedNLP, T_guess: float) -> tuple[np.ndarray, np.ndarray]:
+def _variable_bounds(
+    problem: PlanningProblem, nlp: TranscribedNLP, T_guess: float
+) -> tuple[np.ndarray, np.ndarray]:
     lay, model = nlp.layout, problem.model
     lbx = np.full(lay.n_w, -np.inf)
     ubx = np.full(lay.n_w, np.inf)
@@ -100,7 +102,9 @@ def _variable_bounds(problem: PlanningProblem, nlp: TranscribedNLP, T_guess: flo
 def _violations(nlp: TranscribedNLP, w: np.ndarray, p: np.ndarray) -> dict[str, float]:
     g = np.asarray(nlp.g_fun(w, p)).ravel()
     excess = np.maximum(np.maximum(nlp.lbg - g, g - nlp.ubg), 0.0)
-    return {name: float(excess[idx].max()) if len(idx) else 0.0 for name, idx in nlp.families.items()}
+    return {
+        name: float(excess[idx].max()) if len(idx) else 0.0 for name, idx in nlp.families.items()
+    }
 
 
 def _solve_once(
@@ -140,8 +144,21 @@ def _solve_once(
         sol = solver(**args)
     except RuntimeError as exc:  # CasADi raises on evaluation errors (NaN in a function, ...)
         return _Solve(
-            PlanStatus.SOLVER_ERROR, f"solver error: {exc}".splitlines()[0], T, X, U, L, w0,
-            np.zeros(lay.n_w), np.zeros(len(nlp.lbg)), nlp, assignment, slots, {}, time.perf_counter() - t0, 0,
+            PlanStatus.SOLVER_ERROR,
+            f"solver error: {exc}".splitlines()[0],
+            T,
+            X,
+            U,
+            L,
+            w0,
+            np.zeros(lay.n_w),
+            np.zeros(len(nlp.lbg)),
+            nlp,
+            assignment,
+            slots,
+            {},
+            time.perf_counter() - t0,
+            0,
             cached,
         )
     solve_time = time.perf_counter() - t0
@@ -151,7 +168,9 @@ def _solve_once(
     viol = _violations(nlp, w, p)
     worst = max(viol.values(), default=0.0)
     rs = str(stats.get("return_status", "unknown"))
-    status = _IPOPT_STATUS.get(rs, PlanStatus.SUCCESS if stats.get("success") else PlanStatus.SOLVER_ERROR)
+    status = _IPOPT_STATUS.get(
+        rs, PlanStatus.SUCCESS if stats.get("success") else PlanStatus.SOLVER_ERROR
+    )
     if nlp.solver_name == "fatrop":
         status, rs = fatrop_status(stats)
     if status is PlanStatus.SUCCESS and worst > FEASIBILITY_TOL:
@@ -195,20 +214,37 @@ def _precheck(problem: PlanningProblem) -> str | None:
     return None
 
 
-def _failed(problem: PlanningProblem, planner: str, status: PlanStatus, message: str, build: float = 0.0) -> PlanResult:
+def _failed(
+    problem: PlanningProblem, planner: str, status: PlanStatus, message: str, build: float = 0.0
+) -> PlanResult:
     model = problem.model
     z = np.zeros
     return PlanResult(
-        status=status, message=message, planner=planner, model_name=model.name,
-        times=z(0), states=z((0, model.nx)), controls=z((0, model.nu)),
-        camera_rotations=z((0, 3, 3)), camera_origins=z((0, 3)), ellipsoid_centers=z((0, 3)),
-        ellipsoid_shapes=z((0, 3, 3)), positions=z((0, 3)), speeds=z(0), lookback=z(0, int),
-        lookback_rule=problem.options.lookback, build_time=build, solve_time=0.0, iterations=0,
+        status=status,
+        message=message,
+        planner=planner,
+        model_name=model.name,
+        times=z(0),
+        states=z((0, model.nx)),
+        controls=z((0, model.nu)),
+        camera_rotations=z((0, 3, 3)),
+        camera_origins=z((0, 3)),
+        ellipsoid_centers=z((0, 3)),
+        ellipsoid_shapes=z((0, 3, 3)),
+        positions=z((0, 3)),
+        speeds=z(0),
+        lookback=z(0, int),
+        lookback_rule=problem.options.lookback,
+        build_time=build,
+        solve_time=0.0,
+        iterations=0,
         solver=problem.options.solver,
     )
 
 
-def _result(problem: PlanningProblem, planner: str, s: _Solve, build: float, solve: float, iters: int) -> PlanResult:
+def _result(
+    problem: PlanningProblem, planner: str, s: _Solve, build: float, solve: float, iters: int
+) -> PlanResult:
     model = problem.model
     K = problem.options.nodes
     times = np.linspace(0.0, s.T, K)
@@ -235,8 +271,18 @@ def _result(problem: PlanningProblem, planner: str, s: _Solve, build: float, sol
         iterations=iters,
         solver=problem.options.solver,
         violations={k: v for k, v in s.violations.items() if v > FEASIBILITY_TOL},
-        warm={"key": s.nlp.key, "w": s.w, "lam_x": s.lam_x, "lam_g": s.lam_g, "L": s.L,
-              "assignment": s.assignment, "slots": s.slots, "T": s.T, "X": s.X, "U": s.U},
+        warm={
+            "key": s.nlp.key,
+            "w": s.w,
+            "lam_x": s.lam_x,
+            "lam_g": s.lam_g,
+            "L": s.L,
+            "assignment": s.assignment,
+            "slots": s.slots,
+            "T": s.T,
+            "X": s.X,
+            "U": s.U,
+        },
     )
 
 
@@ -248,7 +294,11 @@ def _guess_from_warm(problem: PlanningProblem, warm: PlanResult, t_offset: float
 
 
 def _solve_rounds(
-    problem: PlanningProblem, planner: str, guess: Guess, warm: PlanResult | None, warm_time: float,
+    problem: PlanningProblem,
+    planner: str,
+    guess: Guess,
+    warm: PlanResult | None,
+    warm_time: float,
     cache: NLPCache,
 ) -> tuple[_Solve, float, float, int]:
     """Assign look-backs on the guess, solve, and (adaptive rule) re-assign and re-solve."""
@@ -282,8 +332,18 @@ def _solve_rounds(
     best: _Solve | None = None
     for _ in range(rounds):
         n_before = cache.misses
-        s = _solve_once(problem, planner, assignment, T, X, U, cache, L=L0, multipliers=multipliers,
-                        prev_slots=prev_slots)
+        s = _solve_once(
+            problem,
+            planner,
+            assignment,
+            T,
+            X,
+            U,
+            cache,
+            L=L0,
+            multipliers=multipliers,
+            prev_slots=prev_slots,
+        )
         if cache.misses > n_before:
             build += s.nlp.build_time
         solve_t += s.solve_time
@@ -293,8 +353,18 @@ def _solve_rounds(
             # have come closer. Re-select and re-solve warm until the selection is stable.
             if not s.status.ok or not lb.slots_missing(problem, planner, s.X, assignment, s.slots):
                 break
-            nxt = _solve_once(problem, planner, assignment, s.T, s.X, s.U, cache, L=s.L,
-                              multipliers=None, prev_slots=s.slots)
+            nxt = _solve_once(
+                problem,
+                planner,
+                assignment,
+                s.T,
+                s.X,
+                s.U,
+                cache,
+                L=s.L,
+                multipliers=None,
+                prev_slots=s.slots,
+            )
             solve_t += nxt.solve_time
             iters += nxt.iterations
             s = nxt
@@ -335,12 +405,21 @@ def plan_problem(
     reason = _precheck(problem)
     if reason is not None:
         return _failed(problem, planner, PlanStatus.INVALID_INPUT, reason)
-    if warm is not None and warm.ok and len(warm.times) == o.nodes and warm.model_name == problem.model.name:
+    if (
+        warm is not None
+        and warm.ok
+        and len(warm.times) == o.nodes
+        and warm.model_name == problem.model.name
+    ):
         guess = _guess_from_warm(problem, warm, warm_time)
     else:
         warm = None
         try:
-            guess = initial_guess(problem, secure=planner == "secure", speed_fraction=1.0 if planner == "baseline" else None)
+            guess = initial_guess(
+                problem,
+                secure=planner == "secure",
+                speed_fraction=1.0 if planner == "baseline" else None,
+            )
         except NoPathError as exc:
             return _failed(problem, planner, PlanStatus.INFEASIBLE, str(exc))
 
@@ -352,7 +431,7 @@ def plan_problem(
     s = None
     build = solve_t = 0.0
     iters = 0
-    for attempt, g in enumerate(attempts):
+    for g in attempts:
         if g is None:
             g = initial_guess(problem, secure=True, speed_fraction=0.5 * o.guess_speed_fraction)
         s, b_, t_, i_ = _solve_rounds(problem, planner, g, warm, warm_time, cache)

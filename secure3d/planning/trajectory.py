@@ -3,7 +3,8 @@
 Trapezoidal collocation implies a quadratic state between nodes, x(t_k + τ) = x_k + τ f_k +
 τ²/(2h) (f_{k+1} - f_k), with controls linear in time (Betts 2009, section 4.6.1); we use the same
 interpolant for Hermite-Simpson plans (a slightly looser but consistent reading). The certificate
-samples it densely between nodes (the paper's Prop. 1), the tracker follows it, replans start from it.
+samples it densely between nodes (the paper's Prop. 1), the tracker follows it, replans start from
+it.
 """
 
 from __future__ import annotations
@@ -17,7 +18,12 @@ def _derivatives(model: object, states: np.ndarray, controls: np.ndarray) -> np.
     f_batch = getattr(model, "f_batch", None)
     if f_batch is not None:
         return np.asarray(f_batch(states, controls), dtype=float)
-    return np.stack([np.asarray(model.f(x, u), dtype=float).ravel() for x, u in zip(states, controls, strict=True)])
+    return np.stack(
+        [
+            np.asarray(model.f(x, u), dtype=float).ravel()
+            for x, u in zip(states, controls, strict=True)
+        ]
+    )
 
 
 def interpolate(
@@ -35,7 +41,9 @@ def interpolate(
     states = np.asarray(states, dtype=float)
     controls = np.asarray(controls, dtype=float)
     if times.ndim != 1 or len(times) < 2 or np.any(np.diff(times) <= 0):
-        raise PlanningError(f"interpolate: node times must be increasing with >= 2 entries, got {times}")
+        raise PlanningError(
+            f"interpolate: node times must be increasing with >= 2 entries, got {times}"
+        )
     t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), times[0], times[-1])
     k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
     h = times[k + 1] - times[k]
@@ -51,7 +59,12 @@ def interpolate(
 
 
 def resample(
-    model: object, times: np.ndarray, states: np.ndarray, controls: np.ndarray, t_start: float, K: int
+    model: object,
+    times: np.ndarray,
+    states: np.ndarray,
+    controls: np.ndarray,
+    t_start: float,
+    K: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The remainder of a trajectory from ``t_start``, on K nodes equally spaced in time.
 

@@ -61,13 +61,15 @@ class SimResult:
 
     Attributes
     ----------
-    collided, collision_time, collision_obstacles : whether and when the body touched the true world.
+    collided, collision_time, collision_obstacles : whether and when the body touched the true
+    world.
     reached_goal, time_to_goal : arrival at rest within the goal tolerance.
     min_clearance : smallest body-to-world distance over the run (m).
     times (T,), states (T, nx), positions (T, 3), speeds (T,) : the realised motion.
     events : frames with detections, take-overs, replans, failures, in order.
     plans : (time, PlanResult) of every plan followed.
-    detection_time, detection_point : first frame that saw a hidden obstacle, and where the robot was.
+    detection_time, detection_point : first frame that saw a hidden obstacle, and where the robot
+    was.
     frames, takeovers, replans : counts. solve_times : wall time of every plan call (s).
     wall_time : the whole run's wall time (s); real_time_factor = simulated / wall time.
     """
@@ -121,7 +123,11 @@ class SimResult:
         solve = f"{1e3 * np.median(self.solve_times):.0f} ms median" if self.solve_times else "-"
         return (
             f"{self.scenario} / {self.planner}: {self.outcome.upper()}"
-            + (f" with {', '.join(self.collision_obstacles)} at t={self.collision_time:.2f} s" if self.collided else "")
+            + (
+                f" with {', '.join(self.collision_obstacles)} at t={self.collision_time:.2f} s"
+                if self.collided
+                else ""
+            )
             + f"\n  time to goal {goal}, min clearance {self.min_clearance:.3f} m, hidden obstacle seen {det}"
             + f"\n  frames {self.frames}, take-overs {self.takeovers}, replans {self.replans}, solves {solve}"
             + f"\n  simulated {self.sim_time:.2f} s in {self.wall_time:.2f} s wall ({self.real_time_factor:.1f}x real time)"
@@ -131,7 +137,9 @@ class SimResult:
 class _Loop:
     """State of one closed-loop run (kept out of SimResult so the result stays plain data)."""
 
-    def __init__(self, scenario: Scenario, planner: str, seed: int, options: dict, cache: object) -> None:
+    def __init__(
+        self, scenario: Scenario, planner: str, seed: int, options: dict, cache: object
+    ) -> None:
         from secure3d.planning.collocation import NLPCache
         from secure3d.planning.problem import problem_from_scenario
         from secure3d.reactive.controllers import BrakingController
@@ -147,7 +155,9 @@ class _Loop:
         try:
             mesh = world_trimesh(self.truth.boxes, self.truth.meshes, self.truth.voxel_boxes)
             self.camera = DepthCamera(scenario.camera, mesh, rng=np.random.default_rng(seed))
-            self.collision = CollisionWorld(self.truth.boxes, self.truth.meshes, self.truth.voxel_boxes)
+            self.collision = CollisionWorld(
+                self.truth.boxes, self.truth.meshes, self.truth.voxel_boxes
+            )
         except (ValueError, RuntimeError) as exc:
             raise SimulationError(f"{scenario.name}: cannot build the true world: {exc}") from exc
         self.belief = belief_map(scenario)
@@ -165,7 +175,9 @@ class _Loop:
         self.problem = dataclasses.replace(self.problem, boxes_lo=lo, boxes_hi=hi)
 
 
-def observed_cube(belief: object, centre: np.ndarray, half_max: float, half_min: float = 0.0) -> float:
+def observed_cube(
+    belief: object, centre: np.ndarray, half_max: float, half_min: float = 0.0
+) -> float:
     """Half-size of the largest cube around ``centre`` (up to ``half_max``) in which every voxel was
     seen by the camera or is a known obstacle: the start region of a replan in flight. Unknown and
     merely *claimed* free space never counts as observed (the server may lie)."""
@@ -176,14 +188,19 @@ def observed_cube(belief: object, centre: np.ndarray, half_max: float, half_min:
     half = half_max
     while half > half_min + 1e-9:
         ticks = np.arange(-half + 0.5 * res, half, res)
-        grid = np.stack(np.meshgrid(ticks, ticks, ticks, indexing="ij"), axis=-1).reshape(-1, 3) + centre
+        grid = (
+            np.stack(np.meshgrid(ticks, ticks, ticks, indexing="ij"), axis=-1).reshape(-1, 3)
+            + centre
+        )
         if np.isin(belief.trust(grid), allowed).all():
             return half
         half -= res
     return max(half_min, 0.0)
 
 
-def _path_clearance(loop: _Loop, plan: PlanResult, t_rel: float, lo: np.ndarray, hi: np.ndarray) -> float:
+def _path_clearance(
+    loop: _Loop, plan: PlanResult, t_rel: float, lo: np.ndarray, hi: np.ndarray
+) -> float:
     """Smallest distance from the rest of the planned body path to the boxes, minus the body radius."""
     from secure3d.planning.trajectory import interpolate
 
@@ -208,7 +225,8 @@ def _plan_unsafe(loop: _Loop, plan: PlanResult, plan_problem_: object, t_rel: fl
             loop.sampled = (plan, sample_plan(plan, judged))
         cert = certify(plan, judged, t_from=t_rel, sampled=loop.sampled[1])
         return None if cert.ok else str(cert.first_violation)
-    # The baseline only promises a collision-free path: react when the new evidence brings an obstacle
+    # The baseline only promises a collision-free path: react when the new evidence brings an
+    # obstacle
     # into the body's planned path.
     after = _path_clearance(loop, plan, t_rel, loop.problem.boxes_lo, loop.problem.boxes_hi)
     before = _path_clearance(loop, plan, t_rel, plan_problem_.boxes_lo, plan_problem_.boxes_hi)
@@ -241,7 +259,8 @@ def simulate(
     png : write the top-down figure of the run there (atomically).
     cache : an :class:`~secure3d.planning.collocation.NLPCache` shared across runs.
     max_replans : give up (robot holds still) after this many failed or successful replans.
-    frame_log_every, belief_log_every : decimation of camera frames and belief voxels in the recording.
+    frame_log_every, belief_log_every : decimation of camera frames and belief voxels in the
+    recording.
     **options : planner options (see :class:`~secure3d.planning.problem.PlannerOptions`).
     """
     from secure3d.planning.solve import plan_problem
@@ -267,8 +286,22 @@ def simulate(
 
         recorder = RerunRecorder(rrd, recording_id=recording_id(f"{scenario.name}-{planner}", seed))
     try:
-        result = _run(loop, recorder, dt, frame_period, r, goal, spec.time_limit, max_replans,
-                      frame_log_every, belief_log_every, seed, plan_problem, interpolate, wall0)
+        result = _run(
+            loop,
+            recorder,
+            dt,
+            frame_period,
+            r,
+            goal,
+            spec.time_limit,
+            max_replans,
+            frame_log_every,
+            belief_log_every,
+            seed,
+            plan_problem,
+            interpolate,
+            wall0,
+        )
     except BaseException:
         if recorder is not None:
             recorder.abort()
@@ -287,7 +320,9 @@ def simulate(
             hidden_names=scenario.hidden_obstacles,
             plans=[p for _, p in result.plans[:1]],
             realised_paths={planner: result.positions},
-            detection_points=[result.detection_point] if result.detection_point is not None else None,
+            detection_points=[result.detection_point]
+            if result.detection_point is not None
+            else None,
             start=np.asarray(scenario.start.position),
             goal=goal,
             collision_points=[result.positions[-1]] if result.collided else (),
@@ -296,8 +331,22 @@ def simulate(
     return dataclasses.replace(result, outputs=outputs)
 
 
-def _run(loop, rec, dt, frame_period, r, goal, time_limit, max_replans, frame_log_every,
-         belief_log_every, seed, plan_problem, interpolate, wall0) -> SimResult:
+def _run(
+    loop,
+    rec,
+    dt,
+    frame_period,
+    r,
+    goal,
+    time_limit,
+    max_replans,
+    frame_log_every,
+    belief_log_every,
+    seed,
+    plan_problem,
+    interpolate,
+    wall0,
+) -> SimResult:
     scenario, model = loop.scenario, loop.model
     events: list[SimEvent] = []
     plans: list[tuple[float, PlanResult]] = []
@@ -324,10 +373,16 @@ def _run(loop, rec, dt, frame_period, r, goal, time_limit, max_replans, frame_lo
         # boundary then marks the voxel in front of it (which its claim covers) instead of flipping
         # between the two voxels with float rounding and carving the claim into fragments.
         loop.belief.insert_depth_image(
-            frame.depth - SURFACE_BIAS, (cam.fx, cam.fy, cam.cx, cam.cy), R, o, scenario.camera.max_range
+            frame.depth - SURFACE_BIAS,
+            (cam.fx, cam.fy, cam.cx, cam.cy),
+            R,
+            o,
+            scenario.camera.max_range,
         )
         if rec is not None and frame_no % frame_log_every == 0:
-            rec.log_camera(t, R, o, cam.fx, cam.fy, scenario.camera.width, scenario.camera.height, frame.depth)
+            rec.log_camera(
+                t, R, o, cam.fx, cam.fy, scenario.camera.width, scenario.camera.height, frame.depth
+            )
         if rec is not None and frame_no % belief_log_every == 0:
             occ = loop.belief.known_obstacle_voxels()
             if len(occ):
@@ -337,11 +392,15 @@ def _run(loop, rec, dt, frame_period, r, goal, time_limit, max_replans, frame_lo
     def make_plan(t: float, x: np.ndarray) -> PlanResult | None:
         loop.refresh_obstacles()
         if t == 0.0:
-            problem = loop.problem  # the paper's premise: the start region was observed before take-off
+            problem = (
+                loop.problem
+            )  # the paper's premise: the start region was observed before take-off
         else:
             # In flight only what the camera has actually seen counts as observed around the robot.
             p = np.asarray(model.position(x), dtype=float).ravel()
-            problem = loop.problem.with_start(x, half_size=observed_cube(loop.belief, p, loop.problem.options.start_region_radius))
+            problem = loop.problem.with_start(
+                x, half_size=observed_cube(loop.belief, p, loop.problem.options.start_region_radius)
+            )
         loop.start_problem = problem
         t0 = time.perf_counter()
         result = plan_problem(problem, loop.planner, cache=loop.cache)
@@ -361,9 +420,12 @@ def _run(loop, rec, dt, frame_period, r, goal, time_limit, max_replans, frame_lo
 
         claim = server_claim(scenario)
         rec.log_world(
-            true_boxes=loop.truth.boxes, true_meshes=loop.truth.meshes,
-            claimed_boxes=claim.boxes, claimed_meshes=claim.meshes,
-            hidden_names=tuple(loop.hidden), bounds=scenario.world.bounds,
+            true_boxes=loop.truth.boxes,
+            true_meshes=loop.truth.meshes,
+            claimed_boxes=claim.boxes,
+            claimed_meshes=claim.meshes,
+            hidden_names=tuple(loop.hidden),
+            bounds=scenario.world.bounds,
         )
 
     x = np.asarray(loop.problem.x0, dtype=float)
@@ -407,8 +469,9 @@ def _run(loop, rec, dt, frame_period, r, goal, time_limit, max_replans, frame_lo
                     event(t, "take-over", why, "WARN")
         # ---- act -----------------------------------------------------------------------------
         if mode == "follow":
-            x_ref, u_ref = interpolate(model, current.times, current.states, current.controls,
-                                       np.array([t - plan_start]))
+            x_ref, u_ref = interpolate(
+                model, current.times, current.states, current.controls, np.array([t - plan_start])
+            )
             u = loop.tracker.control(x, x_ref[0], u_ref[0])
         elif mode == "brake":
             u = loop.brake.control(x)
@@ -453,11 +516,26 @@ def _run(loop, rec, dt, frame_period, r, goal, time_limit, max_replans, frame_lo
     positions = np.asarray(model.position(states), dtype=float)
     speeds = np.linalg.norm(np.asarray(model.velocity(states), dtype=float), axis=1)
     return SimResult(
-        scenario=scenario.name, planner=loop.planner, seed=seed, collided=collided,
-        collision_time=collision_time, collision_obstacles=tuple(collision_names), reached_goal=reached,
-        time_to_goal=time_to_goal, min_clearance=min_clear, times=np.array(T_log), states=states,
-        positions=positions, speeds=speeds, events=tuple(events), plans=tuple(plans),
-        detection_time=detection_time, detection_point=detection_point, frames=frame_no + 1,
-        takeovers=takeovers, replans=replans, solve_times=tuple(solve_times),
+        scenario=scenario.name,
+        planner=loop.planner,
+        seed=seed,
+        collided=collided,
+        collision_time=collision_time,
+        collision_obstacles=tuple(collision_names),
+        reached_goal=reached,
+        time_to_goal=time_to_goal,
+        min_clearance=min_clear,
+        times=np.array(T_log),
+        states=states,
+        positions=positions,
+        speeds=speeds,
+        events=tuple(events),
+        plans=tuple(plans),
+        detection_time=detection_time,
+        detection_point=detection_point,
+        frames=frame_no + 1,
+        takeovers=takeovers,
+        replans=replans,
+        solve_times=tuple(solve_times),
         wall_time=time.perf_counter() - wall0,
     )

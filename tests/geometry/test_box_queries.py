@@ -24,23 +24,36 @@ def boxes(rng):
 
 def test_min_box_distance_matches_the_numpy_matrix(rng, boxes):
     pts = rng.uniform(-3, 3, (500, 3))
-    np.testing.assert_allclose(min_box_distance(pts, *boxes), box_signed_distance(pts, *boxes).min(axis=1),
-                               atol=1e-12, err_msg="compiled min distance vs numpy signed distances")
+    np.testing.assert_allclose(
+        min_box_distance(pts, *boxes),
+        box_signed_distance(pts, *boxes).min(axis=1),
+        atol=1e-12,
+        err_msg="compiled min distance vs numpy signed distances",
+    )
 
 
 def test_segments_blocked_is_any_of_the_matrix(rng, boxes):
     p0, p1 = rng.uniform(-3, 3, (400, 3)), rng.uniform(-3, 3, (400, 3))
-    np.testing.assert_array_equal(segments_blocked(p0, p1, *boxes), segment_box_intersects(p0, p1, *boxes).any(axis=1))
+    np.testing.assert_array_equal(
+        segments_blocked(p0, p1, *boxes), segment_box_intersects(p0, p1, *boxes).any(axis=1)
+    )
 
 
 def _cone_hits_by_sampling(apex, centre, lo, hi, radius, rng, n=60_000):
     # points of conv({apex} ∪ B(centre, radius)) = apex + t (q - apex), q in the ball
     d = rng.normal(size=(n, 3))
-    q = centre + radius * d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(0, 1, (n, 1)) ** (1 / 3)
+    q = centre + radius * d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(
+        0, 1, (n, 1)
+    ) ** (1 / 3)
     t = rng.uniform(0, 1, (n, 1))
     y = apex + t * (q - apex)
-    return bool(np.any(np.all((y >= lo) & (y <= hi), axis=-1)[:, None] if lo.ndim == 1 else
-                       np.all((y[:, None] >= lo) & (y[:, None] <= hi), axis=-1)))
+    return bool(
+        np.any(
+            np.all((y >= lo) & (y <= hi), axis=-1)[:, None]
+            if lo.ndim == 1
+            else np.all((y[:, None] >= lo) & (y[:, None] <= hi), axis=-1)
+        )
+    )
 
 
 def test_cones_blocked_agrees_with_sampling_away_from_tangency(rng):
@@ -69,11 +82,15 @@ def test_cones_blocked_agrees_with_sampling_away_from_tangency(rng):
 
 
 def test_cone_through_a_gap_is_clear_only_if_its_width_fits():
-    lo = np.array([[1.0, -2.0, -2.0], [1.0, 0.3, -2.0]])  # a wall at x in [1, 1.2] with a slot |y| < 0.3
+    lo = np.array(
+        [[1.0, -2.0, -2.0], [1.0, 0.3, -2.0]]
+    )  # a wall at x in [1, 1.2] with a slot |y| < 0.3
     hi = np.array([[1.2, -0.3, 2.0], [1.2, 2.0, 2.0]])
     apex, centre = np.array([[0.0, 0.0, 0.0]]), np.array([[2.0, 0.0, 0.0]])
     assert not cones_blocked(apex, centre, lo, hi, 0.2)[0]
-    assert cones_blocked(apex, centre, lo, hi, 0.7)[0], "at x = 1 the cone is 0.35 wide: it hits the slot sides"
+    assert cones_blocked(apex, centre, lo, hi, 0.7)[0], (
+        "at x = 1 the cone is 0.35 wide: it hits the slot sides"
+    )
 
 
 def test_range_frustum_facets_stay_inside_the_range_sphere(rng):

@@ -33,7 +33,9 @@ def plans(corner_problem):
 def test_both_planners_succeed_and_reach_the_goal(plans, corner):
     for name, result in plans.items():
         assert result.status is PlanStatus.SUCCESS, f"{name}: {result.message}"
-        np.testing.assert_allclose(result.positions[-1], corner.goal.position, atol=1e-4, err_msg=name)
+        np.testing.assert_allclose(
+            result.positions[-1], corner.goal.position, atol=1e-4, err_msg=name
+        )
         np.testing.assert_allclose(result.speeds[-1], 0.0, atol=1e-4, err_msg=name)
         np.testing.assert_allclose(result.states[0], result.states[0], err_msg=name)
 
@@ -42,7 +44,9 @@ def test_secure_plan_is_certified_and_baseline_is_not(plans, corner_problem):
     secure = plans["secure"]
     assert secure.certificate is not None and secure.certificate.ok, str(secure.certificate)
     baseline_cert = certify(plans["baseline"], corner_problem)
-    assert not baseline_cert.ok, "the baseline cuts the blind corner: its reactive sets are not observed"
+    assert not baseline_cert.ok, (
+        "the baseline cuts the blind corner: its reactive sets are not observed"
+    )
     assert baseline_cert.first_violation is not None
     assert 0.0 < baseline_cert.first_violation.time < plans["baseline"].final_time
 
@@ -55,7 +59,9 @@ def test_security_costs_time_but_not_much(plans):
 def test_dynamics_and_limits_hold_at_the_nodes(plans, corner_problem):
     model = corner_problem.model
     for name, r in plans.items():
-        assert np.all(r.controls >= model.u_lo - 1e-6) and np.all(r.controls <= model.u_hi + 1e-6), name
+        assert np.all(r.controls >= model.u_lo - 1e-6) and np.all(
+            r.controls <= model.u_hi + 1e-6
+        ), name
         assert np.all(r.speeds <= model.limits.max_speed + 1e-3), name
         # trapezoidal defects recomputed from the returned arrays, not from the NLP
         h = np.diff(r.times)
@@ -72,7 +78,9 @@ def test_certificate_catches_a_plan_made_with_a_wider_camera(corner_problem):
     r = plan_problem(optimistic, "secure", cache=NLPCache())
     assert r.status is PlanStatus.SUCCESS, r.message
     cert = certify(r, corner_problem)
-    assert not cert.ok, "a plan relying on a field of view the camera does not have must not certify"
+    assert not cert.ok, (
+        "a plan relying on a field of view the camera does not have must not certify"
+    )
     assert cert.min_visibility_margin < 0 <= cert.min_obstacle_margin
 
 
@@ -88,8 +96,9 @@ def test_certificate_sees_occlusion_by_a_wall_the_plan_ignored(plans, corner_pro
 
 
 def test_certificate_catches_a_sped_up_plan(plans, corner_problem):
-    fast = dataclasses.replace(plans["secure"], times=plans["secure"].times * 0.6,
-                               states=plans["secure"].states.copy())
+    fast = dataclasses.replace(
+        plans["secure"], times=plans["secure"].times * 0.6, states=plans["secure"].states.copy()
+    )
     fast.states[:, 3:6] /= 0.6  # same path, flown faster: reactive sets grow out of view
     fast.controls[:] = fast.controls / 0.36
     cert = certify(fast, corner_problem)
@@ -97,7 +106,9 @@ def test_certificate_catches_a_sped_up_plan(plans, corner_problem):
 
 
 def test_fixed_lookback_also_certifies(corner_problem):
-    r = plan_problem(corner_problem.with_options(lookback="fixed", lookback_steps=4), "secure", cache=NLPCache())
+    r = plan_problem(
+        corner_problem.with_options(lookback="fixed", lookback_steps=4), "secure", cache=NLPCache()
+    )
     assert r.ok, r.message
     assert r.lookback_rule == "fixed"
     K = corner_problem.options.nodes
@@ -121,7 +132,9 @@ def test_start_inside_an_obstacle_is_invalid_input(corner):
         dataclasses.replace(corner, start=StartSpec(position=(3.0, 3.0, 1.25)))
     # built past the scenario's checks (e.g. a replan from a state inside a newly seen obstacle)
     problem = problem_from_scenario(corner, reactive_family="closed_form")
-    inside = problem.with_start(problem.model.initial_state(np.array([3.0, 3.0, 1.25]), np.zeros(3), 0.0))
+    inside = problem.with_start(
+        problem.model.initial_state(np.array([3.0, 3.0, 1.25]), np.zeros(3), 0.0)
+    )
     r = plan_problem(inside, "secure")
     assert r.status is PlanStatus.INVALID_INPUT
     assert "start" in r.message and "inside a known obstacle" in r.message
