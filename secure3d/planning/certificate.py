@@ -1,13 +1,11 @@
 """The independent safety certificate: does a plan satisfy the paper's definition of *safe*?
 
-A planned path is safe (paper, Definition before Theorem "Safety") if every reactive set S_r(x(t))
-was
+A planned path is safe (paper, Definition before Theorem "Safety") if every reactive set S_r(x(t)) was
 observed before t (eq. FullConstraint: S_r(x(t)) ⊂ ∪_{τ<t} S_s(x(τ))) and never meets a known
 obstacle. The NLP enforces a tightened, ellipsoidal version of this at the nodes; this module checks
 the real thing, with none of the NLP's constraint code:
 
-- time is sampled densely, between collocation nodes too (the paper's Prop. 1 is about exactly
-this);
+- time is sampled densely, between collocation nodes too (the paper's Prop. 1 is about exactly this);
 - the reactive manoeuvre is *simulated* from every sampled state with the actual controller (not the
   fitted ellipsoid), and every manoeuvre point, grown by the body radius, is checked;
 - "observed" means: inside the start box, or inside the camera's field of view at an earlier sampled

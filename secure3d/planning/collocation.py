@@ -305,8 +305,7 @@ def build_nlp(
     def cols(M_: object, idx: list[int]) -> object:
         return M_[:, idx]
 
-    # ---- objective: minimum time (+ a small normalised effort term)
-    # -------------------------------
+    # ---- objective: minimum time (+ a small normalised effort term) -------------------------------
     u_mid = 0.5 * (model.u_lo + model.u_hi)
     u_scale = np.maximum(0.5 * (model.u_hi - model.u_lo), 1e-6)
     J = T + o.effort_weight * h * ca.sumsqr((U - ca.repmat(u_mid, 1, K)) / ca.repmat(u_scale, 1, K))
@@ -321,8 +320,7 @@ def build_nlp(
     if kern.path_rows:
         add(kern.path.map(K - 1)(X[:, 1:], U[:, 1:]), kern.path_rows, K - 1)
 
-    # ---- boundary conditions: x(0) fixed through variable bounds; at rest at the goal
-    # -------------
+    # ---- boundary conditions: x(0) fixed through variable bounds; at rest at the goal -------------
     x_end = X[:, K - 1]
     pos_end, vel_end = model.position(x_end), model.velocity(x_end)
     for d in range(3):

@@ -3,15 +3,13 @@
 Each builder returns a list of ``(name, expression, lower, upper)`` rows so that the transcription
 (:mod:`secure3d.planning.collocation`) can report violations per family. The numbers they encode
 come from the geometry kernels (:mod:`secure3d.geometry`), whose numpy twins are tested against
-independent methods; the certificate (:mod:`secure3d.planning.certificate`) shares none of this
-code.
+independent methods; the certificate (:mod:`secure3d.planning.certificate`) shares none of this code.
 
 Obstacles are axis-aligned boxes P = {y : A y <= b} with A = [I; -I], b = [hi; -lo]; each box in a
 node's slot carries a dual vector lam >= 0 with |A^T lam| <= 1 (DESIGN.md section 4):
 
 - body or reactive set E = {c + M z}: ``lam.(A c - b) - |M A^T lam| >= m``  (dist(E, P) >= m);
-- line-of-sight hull conv({o} u E) (occlusion, beyond the paper): in addition ``lam.(A o - b) >=
-m``.
+- line-of-sight hull conv({o} u E) (occlusion, beyond the paper): in addition ``lam.(A o - b) >= m``.
 """
 
 from __future__ import annotations

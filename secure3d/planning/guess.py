@@ -1,7 +1,6 @@
 """Initial guesses: a graph search on a voxel grid of the belief, then a feasible time scaling.
 
-The paper notes that poor (infeasible) guesses stop convergence; a collision-free path with
-clearance,
+The paper notes that poor (infeasible) guesses stop convergence; a collision-free path with clearance,
 flown at a moderate speed with a trapezoidal speed profile, is a good start for both planners.
 """
 

@@ -20,8 +20,7 @@ from secure3d.geometry.polytope import (
 )
 from secure3d.planning.problem import PlanningProblem
 
-# : Penalty (m) on a candidate camera whose line of sight to the reactive set crosses a known
-# obstacle.
+#: Penalty (m) on a candidate camera whose line of sight to the reactive set crosses a known obstacle.
 OCCLUSION_PENALTY = 5.0
 
 

@@ -43,8 +43,7 @@ class PlannerOptions:
     ----------
     nodes : collocation nodes K (the paper's K).
     collocation : ``"trapezoidal"`` (default) or ``"hermite_simpson"``.
-    lookback : ``"fixed"`` (the paper's constant Δi, eq. NLP) or ``"adaptive"`` (each node i is
-    tied to
+    lookback : ``"fixed"`` (the paper's constant Δi, eq. NLP) or ``"adaptive"`` (each node i is tied to
         the earlier node whose frustum contains its reactive set with the largest margin on the
         current iterate; re-solved until the assignment is stable: the relaxation the paper leaves
         open).
@@ -264,8 +263,7 @@ def problem_from_scenario(
     Parameters
     ----------
     scenario : the scenario (vehicle, camera, start, goal, planner settings).
-    belief : the robot's map; default: the server's claim only
-    (:func:`secure3d.world.attacks.belief_map`).
+    belief : the robot's map; default: the server's claim only (:func:`secure3d.world.attacks.belief_map`).
     x0 : start state; default: the scenario's start.
     **options : :class:`PlannerOptions` fields overriding the scenario's planner settings.
     """

@@ -1,8 +1,7 @@
 """What the planner returns: a status code plus a result record (never an exception for a solver
 failure), in the style of toppra.
 
-A :class:`PlanResult` carries the discretised trajectory of the NLP (the paper's eq. NLP), the
-camera
+A :class:`PlanResult` carries the discretised trajectory of the NLP (the paper's eq. NLP), the camera
 poses and reactive-set ellipsoids at every node (eq. ReactEllipse, E = {c + M z : |z| <= 1}), the
 look-back assignment of the visibility constraint, timings and, for failures, which constraint
 families are violated and by how much.

@@ -3,8 +3,7 @@
 Trapezoidal collocation implies a quadratic state between nodes, x(t_k + τ) = x_k + τ f_k +
 τ²/(2h) (f_{k+1} - f_k), with controls linear in time (Betts 2009, section 4.6.1); we use the same
 interpolant for Hermite-Simpson plans (a slightly looser but consistent reading). The certificate
-samples it densely between nodes (the paper's Prop. 1), the tracker follows it, replans start from
-it.
+samples it densely between nodes (the paper's Prop. 1), the tracker follows it, replans start from it.
 """
 
 from __future__ import annotations

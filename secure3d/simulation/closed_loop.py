@@ -61,15 +61,13 @@ class SimResult:
 
     Attributes
     ----------
-    collided, collision_time, collision_obstacles : whether and when the body touched the true
-    world.
+    collided, collision_time, collision_obstacles : whether and when the body touched the true world.
     reached_goal, time_to_goal : arrival at rest within the goal tolerance.
     min_clearance : smallest body-to-world distance over the run (m).
     times (T,), states (T, nx), positions (T, 3), speeds (T,) : the realised motion.
     events : frames with detections, take-overs, replans, failures, in order.
     plans : (time, PlanResult) of every plan followed.
-    detection_time, detection_point : first frame that saw a hidden obstacle, and where the robot
-    was.
+    detection_time, detection_point : first frame that saw a hidden obstacle, and where the robot was.
     frames, takeovers, replans : counts. solve_times : wall time of every plan call (s).
     wall_time : the whole run's wall time (s); real_time_factor = simulated / wall time.
     """
@@ -225,8 +223,7 @@ def _plan_unsafe(loop: _Loop, plan: PlanResult, plan_problem_: object, t_rel: fl
             loop.sampled = (plan, sample_plan(plan, judged))
         cert = certify(plan, judged, t_from=t_rel, sampled=loop.sampled[1])
         return None if cert.ok else str(cert.first_violation)
-    # The baseline only promises a collision-free path: react when the new evidence brings an
-    # obstacle
+    # The baseline only promises a collision-free path: react when the new evidence brings an obstacle
     # into the body's planned path.
     after = _path_clearance(loop, plan, t_rel, loop.problem.boxes_lo, loop.problem.boxes_hi)
     before = _path_clearance(loop, plan, t_rel, plan_problem_.boxes_lo, plan_problem_.boxes_hi)
@@ -259,8 +256,7 @@ def simulate(
     png : write the top-down figure of the run there (atomically).
     cache : an :class:`~secure3d.planning.collocation.NLPCache` shared across runs.
     max_replans : give up (robot holds still) after this many failed or successful replans.
-    frame_log_every, belief_log_every : decimation of camera frames and belief voxels in the
-    recording.
+    frame_log_every, belief_log_every : decimation of camera frames and belief voxels in the recording.
     **options : planner options (see :class:`~secure3d.planning.problem.PlannerOptions`).
     """
     from secure3d.planning.solve import plan_problem
