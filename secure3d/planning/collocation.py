@@ -129,15 +129,6 @@ def parameter_vector(problem: PlanningProblem, slot_boxes: np.ndarray) -> np.nda
 
 def _solver_options(problem: PlanningProblem) -> tuple[str, dict]:
     o = problem.options
-    if o.solver == "fatrop":
-        opts = {
-            "print_time": False,
-            "fatrop.print_level": 5 if o.verbose else 0,
-            "fatrop.max_iter": o.max_iter,
-            "structure_detection": "auto",
-            "expand": True,
-        }
-        return "fatrop", opts
     opts = {
         "print_time": False,
         "ipopt.print_level": 5 if o.verbose else 0,
@@ -379,9 +370,6 @@ def build_nlp(
 
     nlp = {"x": w, "p": p, "f": J, "g": g_all}
     solver_name, opts = _solver_options(problem)
-    if solver_name == "fatrop":
-        opts = dict(opts)
-        opts["equality"] = [bool(lo == hi) for lo, hi in zip(lbg, ubg, strict=True)]
     solver = ca.nlpsol(f"secure3d_{planner}", solver_name, nlp, opts)
     g_fun = ca.Function("g", [w, p], [g_all])
     key = nlp_key(problem, planner, assignment)
