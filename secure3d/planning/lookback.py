@@ -74,28 +74,31 @@ def fixed_assignment(K: int, steps: int) -> tuple[int, ...]:
     return tuple(i - steps if i - steps >= 0 else -1 for i in range(K))
 
 
+def best_views(
+    problem: PlanningProblem, states: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each node's best earlier view on ``states``: (best j per node, -1 = start region; its margin;
+    the margin of every (node, view) pair, start region in the last column)."""
+    geo = node_geometry(problem, states)
+    fm = frustum_margins(problem, geo)
+    if problem.options.occlusion:
+        fm = fm - OCCLUSION_PENALTY * occluded(problem, geo)
+    K = len(states)
+    fm = np.where(np.arange(K)[None, :] < np.arange(K)[:, None], fm, -np.inf)  # earlier views only
+    table = np.concatenate([fm, start_margins(problem, geo)[:, None]], axis=1)
+    col = np.argmax(table[:, ::-1], axis=1)  # ties go to the start region
+    best_col = K - col
+    best_j = np.where(best_col == K, -1, best_col)
+    return best_j, table[np.arange(K), best_col], table
+
+
 def adaptive_assignment(
     problem: PlanningProblem, states: np.ndarray
 ) -> tuple[tuple[int, ...], np.ndarray]:
     """Best earlier view of each node's reactive set on ``states``; returns (assignment, margins)."""
-    geo = node_geometry(problem, states)
-    K = len(states)
-    fm = frustum_margins(problem, geo)
-    if problem.options.occlusion:
-        fm = fm - OCCLUSION_PENALTY * occluded(problem, geo)
-    sm = start_margins(problem, geo)
-    assignment = [-1]
-    best = [float(sm[0])]
-    for i in range(1, K):
-        cand = fm[i, :i]
-        j = int(np.argmax(cand))
-        if sm[i] >= cand[j]:
-            assignment.append(-1)
-            best.append(float(sm[i]))
-        else:
-            assignment.append(j)
-            best.append(float(cand[j]))
-    return tuple(assignment), np.array(best)
+    best_j, best, _ = best_views(problem, states)
+    best_j[0] = -1
+    return tuple(int(j) for j in best_j), best
 
 
 def refine_assignment(
@@ -104,19 +107,16 @@ def refine_assignment(
     """Adaptive rule between solves: move node i to a better earlier view only where that view
     already holds on ``states`` with the required margin and beats the current one by ``min_gain``
     (so the previous solution stays feasible and warm-starts the next solve)."""
-    geo = node_geometry(problem, states)
-    fm = frustum_margins(problem, geo)
-    if problem.options.occlusion:
-        fm = fm - OCCLUSION_PENALTY * occluded(problem, geo)
-    sm = start_margins(problem, geo)
+    best_j, best, table = best_views(problem, states)
     out = list(current)
     for i in range(1, len(states)):
-        cur = sm[i] if current[i] < 0 else fm[i, current[i]]
-        cand = fm[i, :i]
-        j = int(np.argmax(cand))
-        best, best_j = (sm[i], -1) if sm[i] >= cand[j] else (cand[j], j)
-        if best_j != current[i] and best >= problem.options.margin and best >= cur + min_gain:
-            out[i] = best_j
+        cur = table[i, current[i]]  # column -1 is the start region
+        if (
+            best_j[i] != current[i]
+            and best[i] >= problem.options.margin
+            and best[i] >= cur + min_gain
+        ):
+            out[i] = int(best_j[i])
     return tuple(out)
 
 

@@ -200,6 +200,7 @@ def _path_clearance(
     loop: _Loop, plan: PlanResult, t_rel: float, lo: np.ndarray, hi: np.ndarray
 ) -> float:
     """Smallest distance from the rest of the planned body path to the boxes, minus the body radius."""
+    from secure3d.geometry.polytope import min_box_distance
     from secure3d.planning.trajectory import interpolate
 
     t = np.arange(t_rel, plan.final_time, 0.02)
@@ -207,8 +208,8 @@ def _path_clearance(
         return float("inf")
     X, _ = interpolate(loop.model, plan.times, plan.states, plan.controls, t)
     P = np.asarray(loop.model.position(X), dtype=float)
-    q = np.clip(P[:, None, :], lo[None], hi[None])
-    return float(np.linalg.norm(P[:, None, :] - q, axis=-1).min() - loop.model.body_radius)
+    # 0 inside a box, as the body is then simply in contact
+    return float(np.maximum(min_box_distance(P, lo, hi), 0.0).min() - loop.model.body_radius)
 
 
 def _plan_unsafe(loop: _Loop, plan: PlanResult, plan_problem_: object, t_rel: float) -> str | None:
