@@ -181,6 +181,13 @@ def observed_cube(
     merely *claimed* free space never counts as observed (the server may lie)."""
     from secure3d.mapping.occupancy import Trust
 
+    centre = np.asarray(centre, dtype=float)
+    if centre.shape != (3,) or not np.all(np.isfinite(centre)):
+        raise SimulationError(f"observed_cube: centre must be 3 finite numbers, got {centre!r}")
+    if not (np.isfinite(half_max) and 0 <= half_min <= half_max):
+        raise SimulationError(
+            f"observed_cube: need 0 <= half_min <= half_max, got {half_min!r}, {half_max!r}"
+        )
     res = belief.resolution
     allowed = np.array([Trust.SENSED_FREE, Trust.SENSED_OCCUPIED, Trust.CLAIMED_OCCUPIED])
     half = half_max

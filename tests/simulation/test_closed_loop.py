@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import secure3d
+from secure3d.errors import SimulationError
 from secure3d.mapping import OccupancyMap
 from secure3d.simulation.closed_loop import observed_cube, simulate
 
@@ -21,6 +22,10 @@ def test_only_what_the_camera_saw_counts_as_observed_around_the_robot():
     assert observed_cube(m, np.array([2.9, 0.0, 0.0]), 1.0) < 0.5, (
         "the cube may not reach unseen space"
     )
+    with pytest.raises(SimulationError, match="centre"):
+        observed_cube(m, np.array([np.nan, 0.0, 0.0]), 1.0)
+    with pytest.raises(SimulationError, match="half_max"):
+        observed_cube(m, np.zeros(3), -1.0)
 
 
 @pytest.mark.slow
