@@ -77,8 +77,10 @@ def _view_margins(
     """(n_points, n_cams) signed margin of a ball of ``radius`` at each point inside each camera's
     field of view, computed in the camera frame from the FOV angles (independent of the NLP's
     half-space code). Positive: the whole ball is inside."""
-    rel = points[:, None, :] - o[None, :, :]
-    pc = np.einsum("cji,pcj->pci", R, rel)  # camera-frame coordinates (x right, y down, z forward)
+    # camera-frame coordinates (x right, y down, z forward): R_c^T (p - o_c), as one matrix product
+    Rt = np.ascontiguousarray(np.transpose(R, (0, 2, 1)))  # (n_cams, 3, 3)
+    pc = (points @ Rt.reshape(-1, 3).T).reshape(len(points), len(R), 3)
+    pc -= np.einsum("cij,cj->ci", Rt, o)[None]
     x, y, z = pc[..., 0], pc[..., 1], pc[..., 2]
     ah, av = 0.5 * frustum.hfov, 0.5 * frustum.vfov
     side_h = z * np.sin(ah) - np.abs(x) * np.cos(ah)

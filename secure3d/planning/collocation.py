@@ -2,10 +2,12 @@
 
 Decision variables, stage by stage: the final time T, states x_k and controls u_k at K nodes
 (Hermite-Simpson adds midpoint controls), and one dual vector lam in R^6 per (node, obstacle slot).
-h = T / (K - 1). Obstacles enter as *parameters* (a fixed number of box slots per node), so one
-compiled NLP serves every replan with the same shape; only the look-back assignment (which earlier
-node's frustum must contain node i's reactive set) changes the structure, and compiled NLPs are
-cached per assignment.
+h = T / (K - 1). Obstacles enter as *parameters* (a fixed number of box slots per node), and so
+does the look-back assignment (which earlier node's frustum must contain node i's reactive set): a
+selection matrix ties each node's *viewing state* y_i to the earlier node x_j it is assigned to
+(y_i = sum_j S_ij x_j, S a parameter), and row bounds switch each node between the frustum rows and
+the start-region rows. One compiled NLP therefore serves every replan and every assignment of a
+problem shape (the stage-wise fatrop transcription still builds one per assignment).
 
 Sections, top to bottom as in CasADi's race_car example: variables, objective, dynamics, path
 constraints, boundary conditions, obstacle and visibility constraints, solver.
@@ -41,17 +43,21 @@ class NLPLayout:
     nu: int
     slots: int
     hermite: bool
+    viewing: bool = False
+    #: state coordinates the camera pose depends on (the viewing states hold only these)
+    view_dims: tuple[int, ...] = ()
     i_T: int = 0
     i_X: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     i_U: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     i_Um: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     i_L: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    i_Y: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), int))
     n_w: int = 0
 
     def __post_init__(self) -> None:
         K, nx, nu, S = self.K, self.nx, self.nu, self.slots
-        # Block order [T, X, U, Um, Lam], each block column-major by node, so that CasADi can view
-        # every block as one matrix (one graph node) and map the node kernels over its columns.
+        # Block order [T, X, U, Um, Lam, Y], each block column-major by node, so that CasADi can
+        # view every block as one matrix (one graph node) and map the node kernels over its columns.
         n = 1
         self.i_X = (n + np.arange(K * nx)).reshape(K, nx)
         n += K * nx
@@ -62,6 +68,9 @@ class NLPLayout:
         n += n_m * nu
         self.i_L = (n + np.arange(K * S * 6)).reshape(K, S, 6)
         n += K * S * 6
+        n_y, n_d = (K, len(self.view_dims)) if self.viewing else (0, 0)
+        self.i_Y = (n + np.arange(n_y * n_d)).reshape(n_y, n_d)
+        n += n_y * n_d
         self.n_w = n
 
     def unpack(self, w: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
@@ -69,7 +78,13 @@ class NLPLayout:
         return float(w[self.i_T]), w[self.i_X], w[self.i_U], w[self.i_L]
 
     def pack(
-        self, T: float, X: np.ndarray, U: np.ndarray, L: np.ndarray, Um: np.ndarray | None = None
+        self,
+        T: float,
+        X: np.ndarray,
+        U: np.ndarray,
+        L: np.ndarray,
+        Um: np.ndarray | None = None,
+        assignment: tuple[int, ...] | None = None,
     ) -> np.ndarray:
         w = np.zeros(self.n_w)
         w[self.i_T] = T
@@ -78,7 +93,24 @@ class NLPLayout:
         w[self.i_L] = L
         if self.hermite:
             w[self.i_Um] = 0.5 * (U[:-1] + U[1:]) if Um is None else Um
+        if self.viewing and assignment is not None:
+            w[self.i_Y] = viewing_states(X, assignment)[:, list(self.view_dims)]
         return w
+
+
+def selection_matrix(assignment: tuple[int, ...]) -> np.ndarray:
+    """(K, K) one-hot rows: S[i, j] = 1 where node i is seen from node j (zero row: start region)."""
+    K = len(assignment)
+    S = np.zeros((K, K))
+    for i, j in enumerate(assignment):
+        if j >= 0:
+            S[i, j] = 1.0
+    return S
+
+
+def viewing_states(X: np.ndarray, assignment: tuple[int, ...]) -> np.ndarray:
+    """(K, nx) state of the node each node is seen from (zeros for the start region)."""
+    return selection_matrix(assignment) @ np.asarray(X, dtype=float)
 
 
 @dataclass
@@ -94,10 +126,37 @@ class TranscribedNLP:
     families: dict[str, np.ndarray]
     n_p: int
     build_time: float
+    #: rows that only hold for nodes seen from an earlier node / only for start-region nodes, and
+    #: the node of every row (-1: not node-specific); used by :meth:`bounds_for`.
+    view_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    start_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    row_node: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     warm_solver: ca.Function | None = None
     nlp: dict | None = None
     solver_name: str = "ipopt"
     solver_options: dict = field(default_factory=dict)
+
+    def bounds_for(self, assignment: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """Row bounds (lbg, ubg) for a look-back assignment: a node's frustum and occlusion rows are
+        switched off (lower bound -inf) where it lies in the start region, its start-region rows
+        where it is seen from an earlier node."""
+        if not len(self.row_node):
+            return self.lbg, self.ubg
+        is_view = np.asarray(assignment, dtype=int) >= 0
+        node_view = np.where(self.row_node >= 0, is_view[np.maximum(self.row_node, 0)], False)
+        node_start = (self.row_node >= 0) & ~node_view
+        lbg = self.lbg.copy()
+        lbg[(self.view_rows & node_start) | (self.start_rows & node_view)] = -np.inf
+        return lbg, self.ubg
+
+    def parameters(
+        self, problem: PlanningProblem, slot_boxes: np.ndarray, assignment
+    ) -> np.ndarray:
+        """The NLP's parameter vector (see :func:`parameter_vector`)."""
+        base = parameter_vector(problem, slot_boxes)
+        if not getattr(self.layout, "viewing", False):
+            return base
+        return np.concatenate([base, selection_matrix(assignment).ravel(order="F")])
 
     def get_warm_solver(self) -> ca.Function:
         """Same NLP, solver options tuned for a warm start from a primal-dual guess."""
@@ -266,8 +325,10 @@ def build_nlp(
     model, o = problem.model, problem.options
     K, nx, nu, S = o.nodes, model.nx, model.nu, o.obstacle_slots
     hermite = o.collocation == "hermite_simpson"
-    lay = NLPLayout(K=K, nx=nx, nu=nu, slots=S, hermite=hermite)
     secure = planner == "secure"
+    lay = NLPLayout(
+        K=K, nx=nx, nu=nu, slots=S, hermite=hermite, viewing=secure, view_dims=camera_dims(model)
+    )
     kern = kernels if kernels is not None else node_kernels(problem)
 
     # ---- decision variables and parameters ----------------------------------------------------
@@ -281,20 +342,27 @@ def build_nlp(
         else SYM.zeros(nu, K - 1)
     )
     Lam = ca.reshape(w[int(lay.i_L[0, 0, 0]) : int(lay.i_L[-1, -1, -1]) + 1], 6 * S, K)
-    n_p = 9 + K * S * 6
+    n_boxes = K * S * 6
+    n_p = 9 + n_boxes + (K * K if secure else 0)
     p = SYM.sym("p", n_p)
     start_lo, start_hi, goal = p[0:3], p[3:6], p[6:9]
-    Boxes = ca.reshape(p[9:], 6 * S, K)  # column k = [lo; hi] of each slot at node k
+    Boxes = ca.reshape(p[9 : 9 + n_boxes], 6 * S, K)  # column k = [lo; hi] of each slot at node k
     h = T / (K - 1)
     exprs: list = []
     meta: list[tuple[str, float, float]] = []
+    row_node: list[int] = []
 
-    def add(out: object, rows: list[tuple[str, float, float]], n_cols: int) -> None:
+    def add(
+        out: object,
+        rows: list[tuple[str, float, float]],
+        n_cols: int,
+        nodes: list[int] | None = None,
+    ) -> None:
         exprs.append(ca.vec(out))
         meta.extend(rows * n_cols)
-
-    def cols(M_: object, idx: list[int]) -> object:
-        return M_[:, idx]
+        row_node.extend(
+            np.repeat(nodes, len(rows)) if nodes is not None else [-1] * (len(rows) * n_cols)
+        )
 
     # ---- objective: minimum time (+ a small normalised effort term) -------------------------------
     u_mid = 0.5 * (model.u_lo + model.u_hi)
@@ -333,40 +401,40 @@ def build_nlp(
             K - 1,
         )
     else:
-        view = [k for k in nodes if assignment[k] >= 0]
-        start = [k for k in nodes if assignment[k] < 0]
-        if view:
-            Xi, Xj = cols(X, view), cols(X, [assignment[k] for k in view])
-            add(
-                kern.vis.map(len(view))(Xi, Xj),
-                [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
-                len(view),
-            )
-            add(
-                kern.obs_view.map(len(view))(Xi, Xj, cols(Boxes, view), cols(Lam, view)),
-                kern.obs_view_rows,
-                len(view),
-            )
-        if start:
-            Xs = cols(X, start)
-            add(
-                kern.start.map(len(start))(
-                    Xs, ca.repmat(start_lo, 1, len(start)), ca.repmat(start_hi, 1, len(start))
-                ),
-                [("start_region", o.margin, ca.inf)] * 6,
-                len(start),
-            )
-            add(
-                kern.obs_start.map(len(start))(Xs, cols(Boxes, start), cols(Lam, start)),
-                kern.obs_start_rows,
-                len(start),
-            )
+        # Viewing states: y_i = sum_j S_ij x_j over earlier nodes j (S a one-hot parameter row, or
+        # zero for a node in the start region). Linear coupling rows keep the nonlinear frustum
+        # rows local to (x_i, y_i), so the Hessian stays block-sparse for every assignment.
+        dims = list(lay.view_dims)
+        Yv = ca.reshape(w[int(lay.i_Y[0, 0]) : int(lay.i_Y[-1, -1]) + 1], len(dims), K)
+        Sel = ca.reshape(p[9 + n_boxes :], K, K)
+        link = ca.horzcat(*[Yv[:, i] - ca.mtimes(X[dims, :i], Sel[i, :i].T) for i in nodes])
+        add(link, [("viewing_state", 0.0, 0.0)] * len(dims), len(nodes), nodes)
+        # the full viewing state, zero in the coordinates the camera pose does not depend on
+        Y = SYM.zeros(nx, K)
+        for r_, d in enumerate(dims):
+            Y[d, :] = Yv[r_, :]
+        Xi, Yi, Bi, Li = X[:, 1:], Y[:, 1:], Boxes[:, 1:], Lam[:, 1:]
+        add(
+            kern.vis.map(K - 1)(Xi, Yi),
+            [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
+            K - 1,
+            nodes,
+        )
+        add(
+            kern.start.map(K - 1)(Xi, ca.repmat(start_lo, 1, K - 1), ca.repmat(start_hi, 1, K - 1)),
+            [("start_region", o.margin, ca.inf)] * 6,
+            K - 1,
+            nodes,
+        )
+        # [dual, clear, occlusion] per slot; occlusion rows are switched off for start nodes
+        add(kern.obs_view.map(K - 1)(Xi, Yi, Bi, Li), kern.obs_view_rows, K - 1, nodes)
 
     names = [m_[0] for m_ in meta]
     g_all = ca.vertcat(*exprs)
     lbg = np.array([m_[1] for m_ in meta])
     ubg = np.array([m_[2] for m_ in meta])
     families = {n: np.flatnonzero(np.array(names) == n) for n in dict.fromkeys(names)}
+    names_a = np.array(names)
 
     nlp = {"x": w, "p": p, "f": J, "g": g_all}
     solver_name, opts = _solver_options(problem)
@@ -386,7 +454,18 @@ def build_nlp(
         nlp=nlp,
         solver_name=solver_name,
         solver_options=opts,
+        view_rows=np.isin(names_a, ["visibility", "occlusion"]),
+        start_rows=names_a == "start_region",
+        row_node=np.array(row_node, dtype=int),
     )
+
+
+def camera_dims(model: object) -> tuple[int, ...]:
+    """State coordinates the camera pose (rotation and origin) depends on."""
+    x = ca.SX.sym("x", model.nx)
+    R, o = model.camera_pose(x)
+    pose = ca.vertcat(ca.vec(R), o)
+    return tuple(d for d in range(model.nx) if ca.depends_on(pose, x[d]))
 
 
 def model_terminal_rows(model: object, x_end: ca.SX) -> list[ca.SX]:
@@ -442,7 +521,8 @@ def nlp_key(problem: PlanningProblem, planner: str, assignment: tuple[int, ...])
         o.verbose,
         tuple(problem.bounds_lo),
         tuple(problem.bounds_hi),
-        tuple(assignment) if planner == "secure" else (),
+        # only the stage-wise fatrop transcription depends on the assignment's structure
+        tuple(assignment) if planner == "secure" and o.solver == "fatrop" else (),
     )
 
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from secure3d.errors import ConfigError
 from secure3d.planning import lookback as lb
-from secure3d.planning.collocation import T_MAX, T_MIN, NLPCache, TranscribedNLP, parameter_vector
+from secure3d.planning.collocation import T_MAX, T_MIN, NLPCache, TranscribedNLP
 from secure3d.planning.fatrop_transcription import fatrop_status
 from secure3d.planning.guess import Guess, NoPathError, initial_guess
 from secure3d.planning.problem import PlanningProblem, problem_from_scenario
@@ -96,12 +96,16 @@ def _variable_bounds(
         lbx[lay.i_Um] = np.broadcast_to(model.u_lo, lay.i_Um.shape)
         ubx[lay.i_Um] = np.broadcast_to(model.u_hi, lay.i_Um.shape)
     lbx[lay.i_L] = 0.0
+    if getattr(lay, "viewing", False):
+        lbx[lay.i_Y[0]] = ubx[lay.i_Y[0]] = 0.0  # node 0 is never judged: no viewing state
     return lbx, ubx
 
 
-def _violations(nlp: TranscribedNLP, w: np.ndarray, p: np.ndarray) -> dict[str, float]:
+def _violations(
+    nlp: TranscribedNLP, w: np.ndarray, p: np.ndarray, lbg: np.ndarray, ubg: np.ndarray
+) -> dict[str, float]:
     g = np.asarray(nlp.g_fun(w, p)).ravel()
-    excess = np.maximum(np.maximum(nlp.lbg - g, g - nlp.ubg), 0.0)
+    excess = np.maximum(np.maximum(lbg - g, g - ubg), 0.0)
     return {
         name: float(excess[idx].max()) if len(idx) else 0.0 for name, idx in nlp.families.items()
     }
@@ -131,10 +135,14 @@ def _solve_once(
     else:  # keep the previous duals only for slots that still hold the same box
         same = np.all(np.isclose(prev_slots, slots), axis=-1)
         L = np.where(same[..., None], L, fresh)
-    w0 = lay.pack(float(np.clip(T, T_MIN, T_MAX)), X, U, L)
-    p = parameter_vector(problem, slots)
+    if getattr(lay, "viewing", False):
+        w0 = lay.pack(float(np.clip(T, T_MIN, T_MAX)), X, U, L, assignment=assignment)
+    else:
+        w0 = lay.pack(float(np.clip(T, T_MIN, T_MAX)), X, U, L)
+    p = nlp.parameters(problem, slots, assignment)
     lbx, ubx = _variable_bounds(problem, nlp, T)
-    args = {"x0": w0, "p": p, "lbx": lbx, "ubx": ubx, "lbg": nlp.lbg, "ubg": nlp.ubg}
+    lbg, ubg = nlp.bounds_for(assignment)
+    args = {"x0": w0, "p": p, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
     solver = nlp.solver
     if multipliers is not None and multipliers[0] == nlp.key:
         args["lam_x0"], args["lam_g0"] = multipliers[1], multipliers[2]
@@ -165,7 +173,7 @@ def _solve_once(
     stats = solver.stats()
     w = np.asarray(sol["x"]).ravel()
     Ts, Xs, Us, Ls = lay.unpack(w)
-    viol = _violations(nlp, w, p)
+    viol = _violations(nlp, w, p, lbg, ubg)
     worst = max(viol.values(), default=0.0)
     rs = str(stats.get("return_status", "unknown"))
     status = _IPOPT_STATUS.get(

@@ -30,9 +30,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.result import PlanResult
     from secure3d.world.spec import Scenario
 
-#: Pixels of a frame that must land in voxels the robot did not know as obstacles before the frame
-#: for it to count as revealing something new (a few, against depth noise).
-NEW_EVIDENCE_PIXELS = 3
 #: Hits are inserted this far (m) in front of the surface they were measured on.
 SURFACE_BIAS = 1e-4
 #: The robot counts as stopped below this speed (m/s) before it replans.
@@ -167,10 +164,48 @@ class _Loop:
         self.hidden = set(scenario.hidden_obstacles)
         self.start_problem = self.problem
         self.sampled: tuple | None = None  # (plan, SampledPlan) of the plan being re-certified
+        # obstacle boxes the plan being followed was last planned or certified against
+        self.judged_lo: np.ndarray | None = None
+        self.judged_hi: np.ndarray | None = None
 
     def refresh_obstacles(self) -> None:
         lo, hi = self.belief.known_obstacle_boxes(close_gaps=self.problem.options.close_gaps)
         self.problem = dataclasses.replace(self.problem, boxes_lo=lo, boxes_hi=hi)
+
+    def judged_against_current(self) -> None:
+        """The plan being followed is now known safe against the current obstacle boxes."""
+        self.judged_lo, self.judged_hi = self.problem.boxes_lo, self.problem.boxes_hi
+
+
+def _new_obstacle_voxels(loop: _Loop, frame: object) -> int:
+    """Known obstacle voxels hit by ``frame`` (already inserted) that the boxes the current plan was
+    last judged against do not cover.
+
+    Only a hit can make a voxel a known obstacle (misses only ever free voxels, which shrinks the
+    obstacle set and so cannot break a plan: fewer obstacles never block a view or a manoeuvre). So
+    if every known obstacle voxel this frame hit is covered, the obstacle set is still inside the
+    judged boxes and the plan stays certified; otherwise the frame revealed something new. Voxels
+    that merely flicker (hit, then carved by grazing rays) are not news unless they end up occupied.
+    """
+    if loop.judged_lo is None:
+        return 0
+    valid = np.isfinite(frame.depth)
+    if not valid.any():
+        return 0
+    rays = frame.rays_optical()[valid]
+    depth = frame.depth[valid].astype(float) - SURFACE_BIAS  # where the hits were inserted
+    pts = (rays * depth[:, None]) @ frame.rotation.T + frame.origin
+    res = loop.belief.resolution
+    cells = np.floor(pts / res).astype(np.int64) + (1 << 20)  # one voxel per hit, 21 bits per axis
+    codes = np.unique((cells[:, 0] << 42) | (cells[:, 1] << 21) | cells[:, 2])
+    cells = np.stack([codes >> 42, (codes >> 21) & 0x1FFFFF, codes & 0x1FFFFF], axis=1)
+    centres = (cells - (1 << 20) + 0.5) * res
+    centres = centres[loop.belief.is_known_obstacle(centres)]
+    if not len(centres):
+        return 0
+    from secure3d.geometry.polytope import min_box_distance
+
+    return int((min_box_distance(centres, loop.judged_lo, loop.judged_hi) >= 0.0).sum())
 
 
 def observed_cube(
@@ -366,12 +401,6 @@ def _run(
         R, o = model.camera_pose(x)
         R, o = np.asarray(R, float), np.asarray(o, float).ravel()
         frame = loop.camera.render(R, o)
-        pts = frame.points_world()
-        new = False
-        if len(pts):
-            # strict: a hit in any voxel that was not a known obstacle is news (a tolerance here
-            # once let a surface whose voxels flicker between free and occupied go unnoticed)
-            new = int((~loop.belief.is_known_obstacle(pts)).sum()) >= NEW_EVIDENCE_PIXELS
         cam = loop.camera
         # Insert hits a hair (0.1 mm) in front of the surface: a wall lying exactly on a voxel
         # boundary then marks the voxel in front of it (which its claim covers) instead of flipping
@@ -383,6 +412,7 @@ def _run(
             o,
             scenario.camera.max_range,
         )
+        new = _new_obstacle_voxels(loop, frame) > 0
         if rec is not None and frame_no % frame_log_every == 0:
             rec.log_camera(
                 t, R, o, cam.fx, cam.fy, scenario.camera.width, scenario.camera.height, frame.depth
@@ -438,6 +468,8 @@ def _run(
     sense(t, x, frame_no)
     next_frame = frame_period
     current = make_plan(0.0, x)
+    if current is not None:
+        loop.judged_against_current()
     plan_start = 0.0
     plan_problem_snapshot = loop.problem
     mode = "follow" if current is not None else "hold"
@@ -467,7 +499,9 @@ def _run(
             if new and mode == "follow" and current is not None:
                 loop.refresh_obstacles()
                 why = _plan_unsafe(loop, current, plan_problem_snapshot, t - plan_start)
-                if why is not None:
+                if why is None:
+                    loop.judged_against_current()
+                else:
                     mode = "brake"
                     takeovers += 1
                     event(t, "take-over", why, "WARN")
@@ -492,6 +526,7 @@ def _run(
                 if new_plan is not None:
                     current, plan_start, mode = new_plan, t, "follow"
                     plan_problem_snapshot = loop.start_problem
+                    loop.judged_against_current()
         # ---- integrate and check against the truth ---------------------------------------------
         p_prev = np.asarray(model.position(x), float).ravel()
         x = np.asarray(model.step(x, u, dt), dtype=float)

@@ -116,6 +116,36 @@ def test_fixed_lookback_also_certifies(corner_problem):
     assert r.lookback.tolist() == expected
 
 
+def test_one_compiled_nlp_serves_every_lookback_assignment(corner_problem):
+    """The assignment is a parameter (selection matrix plus row bounds), not structure: the fixed
+    and the adaptive rule share one build, and each plan satisfies its own assignment."""
+    cache = NLPCache()
+    fixed = plan_problem(
+        corner_problem.with_options(lookback="fixed", lookback_steps=5), "secure", cache=cache
+    )
+    adaptive = plan_problem(corner_problem, "secure", cache=cache)
+    assert fixed.ok and adaptive.ok, (fixed.message, adaptive.message)
+    assert fixed.lookback.tolist() != adaptive.lookback.tolist()
+    assert cache.misses == 1 and len(cache) == 1
+    for r in (fixed, adaptive):
+        assert certify(r, corner_problem).ok
+        view = r.lookback >= 0
+        # the frustum rows of each node used the camera of the node it was assigned to
+        nlp = next(iter(cache._items.values()))[0]
+        lbg, _ = nlp.bounds_for(tuple(r.lookback))
+        rows_view = nlp.view_rows & (nlp.row_node >= 0)
+        on = np.isfinite(lbg) & rows_view
+        assert set(np.unique(nlp.row_node[on])) == set(np.flatnonzero(view)) - {0}
+        rows_start = nlp.start_rows & np.isfinite(lbg)
+        assert set(np.unique(nlp.row_node[rows_start])) == set(np.flatnonzero(~view)) - {0}
+
+
+def test_camera_pose_depends_on_position_and_yaw_of_a_point_mass(corner_problem):
+    from secure3d.planning.collocation import camera_dims
+
+    assert camera_dims(corner_problem.model) == (0, 1, 2, 6)
+
+
 def test_warm_replan_reuses_the_compiled_nlp_and_is_faster(corner_problem, plans):
     cache = NLPCache()
     cold = plan_problem(corner_problem, "secure", cache=cache)

@@ -44,3 +44,41 @@ def test_blind_corner_secure_flight_sees_the_crate_and_arrives_without_collision
     assert not list(tmp_path.glob("*.part"))
     # every plan the secure robot followed was certified when it was made
     assert all(p.certificate is not None and p.certificate.ok for _, p in run.plans)
+
+
+def test_a_frame_is_news_only_if_it_finds_obstacle_voxels_outside_the_judged_boxes(maps_dir):
+    """The re-certification trigger: the hidden crate is news, claimed walls are not."""
+    from types import SimpleNamespace
+
+    from secure3d.planning.problem import problem_from_scenario
+    from secure3d.simulation.camera import DepthCamera
+    from secure3d.simulation.closed_loop import SURFACE_BIAS, _new_obstacle_voxels
+    from secure3d.simulation.scene import world_trimesh
+    from secure3d.world.attacks import belief_map, true_obstacles
+
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    truth = true_obstacles(scenario)
+    camera = DepthCamera(
+        scenario.camera, world_trimesh(truth.boxes, truth.meshes, truth.voxel_boxes)
+    )
+    model = problem_from_scenario(scenario).model
+
+    def news(position, yaw):
+        belief = belief_map(scenario)
+        lo, hi = belief.known_obstacle_boxes(close_gaps=1)
+        R, o = (np.asarray(a, float) for a in model.camera_pose(np.r_[position, 0, 0, 0, yaw]))
+        frame = camera.render(R, o.ravel())
+        belief.insert_depth_image(
+            frame.depth - SURFACE_BIAS,
+            (camera.fx, camera.fy, camera.cx, camera.cy),
+            R,
+            o.ravel(),
+            scenario.camera.max_range,
+        )
+        loop = SimpleNamespace(belief=belief, judged_lo=lo, judged_hi=hi)
+        return _new_obstacle_voxels(loop, frame), frame.hit_names()
+
+    n, seen = news([1.0, 1.25, 1.25], 0.0)  # down the first leg: claimed walls only
+    assert "crate" not in seen and n == 0
+    n, seen = news([6.5, 1.25, 1.25], np.pi / 2)  # facing the crate the server hid
+    assert "crate" in seen and n > 20
