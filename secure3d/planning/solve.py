@@ -42,6 +42,15 @@ SLOT_REFRESHES = 3
 #: Largest constraint violation accepted from a solver that reports success.
 FEASIBILITY_TOL = 1e-4
 
+#: A secure solution the certificate rejects (it samples between the nodes and rolls out the real
+#: manoeuvres; the NLP sees ellipsoids at the nodes) is re-solved warm with every clearance and
+#: visibility row tightened by this much more (m), up to this many times.
+CERTIFY_TIGHTENING = (0.03, 0.08)
+
+#: Row families whose lower bound is a safety margin, tightened by the retries above (not the start
+#: region: it is often only just large enough for the first reactive sets).
+MARGIN_FAMILIES = ("visibility", "obstacle", "occlusion")
+
 _IPOPT_STATUS = {
     "Solve_Succeeded": PlanStatus.SUCCESS,
     "Solved_To_Acceptable_Level": PlanStatus.SUCCESS,
@@ -122,6 +131,7 @@ def _solve_once(
     L: np.ndarray | None = None,
     multipliers: tuple[tuple, np.ndarray, np.ndarray] | None = None,
     prev_slots: np.ndarray | None = None,
+    extra_margin: float = 0.0,
 ) -> _Solve:
     nlp, cached = cache.get(problem, planner, assignment)
     lay = nlp.layout
@@ -142,6 +152,11 @@ def _solve_once(
     p = nlp.parameters(problem, slots, assignment)
     lbx, ubx = _variable_bounds(problem, nlp, T)
     lbg, ubg = nlp.bounds_for(assignment)
+    if extra_margin:
+        lbg = lbg.copy()
+        for name in MARGIN_FAMILIES:
+            idx = nlp.families.get(name, np.zeros(0, int))
+            lbg[idx] += extra_margin  # -inf rows (switched off) stay off
     args = {"x0": w0, "p": p, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
     solver = nlp.solver
     if multipliers is not None and multipliers[0] == nlp.key:
@@ -448,13 +463,37 @@ def plan_problem(
             break
     result = _result(problem, planner, s, build, solve_t, iters)
     if result.ok and planner == "secure" and o.certify:
+        from dataclasses import replace
+
         from secure3d.planning.certificate import certify
 
         cert = certify(result, problem)
+        for extra in CERTIFY_TIGHTENING:
+            if cert.ok:
+                break
+            # Tighten and re-solve warm from the rejected solution: never loosen anything.
+            t_ = _solve_once(
+                problem,
+                planner,
+                s.assignment,
+                s.T,
+                s.X,
+                s.U,
+                cache,
+                L=s.L,
+                multipliers=(s.nlp.key, s.lam_x, s.lam_g),
+                prev_slots=s.slots,
+                extra_margin=extra,
+            )
+            solve_t, iters = solve_t + t_.solve_time, iters + t_.iterations
+            if not t_.status.ok:
+                break
+            s = t_
+            result = _result(problem, planner, s, build, solve_t, iters)
+            cert = certify(result, problem)
+        result = replace(result, solve_time=solve_t, iterations=iters)
         status = result.status if cert.ok else PlanStatus.NOT_CERTIFIED
         msg = result.message if cert.ok else f"solver: {result.message}; certificate: {cert}"
-        from dataclasses import replace
-
         result = replace(result, certificate=cert, status=status, message=msg)
     return result
 

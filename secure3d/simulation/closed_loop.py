@@ -38,6 +38,10 @@ STOP_SPEED = 0.05
 ARRIVAL_SPEED = 0.25
 #: Seconds between retries of a failed replan (the robot holds still meanwhile).
 REPLAN_RETRY = 0.5
+#: Fraction of the model's yaw-rate limit used to look around at rest, and the yaw error (rad) at
+#: which a look-around heading counts as reached.
+SCAN_RATE_FRACTION = 0.8
+SCAN_TOLERANCE = 0.05
 
 
 @dataclass(frozen=True)
@@ -238,6 +242,35 @@ def observed_cube(
     return max(half_min, 0.0)
 
 
+def scan_headings(yaw: float, hfov: float) -> list[float]:
+    """Headings a stopped robot turns through before it replans: half a field of view to either
+    side and back, so that it has seen a field of view and a half around where it was looking.
+
+    A take-over happens because the camera revealed part of an obstacle the plan did not know; the
+    rest of it often lies just outside the frame. Looking around at rest costs a second or two but
+    lets the replan see that rest instead of planning into it and taking over again (the paper's
+    Algorithm 1 replans at once; this is a liveness addition that never moves the robot)."""
+    half = 0.5 * hfov
+    return [yaw + half, yaw - half, yaw]
+
+
+def _scan_control(
+    model: object, brake: object, x: np.ndarray, target: float, dt: float
+) -> np.ndarray:
+    """Hold still (the braking law) while turning the heading towards ``target``."""
+    u = np.array(brake.control(x), dtype=float)
+    err = float(np.angle(np.exp(1j * (target - float(model.yaw(x))))))
+    name = getattr(model, "name", "")
+    if name == "diff_drive":
+        lim = model.limits
+        rate = float(np.clip(3.0 * err, -1, 1)) * SCAN_RATE_FRACTION * lim.max_ang_speed
+        u[1] = np.clip((rate - float(x[4])) / dt, -lim.max_ang_accel, lim.max_ang_accel)
+    else:  # point mass (yaw rate) and quadrotor (body z rate, level at rest)
+        w = SCAN_RATE_FRACTION * model.limits.max_yaw_rate
+        u[3] = float(np.clip(3.0 * err, -w, w))
+    return u
+
+
 def _path_clearance(
     loop: _Loop, plan: PlanResult, t_rel: float, lo: np.ndarray, hi: np.ndarray
 ) -> float:
@@ -283,7 +316,9 @@ def simulate(
     png: str | Path | None = None,
     *,
     cache: object | None = None,
-    max_replans: int = 8,
+    max_replans: int = 25,
+    look_around: bool = False,
+    replan_in_flight: bool = True,
     frame_log_every: int = 2,
     belief_log_every: int = 5,
     **options: object,
@@ -299,6 +334,10 @@ def simulate(
     png : write the top-down figure of the run there (atomically).
     cache : an :class:`~secure3d.planning.collocation.NLPCache` shared across runs.
     max_replans : give up (robot holds still) after this many failed or successful replans.
+    replan_in_flight : when new evidence breaks the rest of the plan, first try to replan from the
+        moving state (the solve takes no simulated time); brake only if that fails.
+    look_around : after a take-over (and after a failed replan), turn the camera half a field of
+        view to either side at rest before replanning (see :func:`scan_headings`).
     frame_log_every, belief_log_every : decimation of camera frames and belief voxels in the recording.
     **options : planner options (see :class:`~secure3d.planning.problem.PlannerOptions`).
     """
@@ -334,6 +373,8 @@ def simulate(
             goal,
             spec.time_limit,
             max_replans,
+            look_around,
+            replan_in_flight,
             frame_log_every,
             belief_log_every,
             seed,
@@ -379,6 +420,8 @@ def _run(
     goal,
     time_limit,
     max_replans,
+    look_around,
+    replan_in_flight,
     frame_log_every,
     belief_log_every,
     seed,
@@ -474,6 +517,8 @@ def _run(
     plan_problem_snapshot = loop.problem
     mode = "follow" if current is not None else "hold"
     last_attempt = 0.0
+    headings: list[float] = []  # look-around headings still to turn to
+    hfov = loop.problem.frustum.hfov
     replans = takeovers = 0
     detection_time = None
     detection_point = None
@@ -502,9 +547,21 @@ def _run(
                 if why is None:
                     loop.judged_against_current()
                 else:
-                    mode = "brake"
-                    takeovers += 1
-                    event(t, "take-over", why, "WARN")
+                    replanned = None
+                    if replan_in_flight and replans < max_replans:
+                        # Line 1 of Algorithm 1 from the current (moving) state: the new plan is
+                        # certified from here on, its first reactive set in space the camera saw.
+                        replans += 1
+                        event(t, "replan in flight", why)
+                        replanned = make_plan(t, x)
+                    if replanned is not None:
+                        current, plan_start = replanned, t
+                        plan_problem_snapshot = loop.start_problem
+                        loop.judged_against_current()
+                    else:
+                        mode = "brake"
+                        takeovers += 1
+                        event(t, "take-over", why, "WARN")
         # ---- act -----------------------------------------------------------------------------
         if mode == "follow":
             x_ref, u_ref = interpolate(
@@ -517,6 +574,19 @@ def _run(
                 mode = "hold"
                 event(t, "stopped", "reactive manoeuvre complete")
                 last_attempt = -np.inf
+                if look_around:
+                    mode, headings = "scan", scan_headings(float(model.yaw(x)), hfov)
+                    event(t, "look around", f"turning {np.degrees(0.5 * hfov):.0f} deg either way")
+        if mode == "scan":
+            while (
+                headings
+                and abs(np.angle(np.exp(1j * (headings[0] - float(model.yaw(x)))))) < SCAN_TOLERANCE
+            ):
+                headings.pop(0)
+            if headings:
+                u = _scan_control(model, loop.brake, x, headings[0], dt)
+            else:
+                mode = "hold"
         if mode == "hold":
             u = loop.brake.control(x)
             if replans < max_replans and t - last_attempt >= REPLAN_RETRY:
@@ -527,6 +597,8 @@ def _run(
                     current, plan_start, mode = new_plan, t, "follow"
                     plan_problem_snapshot = loop.start_problem
                     loop.judged_against_current()
+                elif look_around and replans < max_replans:
+                    mode, headings = "scan", scan_headings(float(model.yaw(x)), hfov)
         # ---- integrate and check against the truth ---------------------------------------------
         p_prev = np.asarray(model.position(x), float).ravel()
         x = np.asarray(model.step(x, u, dt), dtype=float)

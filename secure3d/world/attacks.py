@@ -43,6 +43,10 @@ __all__ = [
 #: start, the goal and the obstacles beside it that it does not touch: no gap is so narrow that
 #: only a needle-threading path fits.
 PLACEMENT_CLEARANCE = 0.3
+#: A gap left beside a generated obstacle is also at least the body's diameter plus one map voxel on
+#: each side (a sensed surface marks the voxel in front of it) plus this allowance (m): narrower
+#: gaps are closed in any voxel map of that resolution, so no sound planner could use them.
+GAP_ALLOWANCE = 0.1
 #: Largest OctoMap file we read (bytes): the shared 0.08 m building scan is 0.2 MB.
 MAX_BT_BYTES = 50_000_000
 #: Cell budget of the placement grid: fine enough for 0.5 m corridors in a 20 m world while a
@@ -440,9 +444,10 @@ def random_hidden_obstacle_scenarios(
     - ``"auto"``: ``"corner"`` when the path has a blind part, else ``"forest"``.
 
     The obstacle cuts the path (it lies within the body radius of a path point), keeps the body
-    radius + :data:`PLACEMENT_CLEARANCE` from the start, the goal and every obstacle beside it
-    (all but those it stands on or reaches up to) unless it touches that obstacle (a crate
-    against a wall; never against OctoMap voxels), and leaves the goal reachable.
+    radius + :data:`PLACEMENT_CLEARANCE` (and at least the body diameter + two map voxels +
+    :data:`GAP_ALLOWANCE`) from the start, the goal and every obstacle beside it (all but those it
+    stands on or reaches up to) unless it touches that obstacle (a crate against a wall; never
+    against OctoMap voxels), and leaves the goal reachable.
 
     Parameters
     ----------
@@ -486,6 +491,7 @@ def random_hidden_obstacle_scenarios(
     r = base.vehicle.body_radius
     b = base.world.bounds
     half_range = (0.2, 0.6) if used == "corner" else (0.1, 0.25)
+    keep = max(r + PLACEMENT_CLEARANCE, 2 * r + 2 * base.server_map.resolution + GAP_ALLOWANCE)
 
     variants = []
     for i in range(n):
@@ -504,7 +510,7 @@ def random_hidden_obstacle_scenarios(
                 reach = abs(across[0]) * half[0] + abs(across[1]) * half[1]
                 centre = path[k] + across * rng.uniform(-reach - 0.5 * r, reach + 0.5 * r)
                 box = _column_box(centre, half, lo, hi, (b.lo[2], b.hi[2]))
-                if box is None or not _clear(box, lo, hi, touchable, ends, r + PLACEMENT_CLEARANCE):
+                if box is None or not _clear(box, lo, hi, touchable, ends, keep):
                     continue
                 trial = grid.blocked_by(box[0][None], box[1][None]) & free
                 if _connected(trial, a, g):

@@ -82,3 +82,32 @@ def test_a_frame_is_news_only_if_it_finds_obstacle_voxels_outside_the_judged_box
     assert "crate" not in seen and n == 0
     n, seen = news([6.5, 1.25, 1.25], np.pi / 2)  # facing the crate the server hid
     assert "crate" in seen and n > 20
+
+
+def test_blind_corner_baseline_meets_the_crate(maps_dir):
+    """The paper's Fig. 3: the planner that trusts the server sees the crate too late."""
+    run = simulate(secure3d.load_scenario(maps_dir / "blind_corner.yaml"), "baseline")
+    assert run.collided, run.summary()
+    assert "crate" in run.collision_obstacles
+    assert run.detection_time is not None and run.detection_time < run.collision_time
+
+
+def test_look_around_turns_the_camera_at_rest(maps_dir):
+    from secure3d.planning.problem import problem_from_scenario
+    from secure3d.reactive.controllers import BrakingController
+    from secure3d.simulation.closed_loop import _scan_control, scan_headings
+
+    model = problem_from_scenario(secure3d.load_scenario(maps_dir / "blind_corner.yaml")).model
+    hfov = np.radians(90)
+    assert scan_headings(0.3, hfov) == pytest.approx([0.3 + hfov / 2, 0.3 - hfov / 2, 0.3])
+    x = model.initial_state([1.0, 1.0, 1.0], yaw=0.0)
+    brake = BrakingController(model)
+    for target, sign in ((1.0, 1), (-1.0, -1), (np.pi - 0.1 + 2 * np.pi, 1)):
+        u = _scan_control(model, brake, x, target, 0.01)
+        assert np.sign(u[3]) == sign and abs(u[3]) <= model.limits.max_yaw_rate
+        np.testing.assert_allclose(u[:3], 0.0, atol=1e-12)  # at rest it stays put
+    # turning through the headings at rest never moves the robot
+    for _ in range(300):
+        x = model.step(x, _scan_control(model, brake, x, 1.0, 0.01), 0.01)
+    assert float(model.yaw(x)) == pytest.approx(1.0, abs=0.02)
+    np.testing.assert_allclose(model.position(x), [1.0, 1.0, 1.0], atol=1e-9)
