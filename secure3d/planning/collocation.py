@@ -2,12 +2,15 @@
 
 Decision variables, stage by stage: the final time T, states x_k and controls u_k at K nodes
 (Hermite-Simpson adds midpoint controls), and one dual vector lam in R^6 per (node, obstacle slot).
-h = T / (K - 1). Obstacles enter as *parameters* (a fixed number of box slots per node), and so
-does the look-back assignment (which earlier node's frustum must contain node i's reactive set): a
-selection matrix ties each node's *viewing state* y_i to the earlier node x_j it is assigned to
-(y_i = sum_j S_ij x_j, S a parameter), and row bounds switch each node between the frustum rows and
-the start-region rows. One compiled NLP therefore serves every replan and every assignment of a
-problem shape (the stage-wise fatrop transcription still builds one per assignment).
+h = T / (K - 1). Obstacles enter as *parameters* (a fixed number of box slots per node). The
+look-back assignment (which earlier node's frustum must contain node i's reactive set) enters in
+one of two ways (``PlannerOptions.lookback_encoding``):
+
+- ``"structure"``: node i's frustum rows read x_j directly; one compiled NLP per assignment, cached;
+- ``"parameter"``: a selection matrix ties each node's *viewing state* y_i to the earlier node it is
+  assigned to (y_i = sum_j S_ij x_j, S a parameter, only the coordinates the camera pose depends
+  on), and row bounds switch each node between the frustum rows and the start-region rows; one
+  compiled NLP serves every assignment (the stage-wise fatrop transcription is always structural).
 
 Sections, top to bottom as in CasADi's race_car example: variables, objective, dynamics, path
 constraints, boundary conditions, obstacle and visibility constraints, solver.
@@ -326,8 +329,15 @@ def build_nlp(
     K, nx, nu, S = o.nodes, model.nx, model.nu, o.obstacle_slots
     hermite = o.collocation == "hermite_simpson"
     secure = planner == "secure"
+    parametric = secure and o.lookback_encoding == "parameter"
     lay = NLPLayout(
-        K=K, nx=nx, nu=nu, slots=S, hermite=hermite, viewing=secure, view_dims=camera_dims(model)
+        K=K,
+        nx=nx,
+        nu=nu,
+        slots=S,
+        hermite=hermite,
+        viewing=parametric,
+        view_dims=camera_dims(model) if parametric else (),
     )
     kern = kernels if kernels is not None else node_kernels(problem)
 
@@ -343,7 +353,7 @@ def build_nlp(
     )
     Lam = ca.reshape(w[int(lay.i_L[0, 0, 0]) : int(lay.i_L[-1, -1, -1]) + 1], 6 * S, K)
     n_boxes = K * S * 6
-    n_p = 9 + n_boxes + (K * K if secure else 0)
+    n_p = 9 + n_boxes + (K * K if parametric else 0)
     p = SYM.sym("p", n_p)
     start_lo, start_hi, goal = p[0:3], p[3:6], p[6:9]
     Boxes = ca.reshape(p[9 : 9 + n_boxes], 6 * S, K)  # column k = [lo; hi] of each slot at node k
@@ -400,6 +410,34 @@ def build_nlp(
             kern.obs_base_rows,
             K - 1,
         )
+    elif not parametric:
+        view = [k for k in nodes if assignment[k] >= 0]
+        start = [k for k in nodes if assignment[k] < 0]
+        if view:
+            Xi, Xj = X[:, view], X[:, [assignment[k] for k in view]]
+            add(
+                kern.vis.map(len(view))(Xi, Xj),
+                [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
+                len(view),
+            )
+            add(
+                kern.obs_view.map(len(view))(Xi, Xj, Boxes[:, view], Lam[:, view]),
+                kern.obs_view_rows,
+                len(view),
+            )
+        if start:
+            Xs = X[:, start]
+            n_s = len(start)
+            add(
+                kern.start.map(n_s)(Xs, ca.repmat(start_lo, 1, n_s), ca.repmat(start_hi, 1, n_s)),
+                [("start_region", o.margin, ca.inf)] * 6,
+                n_s,
+            )
+            add(
+                kern.obs_start.map(n_s)(Xs, Boxes[:, start], Lam[:, start]),
+                kern.obs_start_rows,
+                n_s,
+            )
     else:
         # Viewing states: y_i = sum_j S_ij x_j over earlier nodes j (S a one-hot parameter row, or
         # zero for a node in the start region). Linear coupling rows keep the nonlinear frustum
@@ -521,8 +559,11 @@ def nlp_key(problem: PlanningProblem, planner: str, assignment: tuple[int, ...])
         o.verbose,
         tuple(problem.bounds_lo),
         tuple(problem.bounds_hi),
-        # only the stage-wise fatrop transcription depends on the assignment's structure
-        tuple(assignment) if planner == "secure" and o.solver == "fatrop" else (),
+        o.lookback_encoding if planner == "secure" else "",
+        # the assignment is structure unless it is passed as a parameter (never for fatrop)
+        tuple(assignment)
+        if planner == "secure" and (o.solver == "fatrop" or o.lookback_encoding == "structure")
+        else (),
     )
 
 

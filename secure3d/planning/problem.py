@@ -49,6 +49,12 @@ class PlannerOptions:
         open).
     lookback_steps : the paper's Δi for the fixed rule.
     lookback_rounds : most re-assignments for the adaptive rule.
+    lookback_encoding : how the assignment reaches the compiled NLP. ``"structure"``: each node's
+        frustum rows read the assigned node's state directly, one compiled NLP per assignment (the
+        fastest solves: ~0.5 s cold on the blind corner, but a ~1 s build for every new
+        assignment). ``"parameter"``: a selection-matrix parameter and linear viewing-state rows,
+        one compiled NLP for every assignment (solves ~1.5x slower, no rebuilds; the simulator's
+        default, where every replan brings a new assignment).
     solver : ``"ipopt"`` (MUMPS) or ``"fatrop"``.
     margin : clearance required of every visibility and obstacle constraint (m): the ε of the
         paper's Assumption 2, which makes the discrete constraints imply the continuous ones.
@@ -74,6 +80,7 @@ class PlannerOptions:
     lookback: Literal["adaptive", "fixed"] = "adaptive"
     lookback_steps: int = 3
     lookback_rounds: int = 1
+    lookback_encoding: Literal["structure", "parameter"] = "structure"
     solver: Literal["ipopt", "fatrop"] = "ipopt"
     margin: float = 0.02
     obstacle_slots: int = 8
@@ -101,6 +108,11 @@ class PlannerOptions:
         if self.collocation not in ("trapezoidal", "hermite_simpson"):
             raise ConfigError(
                 f"planner option collocation: 'trapezoidal' or 'hermite_simpson', got {self.collocation!r}"
+            )
+        if self.lookback_encoding not in ("structure", "parameter"):
+            raise ConfigError(
+                "planner option lookback_encoding: 'structure' or 'parameter', got"
+                f" {self.lookback_encoding!r}"
             )
         if self.lookback not in ("adaptive", "fixed"):
             raise ConfigError(

@@ -160,6 +160,8 @@ class _Loop:
         except (ValueError, RuntimeError) as exc:
             raise SimulationError(f"{scenario.name}: cannot build the true world: {exc}") from exc
         self.belief = belief_map(scenario)
+        # every replan brings a new look-back assignment: one compiled NLP for all of them
+        options.setdefault("lookback_encoding", "parameter")
         self.problem = problem_from_scenario(scenario, belief=self.belief, **options)
         self.model = self.problem.model
         self.brake = BrakingController(self.model)

@@ -116,28 +116,32 @@ def test_fixed_lookback_also_certifies(corner_problem):
     assert r.lookback.tolist() == expected
 
 
-def test_one_compiled_nlp_serves_every_lookback_assignment(corner_problem):
-    """The assignment is a parameter (selection matrix plus row bounds), not structure: the fixed
-    and the adaptive rule share one build, and each plan satisfies its own assignment."""
+def test_one_compiled_nlp_serves_every_lookback_assignment(corner_problem, plans):
+    """With lookback_encoding="parameter" the assignment is a selection-matrix parameter plus row
+    bounds, not structure: the fixed and the adaptive rule share one build, each plan satisfies its
+    own assignment, and the plan matches the structural transcription's."""
     cache = NLPCache()
+    problem = corner_problem.with_options(lookback_encoding="parameter")
     fixed = plan_problem(
-        corner_problem.with_options(lookback="fixed", lookback_steps=5), "secure", cache=cache
+        problem.with_options(lookback="fixed", lookback_steps=5), "secure", cache=cache
     )
-    adaptive = plan_problem(corner_problem, "secure", cache=cache)
+    adaptive = plan_problem(problem, "secure", cache=cache)
     assert fixed.ok and adaptive.ok, (fixed.message, adaptive.message)
     assert fixed.lookback.tolist() != adaptive.lookback.tolist()
     assert cache.misses == 1 and len(cache) == 1
+    nlp = next(iter(cache._items.values()))[0]
     for r in (fixed, adaptive):
         assert certify(r, corner_problem).ok
         view = r.lookback >= 0
-        # the frustum rows of each node used the camera of the node it was assigned to
-        nlp = next(iter(cache._items.values()))[0]
+        # a node's frustum rows are on exactly when it is seen from an earlier node, its
+        # start-region rows exactly when it is not
         lbg, _ = nlp.bounds_for(tuple(r.lookback))
-        rows_view = nlp.view_rows & (nlp.row_node >= 0)
-        on = np.isfinite(lbg) & rows_view
-        assert set(np.unique(nlp.row_node[on])) == set(np.flatnonzero(view)) - {0}
-        rows_start = nlp.start_rows & np.isfinite(lbg)
-        assert set(np.unique(nlp.row_node[rows_start])) == set(np.flatnonzero(~view)) - {0}
+        on = np.isfinite(lbg)
+        frustum_nodes = set(np.unique(nlp.row_node[on & nlp.view_rows]))
+        start_nodes = set(np.unique(nlp.row_node[on & nlp.start_rows]))
+        assert frustum_nodes == set(np.flatnonzero(view)) - {0}
+        assert start_nodes == set(np.flatnonzero(~view)) - {0}
+    np.testing.assert_allclose(adaptive.final_time, plans["secure"].final_time, rtol=0.02)
 
 
 def test_camera_pose_depends_on_position_and_yaw_of_a_point_mass(corner_problem):
