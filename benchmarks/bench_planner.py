@@ -326,7 +326,9 @@ def run_cases(setups: Sequence[Setup], args: argparse.Namespace, bar: tqdm) -> l
 def scenario_setups(paths: Sequence[Path], args: argparse.Namespace) -> list[Setup]:
     """The main table: every scenario x solver (the scenario's own K and settings)."""
     base = functools.cache(
-        lambda path: problem_from_scenario(load_scenario(path), time_limit=args.time_limit)
+        lambda path: problem_from_scenario(
+            load_scenario(path), time_limit=args.time_limit, extra_starts=tuple(args.starts)
+        )
     )
     return [
         ({"scenario": p.stem, "solver": s}, lambda p=p, s=s: base(p).with_options(solver=s))
@@ -740,6 +742,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="the warm replan starts this many seconds along the cold plan",
     )
     p.add_argument("--time-limit", type=float, default=60.0, help="wall-clock limit per solve (s)")
+    p.add_argument(
+        "--starts",
+        nargs="*",
+        type=float,
+        default=[],
+        help="extra cruise-speed fractions to start cold solves from (the fastest plan is kept)",
+    )
     p.add_argument("--sweep-scenario", default="blind_corner")
     p.add_argument("--sweep-solver", choices=SOLVERS, default="ipopt")
     p.add_argument("--k-values", nargs="*", type=int, default=list(K_VALUES))

@@ -49,9 +49,9 @@ guarantees at the nodes. Differences from :func:`~secure3d.planning.collocation.
 
 - the control-dependent limit rows also hold at node 0 (u_0 acts over the first interval; the
   collocation transcription leaves u_0 inside its box only);
-- ``lookback="adaptive"`` is refused (:class:`~secure3d.errors.ConfigError`): its assignments may
-  reach arbitrarily far back and the register would grow to K stages; the paper's fixed rule
-  j = i - D is supported (any assignment with spans <= D is, in fact);
+- the register is as deep as the longest look-back D of the assignment: the paper's fixed rule
+  j = i - D, or the adaptive rule limited to spans <= ``PlannerOptions.max_span``
+  (:data:`~secure3d.planning.problem.FATROP_MAX_SPAN` unless set);
 - ``collocation`` does not apply (the discretisation is RK4), so ``"hermite_simpson"`` is refused;
 - ``time_limit`` is not enforced (fatrop has no wall-clock limit; ``max_iter`` is), and fatrop
   takes no multiplier warm start (a warm replan starts from the previous primal only).
@@ -272,12 +272,6 @@ def fatrop_status(stats: dict) -> tuple[PlanStatus, str]:
 def check_fatrop_options(problem: PlanningProblem, planner: str) -> None:
     """Raise :class:`~secure3d.errors.ConfigError` for options this transcription cannot honour."""
     o = problem.options
-    if planner == "secure" and o.lookback != "fixed":
-        raise ConfigError(
-            f"solver 'fatrop' supports lookback='fixed' only (the paper's j = i - lookback_steps, "
-            f"carried in a shift register of the state); got lookback={o.lookback!r}: pass "
-            f"lookback='fixed' or solver='ipopt'"
-        )
     if o.collocation != "trapezoidal":
         raise ConfigError(
             f"solver 'fatrop' discretises with explicit RK4 (no collocation scheme); got "
@@ -361,7 +355,7 @@ def build_fatrop_nlp(
     Raises
     ------
     ConfigError
-        For ``lookback="adaptive"`` (secure planner) or ``collocation="hermite_simpson"``.
+        For ``collocation="hermite_simpson"``.
     """
     t0 = time.perf_counter()
     check_fatrop_options(problem, planner)

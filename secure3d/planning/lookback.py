@@ -84,7 +84,12 @@ def best_views(
     if problem.options.occlusion:
         fm = fm - OCCLUSION_PENALTY * occluded(problem, geo)
     K = len(states)
-    fm = np.where(np.arange(K)[None, :] < np.arange(K)[:, None], fm, -np.inf)  # earlier views only
+    i, j = np.arange(K)[:, None], np.arange(K)[None, :]
+    allowed = j < i  # earlier views only
+    span = problem.options.max_span
+    if span is not None:
+        allowed &= i - j <= span
+    fm = np.where(allowed, fm, -np.inf)
     table = np.concatenate([fm, start_margins(problem, geo)[:, None]], axis=1)
     col = np.argmax(table[:, ::-1], axis=1)  # ties go to the start region
     best_col = K - col

@@ -35,6 +35,10 @@ def _check_positive(name: str, value: float, *, allow_zero: bool = False) -> Non
         )
 
 
+#: Farthest look-back of the adaptive rule with fatrop (its register depth), unless set.
+FATROP_MAX_SPAN = 6
+
+
 @dataclass(frozen=True)
 class PlannerOptions:
     """How the NLP is transcribed and solved.
@@ -49,6 +53,9 @@ class PlannerOptions:
         open).
     lookback_steps : the paper's Δi for the fixed rule.
     lookback_rounds : most re-assignments for the adaptive rule.
+    lookback_max_span : farthest look-back (nodes) the adaptive rule may pick; None: any earlier
+        node with IPOPT, :data:`FATROP_MAX_SPAN` with fatrop (whose shift register of camera states
+        is as deep as the longest look-back).
     lookback_encoding : how the assignment reaches the compiled NLP. ``"structure"``: each node's
         frustum rows read the assigned node's state directly, one compiled NLP per assignment (the
         fastest solves: ~0.5 s cold on the blind corner, but a ~1 s build for every new
@@ -72,6 +79,8 @@ class PlannerOptions:
         turns sensed surface combs into solid boxes; closes openings narrower than 2 voxels.
     grid_resolution : cell size of the graph search that makes the initial guess (m).
     guess_speed_fraction : cruise speed of the initial guess, as a fraction of the speed limit.
+    extra_starts : further cruise-speed fractions to start from (cold plans only); the fastest
+        plan that succeeds (and, secure, certifies) is returned. Each costs a solve.
     verbose : print solver output.
     """
 
@@ -80,6 +89,7 @@ class PlannerOptions:
     lookback: Literal["adaptive", "fixed"] = "adaptive"
     lookback_steps: int = 3
     lookback_rounds: int = 1
+    lookback_max_span: int | None = None
     lookback_encoding: Literal["structure", "parameter"] = "structure"
     solver: Literal["ipopt", "fatrop"] = "ipopt"
     margin: float = 0.02
@@ -94,7 +104,15 @@ class PlannerOptions:
     close_gaps: int = 1
     grid_resolution: float = 0.2
     guess_speed_fraction: float = 0.8
+    extra_starts: tuple[float, ...] = ()
     verbose: bool = False
+
+    @property
+    def max_span(self) -> int | None:
+        """The adaptive rule's farthest look-back in effect (None: unlimited)."""
+        if self.lookback_max_span is not None:
+            return self.lookback_max_span
+        return FATROP_MAX_SPAN if self.solver == "fatrop" else None
 
     def __post_init__(self) -> None:
         if (
@@ -108,6 +126,15 @@ class PlannerOptions:
         if self.collocation not in ("trapezoidal", "hermite_simpson"):
             raise ConfigError(
                 f"planner option collocation: 'trapezoidal' or 'hermite_simpson', got {self.collocation!r}"
+            )
+        if self.lookback_max_span is not None and (
+            isinstance(self.lookback_max_span, bool)
+            or not isinstance(self.lookback_max_span, int)
+            or self.lookback_max_span < 1
+        ):
+            raise ConfigError(
+                "planner option lookback_max_span: must be None or an integer >= 1, got"
+                f" {self.lookback_max_span!r}"
             )
         if self.lookback_encoding not in ("structure", "parameter"):
             raise ConfigError(
@@ -150,6 +177,16 @@ class PlannerOptions:
                 f"planner option close_gaps: must be an integer >= 0, got {self.close_gaps!r}"
             )
         _check_positive("grid_resolution", self.grid_resolution)
+        try:
+            starts = tuple(float(f) for f in self.extra_starts)
+        except (TypeError, ValueError):
+            starts = None
+        if starts is None or not all(0 < f <= 1 for f in starts):
+            raise ConfigError(
+                "planner option extra_starts: a list of speed fractions in (0, 1], got"
+                f" {self.extra_starts!r}"
+            )
+        object.__setattr__(self, "extra_starts", starts)
         if not 0 < self.guess_speed_fraction <= 1:
             raise ConfigError(
                 f"planner option guess_speed_fraction: must be in (0, 1], got {self.guess_speed_fraction!r}"

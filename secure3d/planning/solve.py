@@ -461,41 +461,70 @@ def plan_problem(
         build, solve_t, iters = build + b_, solve_t + t_, iters + i_
         if s.status.ok:
             break
-    result = _result(problem, planner, s, build, solve_t, iters)
-    if result.ok and planner == "secure" and o.certify:
-        from dataclasses import replace
+    result = _judged(problem, planner, s, build, solve_t, iters, cache)
+    if warm is None:
+        # Minimum-time NLPs have many local optima (the paper: "poor guesses stop convergence");
+        # further starts at other cruise speeds, keeping the fastest plan that passes.
+        for frac in o.extra_starts:
+            g = initial_guess(problem, secure=planner == "secure", speed_fraction=frac)
+            s2, b_, t_, i_ = _solve_rounds(problem, planner, g, None, 0.0, cache)
+            build, solve_t, iters = build + b_, solve_t + t_, iters + i_
+            other = _judged(problem, planner, s2, build, solve_t, iters, cache)
+            if other.ok and (not result.ok or other.final_time < result.final_time):
+                result = other
+        if o.extra_starts:
+            from dataclasses import replace
 
-        from secure3d.planning.certificate import certify
-
-        cert = certify(result, problem)
-        for extra in CERTIFY_TIGHTENING:
-            if cert.ok:
-                break
-            # Tighten and re-solve warm from the rejected solution: never loosen anything.
-            t_ = _solve_once(
-                problem,
-                planner,
-                s.assignment,
-                s.T,
-                s.X,
-                s.U,
-                cache,
-                L=s.L,
-                multipliers=(s.nlp.key, s.lam_x, s.lam_g),
-                prev_slots=s.slots,
-                extra_margin=extra,
-            )
-            solve_t, iters = solve_t + t_.solve_time, iters + t_.iterations
-            if not t_.status.ok:
-                break
-            s = t_
-            result = _result(problem, planner, s, build, solve_t, iters)
-            cert = certify(result, problem)
-        result = replace(result, solve_time=solve_t, iterations=iters)
-        status = result.status if cert.ok else PlanStatus.NOT_CERTIFIED
-        msg = result.message if cert.ok else f"solver: {result.message}; certificate: {cert}"
-        result = replace(result, certificate=cert, status=status, message=msg)
+            result = replace(result, build_time=build, solve_time=solve_t, iterations=iters)
     return result
+
+
+def _judged(
+    problem: PlanningProblem,
+    planner: str,
+    s: _Solve,
+    build: float,
+    solve_t: float,
+    iters: int,
+    cache: NLPCache,
+) -> PlanResult:
+    """The result of a solve, certified (secure planner): a rejected solution is re-solved warm
+    with tightened rows (:data:`CERTIFY_TIGHTENING`) before it is reported NOT_CERTIFIED."""
+    result = _result(problem, planner, s, build, solve_t, iters)
+    if not (result.ok and planner == "secure" and problem.options.certify):
+        return result
+    from dataclasses import replace
+
+    from secure3d.planning.certificate import certify
+
+    cert = certify(result, problem)
+    for extra in CERTIFY_TIGHTENING:
+        if cert.ok:
+            break
+        # Tighten and re-solve warm from the rejected solution: never loosen anything.
+        t_ = _solve_once(
+            problem,
+            planner,
+            s.assignment,
+            s.T,
+            s.X,
+            s.U,
+            cache,
+            L=s.L,
+            multipliers=(s.nlp.key, s.lam_x, s.lam_g),
+            prev_slots=s.slots,
+            extra_margin=extra,
+        )
+        solve_t, iters = solve_t + t_.solve_time, iters + t_.iterations
+        if not t_.status.ok:
+            break
+        s = t_
+        result = _result(problem, planner, s, build, solve_t, iters)
+        cert = certify(result, problem)
+    result = replace(result, solve_time=solve_t, iterations=iters)
+    status = result.status if cert.ok else PlanStatus.NOT_CERTIFIED
+    msg = result.message if cert.ok else f"solver: {result.message}; certificate: {cert}"
+    return replace(result, certificate=cert, status=status, message=msg)
 
 
 def plan(

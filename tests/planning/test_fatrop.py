@@ -152,16 +152,26 @@ def test_register_carries_exactly_what_later_rows_read(problem):
     np.testing.assert_array_equal(read_indices(kern.obs_base, 0, nx), [0, 1, 2])
 
 
-def test_adaptive_lookback_and_hermite_simpson_are_refused(problem):
+def test_hermite_simpson_is_refused(problem):
     K = problem.options.nodes
-    with pytest.raises(ConfigError, match="lookback='fixed'"):
-        build_fatrop_nlp(
-            problem.with_options(lookback="adaptive"), "secure", lb.fixed_assignment(K, 3)
-        )
     with pytest.raises(ConfigError, match="collocation"):
         build_fatrop_nlp(problem.with_options(collocation="hermite_simpson"), "baseline", (-1,) * K)
-    with pytest.raises(ConfigError, match="lookback='fixed'"):
-        plan(problem.with_options(lookback="adaptive"), "secure", cache=NLPCache())
+
+
+def test_adaptive_lookback_with_fatrop_stays_within_the_register_and_certifies(problem):
+    """The adaptive rule with fatrop picks views at most max_span nodes back (the register depth)."""
+    from secure3d.planning.problem import FATROP_MAX_SPAN
+
+    adaptive = problem.with_options(lookback="adaptive")
+    assert adaptive.options.max_span == FATROP_MAX_SPAN
+    r = plan(adaptive, "secure", cache=NLPCache())
+    assert r.ok, r.message
+    assert r.lookback_rule == "adaptive" and r.solver == "fatrop"
+    i = np.arange(len(r.lookback))
+    spans = (i - r.lookback)[r.lookback >= 0]
+    assert spans.min() >= 1 and spans.max() <= FATROP_MAX_SPAN
+    assert r.lookback.tolist() != lb.fixed_assignment(len(i), LOOKBACK)
+    assert r.certificate is not None and r.certificate.ok
 
 
 def test_fatrop_status_names():

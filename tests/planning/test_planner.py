@@ -191,3 +191,15 @@ def test_goal_outside_the_map_is_invalid(corner):
     r = plan_problem(outside, "baseline")
     assert r.status is PlanStatus.INVALID_INPUT
     assert "outside the map" in r.message
+
+
+def test_extra_starts_keep_the_fastest_certified_plan(corner_problem, plans):
+    cache = NLPCache()
+    multi = plan_problem(
+        corner_problem.with_options(extra_starts=[0.4, 1.0]), "secure", cache=cache
+    )
+    assert multi.ok and multi.certificate.ok, multi.message
+    assert multi.final_time <= plans["secure"].final_time + 1e-6
+    assert multi.solve_time > 0 and multi.iterations > plans["secure"].iterations
+    with pytest.raises(secure3d.errors.ConfigError, match="extra_starts"):
+        corner_problem.with_options(extra_starts=[0.0])
