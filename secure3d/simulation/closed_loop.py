@@ -38,6 +38,9 @@ STOP_SPEED = 0.05
 ARRIVAL_SPEED = 0.25
 #: Seconds between retries of a failed replan (the robot holds still meanwhile).
 REPLAN_RETRY = 0.5
+#: Cruise-speed fractions of the initial guess for successive failed replans at rest: the map and
+#: the state are unchanged between retries, so the same guess would fail the same way.
+RETRY_SPEEDS = (0.8, 0.4, 1.0, 0.2)
 #: Fraction of the model's yaw-rate limit used to look around at rest, and the yaw error (rad) at
 #: which a look-around heading counts as reached.
 SCAN_RATE_FRACTION = 0.8
@@ -468,6 +471,8 @@ def _run(
                 rec.log_belief(t, occ, loop.belief.trust(occ), loop.belief.resolution)
         return new, set(frame.hit_names()) & loop.hidden
 
+    failures = [0]  # failed plan calls in a row
+
     def make_plan(t: float, x: np.ndarray) -> PlanResult | None:
         loop.refresh_obstacles()
         if t == 0.0:
@@ -480,13 +485,18 @@ def _run(
             problem = loop.problem.with_start(
                 x, half_size=observed_cube(loop.belief, p, loop.problem.options.start_region_radius)
             )
+        if failures[0]:
+            speed = RETRY_SPEEDS[failures[0] % len(RETRY_SPEEDS)]
+            problem = problem.with_options(guess_speed_fraction=speed)
         loop.start_problem = problem
         t0 = time.perf_counter()
         result = plan_problem(problem, loop.planner, cache=loop.cache)
         solve_times.append(time.perf_counter() - t0)
         if not result.ok:
+            failures[0] += 1
             event(t, "plan failed", f"{result.status.value}: {result.message}", "WARN")
             return None
+        failures[0] = 0
         plans.append((t, result))
         event(t, "plan", f"T={result.final_time:.2f}s solve={1e3 * solve_times[-1]:.0f}ms")
         if rec is not None:
