@@ -271,16 +271,27 @@ class PlanningProblem:
             updated = replace(updated, start_region_lo=lo, start_region_hi=hi)
         return updated
 
-    def with_start(self, x0: np.ndarray, half_size: float | None = None) -> PlanningProblem:
+    def with_start(
+        self,
+        x0: np.ndarray,
+        half_size: float | None = None,
+        region: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> PlanningProblem:
         """A copy starting from another state (for replanning), keeping the obstacles.
 
-        ``half_size`` is the half-size of the observed box around the new start (default: the
-        option ``start_region_radius``); callers that know what the camera saw (the closed loop)
-        pass the largest box their map has observed.
+        The observed start box is ``region`` (lo, hi) if given, else a cube of ``half_size``
+        around the new start (default: the option ``start_region_radius``); callers that know what
+        the camera saw (the closed loop) pass the largest box their map has observed. Either is
+        grown to contain S_r(x0) (see :func:`start_region`).
         """
         from dataclasses import replace
 
         x0 = np.asarray(x0, dtype=float)
+        if region is not None:
+            lo, hi = start_region(self.model, self.family, x0, 0.0)
+            lo = np.minimum(lo, np.asarray(region[0], dtype=float))
+            hi = np.maximum(hi, np.asarray(region[1], dtype=float))
+            return replace(self, x0=x0, start_region_lo=lo, start_region_hi=hi)
         half = self.options.start_region_radius if half_size is None else half_size
         lo, hi = start_region(self.model, self.family, x0, half)
         return replace(self, x0=x0, start_region_lo=lo, start_region_hi=hi)

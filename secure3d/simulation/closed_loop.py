@@ -217,34 +217,52 @@ def _new_obstacle_voxels(loop: _Loop, frame: object) -> int:
     return int((min_box_distance(centres, loop.judged_lo, loop.judged_hi) >= 0.0).sum())
 
 
-def observed_cube(
-    belief: object, centre: np.ndarray, half_max: float, half_min: float = 0.0
-) -> float:
-    """Half-size of the largest cube around ``centre`` (up to ``half_max``) in which every voxel was
-    seen by the camera or is a known obstacle: the start region of a replan in flight. Unknown and
-    merely *claimed* free space never counts as observed (the server may lie)."""
+def observed_box(
+    belief: object, centre: np.ndarray, half_max: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The largest box of whole voxels around ``centre`` (each face at most ``half_max`` from it) in
+    which every voxel was seen by the camera or is a known obstacle: the start region of a replan
+    in flight. Unknown and merely *claimed* free space never counts as observed (the server may
+    lie). Faces grow one voxel layer at a time, in turn, while the new layer is all observed, so the
+    box stretches along a corridor even when the floor and ceiling near the robot were never in
+    view. None if the voxel holding ``centre`` itself is unobserved.
+    """
     from secure3d.mapping.occupancy import Trust
 
     centre = np.asarray(centre, dtype=float)
     if centre.shape != (3,) or not np.all(np.isfinite(centre)):
-        raise SimulationError(f"observed_cube: centre must be 3 finite numbers, got {centre!r}")
-    if not (np.isfinite(half_max) and 0 <= half_min <= half_max):
-        raise SimulationError(
-            f"observed_cube: need 0 <= half_min <= half_max, got {half_min!r}, {half_max!r}"
-        )
+        raise SimulationError(f"observed_box: centre must be 3 finite numbers, got {centre!r}")
+    if not (np.isfinite(half_max) and half_max >= 0):
+        raise SimulationError(f"observed_box: half_max must be a number >= 0, got {half_max!r}")
     res = belief.resolution
     allowed = np.array([Trust.SENSED_FREE, Trust.SENSED_OCCUPIED, Trust.CLAIMED_OCCUPIED])
-    half = half_max
-    while half > half_min + 1e-9:
-        ticks = np.arange(-half + 0.5 * res, half, res)
-        grid = (
-            np.stack(np.meshgrid(ticks, ticks, ticks, indexing="ij"), axis=-1).reshape(-1, 3)
-            + centre
-        )
-        if np.isin(belief.trust(grid), allowed).all():
-            return half
-        half -= res
-    return max(half_min, 0.0)
+
+    def observed(a: np.ndarray, b: np.ndarray) -> bool:  # every voxel a..b (inclusive indices)
+        axes = [np.arange(a[d], b[d] + 1) for d in range(3)]
+        cells = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        return bool(np.isin(belief.trust((cells + 0.5) * res), allowed).all())
+
+    k = np.floor(centre / res).astype(np.int64)
+    a, b = k.copy(), k.copy()
+    if not observed(a, b):
+        return None
+    growing = {(d, side) for d in range(3) for side in (-1, 1)}
+    while growing:
+        for d, side in sorted(growing):
+            na, nb = a.copy(), b.copy()
+            if side < 0:
+                na[d] -= 1
+                slab_a, slab_b, reach = na.copy(), b.copy(), centre[d] - na[d] * res
+                slab_b[d] = na[d]
+            else:
+                nb[d] += 1
+                slab_a, slab_b, reach = a.copy(), nb.copy(), (nb[d] + 1) * res - centre[d]
+                slab_a[d] = nb[d]
+            if reach > half_max + 1e-9 or not observed(slab_a, slab_b):
+                growing.discard((d, side))
+            else:
+                a, b = na, nb
+    return a * res, (b + 1) * res
 
 
 def scan_headings(yaw: float, hfov: float) -> list[float]:
@@ -482,9 +500,8 @@ def _run(
         else:
             # In flight only what the camera has actually seen counts as observed around the robot.
             p = np.asarray(model.position(x), dtype=float).ravel()
-            problem = loop.problem.with_start(
-                x, half_size=observed_cube(loop.belief, p, loop.problem.options.start_region_radius)
-            )
+            box = observed_box(loop.belief, p, loop.problem.options.start_region_radius)
+            problem = loop.problem.with_start(x, region=box if box is not None else (p, p))
         if failures[0]:
             speed = RETRY_SPEEDS[failures[0] % len(RETRY_SPEEDS)]
             problem = problem.with_options(guess_speed_fraction=speed)

@@ -8,24 +8,33 @@ import pytest
 import secure3d
 from secure3d.errors import SimulationError
 from secure3d.mapping import OccupancyMap
-from secure3d.simulation.closed_loop import observed_cube, simulate
+from secure3d.simulation.closed_loop import observed_box, simulate
 
 
 def test_only_what_the_camera_saw_counts_as_observed_around_the_robot():
     m = OccupancyMap(0.1, bounds=([-5, -5, -5], [5, 5, 5]))
     m.set_claim_boxes([[-5, -5, -5]], [[5, 5, 5]], occupied=False)  # the server says: all free
-    assert observed_cube(m, np.zeros(3), 1.0) == 0.0, "claimed free space is not observed space"
+    assert observed_box(m, np.zeros(3), 1.0) is None, "claimed free space is not observed space"
     # a dense spherical scan from the origin, walls at 3 m: everything within ~3 m is sensed free
     d = np.random.default_rng(0).normal(size=(20000, 3))
     m.insert_point_cloud(3.0 * d / np.linalg.norm(d, axis=1, keepdims=True), np.zeros(3))
-    assert observed_cube(m, np.zeros(3), 1.0) == pytest.approx(1.0)
-    assert observed_cube(m, np.array([2.9, 0.0, 0.0]), 1.0) < 0.5, (
-        "the cube may not reach unseen space"
+    lo, hi = observed_box(m, np.zeros(3), 1.0)
+    np.testing.assert_allclose(lo, -1.0, atol=1e-9)
+    np.testing.assert_allclose(hi, 1.0, atol=1e-9)
+    lo, hi = observed_box(m, np.array([2.55, 0.05, 0.05]), 1.0)
+    assert hi[0] <= 3.0 and hi[0] - lo[0] < 2.0, "the box may not reach unseen space"
+    # the box stretches along what was seen: a thin corridor of rays along x
+    c = OccupancyMap(0.1, bounds=([-5, -5, -5], [5, 5, 5]))
+    ends = np.array(
+        [[sx * 2.0, y, z] for sx in (-1, 1) for y in (-0.05, 0.05) for z in (-0.05, 0.05)]
     )
+    c.insert_point_cloud(ends, np.zeros(3))
+    lo, hi = observed_box(c, np.array([0.01, 0.01, 0.01]), 1.0)
+    assert hi[0] - lo[0] > 1.5 and hi[2] - lo[2] <= 0.2 + 1e-9 and hi[1] - lo[1] <= 0.2 + 1e-9
     with pytest.raises(SimulationError, match="centre"):
-        observed_cube(m, np.array([np.nan, 0.0, 0.0]), 1.0)
+        observed_box(m, np.array([np.nan, 0.0, 0.0]), 1.0)
     with pytest.raises(SimulationError, match="half_max"):
-        observed_cube(m, np.zeros(3), -1.0)
+        observed_box(m, np.zeros(3), -1.0)
 
 
 @pytest.mark.slow
