@@ -172,6 +172,7 @@ class _Loop:
         self.cache = cache if cache is not None else NLPCache()
         self.hidden = set(scenario.hidden_obstacles)
         self.start_problem = self.problem
+        self.first_problem = self.problem  # its start region was observed before take-off
         self.sampled: tuple | None = None  # (plan, SampledPlan) of the plan being re-certified
         # obstacle boxes the plan being followed was last planned or certified against
         self.judged_lo: np.ndarray | None = None
@@ -218,14 +219,19 @@ def _new_obstacle_voxels(loop: _Loop, frame: object) -> int:
 
 
 def observed_box(
-    belief: object, centre: np.ndarray, half_max: float
+    belief: object,
+    centre: np.ndarray,
+    half_max: float,
+    assumed: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The largest box of whole voxels around ``centre`` (each face at most ``half_max`` from it) in
     which every voxel was seen by the camera or is a known obstacle: the start region of a replan
     in flight. Unknown and merely *claimed* free space never counts as observed (the server may
     lie). Faces grow one voxel layer at a time, in turn, while the new layer is all observed, so the
     box stretches along a corridor even when the floor and ceiling near the robot were never in
-    view. None if the voxel holding ``centre`` itself is unobserved.
+    view. Voxels inside ``assumed`` (lo, hi) count as observed too: the start region of the flight,
+    observed before take-off by the paper's premise. None if the voxel holding ``centre`` itself is
+    unobserved.
     """
     from secure3d.mapping.occupancy import Trust
 
@@ -240,7 +246,11 @@ def observed_box(
     def observed(a: np.ndarray, b: np.ndarray) -> bool:  # every voxel a..b (inclusive indices)
         axes = [np.arange(a[d], b[d] + 1) for d in range(3)]
         cells = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        return bool(np.isin(belief.trust((cells + 0.5) * res), allowed).all())
+        pts = (cells + 0.5) * res
+        ok = np.isin(belief.trust(pts), allowed)
+        if assumed is not None:
+            ok |= np.all((pts >= assumed[0]) & (pts <= assumed[1]), axis=1)
+        return bool(ok.all())
 
     k = np.floor(centre / res).astype(np.int64)
     a, b = k.copy(), k.copy()
@@ -500,7 +510,13 @@ def _run(
         else:
             # In flight only what the camera has actually seen counts as observed around the robot.
             p = np.asarray(model.position(x), dtype=float).ravel()
-            box = observed_box(loop.belief, p, loop.problem.options.start_region_radius)
+            first = loop.first_problem
+            box = observed_box(
+                loop.belief,
+                p,
+                loop.problem.options.start_region_radius,
+                assumed=(first.start_region_lo, first.start_region_hi),
+            )
             problem = loop.problem.with_start(x, region=box if box is not None else (p, p))
         if failures[0]:
             speed = RETRY_SPEEDS[failures[0] % len(RETRY_SPEEDS)]

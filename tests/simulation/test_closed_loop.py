@@ -31,6 +31,11 @@ def test_only_what_the_camera_saw_counts_as_observed_around_the_robot():
     c.insert_point_cloud(ends, np.zeros(3))
     lo, hi = observed_box(c, np.array([0.01, 0.01, 0.01]), 1.0)
     assert hi[0] - lo[0] > 1.5 and hi[2] - lo[2] <= 0.2 + 1e-9 and hi[1] - lo[1] <= 0.2 + 1e-9
+    # the flight's start region counts as observed (the paper's premise, before take-off)
+    lo, hi = observed_box(
+        c, np.array([0.01, 0.01, 0.01]), 1.0, assumed=(-0.5 * np.ones(3), 0.5 * np.ones(3))
+    )
+    assert np.all(lo <= -0.5 + 1e-9) and np.all(hi >= 0.5 - 1e-9)
     with pytest.raises(SimulationError, match="centre"):
         observed_box(m, np.array([np.nan, 0.0, 0.0]), 1.0)
     with pytest.raises(SimulationError, match="half_max"):
