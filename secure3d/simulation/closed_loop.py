@@ -205,11 +205,11 @@ def _new_obstacle_voxels(loop: _Loop, frame: object) -> int:
     rays = frame.rays_optical()[valid]
     depth = frame.depth[valid].astype(float) - SURFACE_BIAS  # where the hits were inserted
     pts = (rays * depth[:, None]) @ frame.rotation.T + frame.origin
+    from secure3d.mapping.keys import codes_to_coords, coords_to_codes
+
     res = loop.belief.resolution
-    cells = np.floor(pts / res).astype(np.int64) + (1 << 20)  # one voxel per hit, 21 bits per axis
-    codes = np.unique((cells[:, 0] << 42) | (cells[:, 1] << 21) | cells[:, 2])
-    cells = np.stack([codes >> 42, (codes >> 21) & 0x1FFFFF, codes & 0x1FFFFF], axis=1)
-    centres = (cells - (1 << 20) + 0.5) * res
+    codes, valid = coords_to_codes(pts, res)
+    centres = codes_to_coords(np.unique(codes[valid]), res)  # one per voxel hit
     centres = centres[loop.belief.is_known_obstacle(centres)]
     if not len(centres):
         return 0
@@ -287,12 +287,17 @@ def scan_headings(yaw: float, hfov: float) -> list[float]:
     return [yaw + half, yaw - half, yaw]
 
 
+def _heading_error(target: float, yaw: float) -> float:
+    """``target - yaw`` wrapped to (-pi, pi] (rad)."""
+    return float(np.angle(np.exp(1j * (target - yaw))))
+
+
 def _scan_control(
     model: object, brake: object, x: np.ndarray, target: float, dt: float
 ) -> np.ndarray:
     """Hold still (the braking law) while turning the heading towards ``target``."""
     u = np.array(brake.control(x), dtype=float)
-    err = float(np.angle(np.exp(1j * (target - float(model.yaw(x))))))
+    err = _heading_error(target, float(model.yaw(x)))
     name = getattr(model, "name", "")
     if name == "diff_drive":
         lim = model.limits
@@ -624,8 +629,7 @@ def _run(
                     event(t, "look around", f"turning {np.degrees(0.5 * hfov):.0f} deg either way")
         if mode == "scan":
             while (
-                headings
-                and abs(np.angle(np.exp(1j * (headings[0] - float(model.yaw(x)))))) < SCAN_TOLERANCE
+                headings and abs(_heading_error(headings[0], float(model.yaw(x)))) < SCAN_TOLERANCE
             ):
                 headings.pop(0)
             if headings:
