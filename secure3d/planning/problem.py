@@ -288,9 +288,15 @@ class PlanningProblem:
 
         x0 = np.asarray(x0, dtype=float)
         if region is not None:
+            r_lo, r_hi = (np.asarray(v, dtype=float) for v in region)
+            if r_lo.shape != (3,) or r_hi.shape != (3,) or not np.all(np.isfinite([r_lo, r_hi])):
+                raise ConfigError(
+                    f"with_start: region must be two finite 3-vectors, got {region!r}"
+                )
+            if np.any(r_lo > r_hi):
+                raise ConfigError(f"with_start: region lo must be <= hi, got {region!r}")
             lo, hi = start_region(self.model, self.family, x0, 0.0)
-            lo = np.minimum(lo, np.asarray(region[0], dtype=float))
-            hi = np.maximum(hi, np.asarray(region[1], dtype=float))
+            lo, hi = np.minimum(lo, r_lo), np.maximum(hi, r_hi)
             return replace(self, x0=x0, start_region_lo=lo, start_region_hi=hi)
         half = self.options.start_region_radius if half_size is None else half_size
         lo, hi = start_region(self.model, self.family, x0, half)

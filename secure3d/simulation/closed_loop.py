@@ -283,6 +283,10 @@ def scan_headings(yaw: float, hfov: float) -> list[float]:
     rest of it often lies just outside the frame. Looking around at rest costs a second or two but
     lets the replan see that rest instead of planning into it and taking over again (the paper's
     Algorithm 1 replans at once; this is a liveness addition that never moves the robot)."""
+    if not (np.isfinite(yaw) and np.isfinite(hfov) and 0 < hfov < 2 * np.pi):
+        raise SimulationError(
+            f"scan_headings: need a finite yaw and 0 < hfov < 2 pi, got {yaw!r}, {hfov!r}"
+        )
     half = 0.5 * hfov
     return [yaw + half, yaw - half, yaw]
 

@@ -203,3 +203,5 @@ def test_extra_starts_keep_the_fastest_certified_plan(corner_problem, plans):
     assert multi.solve_time > 0 and multi.iterations > plans["secure"].iterations
     with pytest.raises(secure3d.errors.ConfigError, match="extra_starts"):
         corner_problem.with_options(extra_starts=[0.0])
+    with pytest.raises(secure3d.errors.ConfigError, match="region"):
+        corner_problem.with_start(corner_problem.x0, region=(np.ones(3), np.zeros(3)))

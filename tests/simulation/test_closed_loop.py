@@ -114,6 +114,8 @@ def test_look_around_turns_the_camera_at_rest(maps_dir):
     model = problem_from_scenario(secure3d.load_scenario(maps_dir / "blind_corner.yaml")).model
     hfov = np.radians(90)
     assert scan_headings(0.3, hfov) == pytest.approx([0.3 + hfov / 2, 0.3 - hfov / 2, 0.3])
+    with pytest.raises(SimulationError, match="hfov"):
+        scan_headings(0.0, 0.0)
     x = model.initial_state([1.0, 1.0, 1.0], yaw=0.0)
     brake = BrakingController(model)
     for target, sign in ((1.0, 1), (-1.0, -1), (np.pi - 0.1 + 2 * np.pi, 1)):
