@@ -12,12 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from secure3d.geometry.frustum import frustum_halfspaces
-from secure3d.geometry.polytope import (
-    box_halfspaces,
-    ellipsoid_polytope_distance,
-    los_hull_distance,
-    segments_blocked,
-)
+from secure3d.geometry.polytope import box_pair_distances, segments_blocked
 from secure3d.planning.problem import PlanningProblem
 
 #: Penalty (m) on a candidate camera whose line of sight to the reactive set crosses a known obstacle.
@@ -151,18 +146,26 @@ def _hull_box_distances(
     return d.reshape(K, -1, n).min(axis=1) - reach[:, None]
 
 
-def _exact_distance(
+def _exact_distances(
     problem: PlanningProblem,
     geo: dict[str, np.ndarray],
     assignment: tuple[int, ...],
-    k: int,
-    b_idx: int,
-) -> float:
-    A, b = box_halfspaces(problem.boxes_lo[b_idx], problem.boxes_hi[b_idx])
-    j = assignment[k]
-    if problem.options.occlusion and j >= 0:
-        return float(los_hull_distance(geo["o"][j], geo["C"][k], geo["M"][k], A, b)[0])
-    return float(ellipsoid_polytope_distance(geo["C"][k], geo["M"][k], A, b)[0])
+    k_idx: np.ndarray,
+    b_idx: np.ndarray,
+) -> np.ndarray:
+    """Exact distance from what node ``k_idx[i]`` constrains (its line-of-sight hull from camera
+    j, or E_k alone at a start-region node or without occlusion) to box ``b_idx[i]``."""
+    j = np.asarray(assignment, dtype=int)[k_idx]
+    los = (j >= 0) & bool(problem.options.occlusion)
+    origins = np.where(los[:, None], geo["o"][np.maximum(j, 0)], geo["C"][k_idx])
+    return box_pair_distances(
+        origins,
+        geo["C"][k_idx],
+        geo["M"][k_idx],
+        problem.boxes_lo[b_idx],
+        problem.boxes_hi[b_idx],
+        los,
+    )
 
 
 def _refine_distances(
@@ -176,10 +179,12 @@ def _refine_distances(
     screening subtracts the largest semi-axis, which ranks boxes poorly beside long reactive sets)."""
     geo = node_geometry(problem, states)
     out = np.full_like(screen, np.inf)
-    for k in range(len(states)):
-        for b_idx in np.argsort(screen[k])[:keep]:
-            if screen[k, b_idx] <= problem.options.obstacle_radius:
-                out[k, b_idx] = _exact_distance(problem, geo, assignment, k, int(b_idx))
+    order = np.argsort(screen, axis=1)[:, :keep]
+    k_idx = np.repeat(np.arange(len(states)), order.shape[1])
+    b_idx = order.ravel()
+    near = screen[k_idx, b_idx] <= problem.options.obstacle_radius
+    k_idx, b_idx = k_idx[near], b_idx[near]
+    out[k_idx, b_idx] = _exact_distances(problem, geo, assignment, k_idx, b_idx)
     return out
 
 
@@ -205,9 +210,8 @@ def slots_missing(
         return bool(len(flagged))
     # the screening bound is loose for elongated reactive sets: confirm with exact distances
     geo = node_geometry(problem, states)
-    return any(
-        _exact_distance(problem, geo, assignment, int(k), int(b)) < limit for k, b in flagged
-    )
+    d = _exact_distances(problem, geo, assignment, flagged[:, 0], flagged[:, 1])
+    return bool(np.any(d < limit))
 
 
 def select_slots(
@@ -235,6 +239,30 @@ def select_slots(
                 slots[k, s, 0:3] = problem.boxes_lo[idx]
                 slots[k, s, 3:6] = problem.boxes_hi[idx]
     return slots
+
+
+def keep_slot_positions(previous: np.ndarray, slots: np.ndarray) -> np.ndarray:
+    """``slots`` (K, S, 6) rearranged so that every box also in ``previous`` keeps its slot there.
+
+    A slot's constraint rows and separation duals belong to the box in it; a re-selection that only
+    reorders boxes would otherwise look like new obstacles to a warm start. Node sets are unchanged.
+    """
+    if previous is None or previous.shape != slots.shape:
+        return slots
+    out = slots.copy()
+    for k in range(len(slots)):
+        match = np.all(np.isclose(previous[k][:, None, :], slots[k][None, :, :]), axis=-1)  # (S, S)
+        if not match.any():
+            continue
+        kept_new = np.zeros(slots.shape[1], bool)
+        taken = np.zeros(slots.shape[1], bool)
+        for s_old in range(slots.shape[1]):
+            hits = np.flatnonzero(match[s_old] & ~kept_new)
+            if len(hits):
+                out[k, s_old] = slots[k, hits[0]]
+                kept_new[hits[0]] = taken[s_old] = True
+        out[k, ~taken] = slots[k, ~kept_new]
+    return out
 
 
 def min_box_distance_all(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -273,6 +301,7 @@ __all__ = [
     "fixed_assignment",
     "frustum_margins",
     "initial_duals",
+    "keep_slot_positions",
     "node_geometry",
     "occluded",
     "select_slots",

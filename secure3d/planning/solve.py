@@ -138,7 +138,7 @@ def _solve_once(
     X = np.array(X, dtype=float)
     X[0] = problem.x0
     U = np.clip(U, problem.model.u_lo, problem.model.u_hi)
-    slots = lb.select_slots(problem, planner, X, assignment)
+    slots = lb.keep_slot_positions(prev_slots, lb.select_slots(problem, planner, X, assignment))
     fresh = lb.initial_duals(problem, planner, X, slots, assignment)
     if L is None or prev_slots is None or L.shape != fresh.shape:
         L = fresh

@@ -142,8 +142,8 @@ class _Loop:
     def __init__(
         self, scenario: Scenario, planner: str, seed: int, options: dict, cache: object
     ) -> None:
-        from secure3d.planning.collocation import NLPCache
         from secure3d.planning.problem import problem_from_scenario
+        from secure3d.planning.solve import DEFAULT_CACHE
         from secure3d.reactive.controllers import BrakingController
         from secure3d.simulation.camera import DepthCamera
         from secure3d.simulation.collision import CollisionWorld
@@ -169,7 +169,8 @@ class _Loop:
         self.model = self.problem.model
         self.brake = BrakingController(self.model)
         self.tracker = make_tracker(self.model)
-        self.cache = cache if cache is not None else NLPCache()
+        # the planner's module-wide cache by default: runs in one process share compiled NLPs
+        self.cache = cache if cache is not None else DEFAULT_CACHE
         self.hidden = set(scenario.hidden_obstacles)
         self.start_problem = self.problem
         self.first_problem = self.problem  # its start region was observed before take-off
@@ -374,7 +375,8 @@ def simulate(
     seed : seeds the camera noise and dropout (runs are deterministic for a seed).
     rrd : write a Rerun recording of the run there (atomically); replay with ``rerun FILE.rrd``.
     png : write the top-down figure of the run there (atomically).
-    cache : an :class:`~secure3d.planning.collocation.NLPCache` shared across runs.
+    cache : an :class:`~secure3d.planning.collocation.NLPCache` for the compiled NLPs (default: the
+        planner's module-wide cache, so runs in one process build each NLP shape once).
     max_replans : give up (robot holds still) after this many failed or successful replans.
     replan_in_flight : when new evidence breaks the rest of the plan, first try to replan from the
         moving state (the solve takes no simulated time); brake only if that fails.
@@ -383,9 +385,6 @@ def simulate(
     frame_log_every, belief_log_every : decimation of camera frames and belief voxels in the recording.
     **options : planner options (see :class:`~secure3d.planning.problem.PlannerOptions`).
     """
-    from secure3d.planning.solve import plan_problem
-    from secure3d.planning.trajectory import interpolate
-
     if isinstance(scenario, (str, Path)):
         from secure3d.world.scenario import load_scenario
 
@@ -394,11 +393,19 @@ def simulate(
         raise SimulationError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
     wall0 = time.perf_counter()
     loop = _Loop(scenario, planner, seed, dict(options), cache)
-    model, spec = loop.model, scenario.simulation
-    dt = spec.dt
-    frame_period = 1.0 / scenario.camera.rate_hz
-    r = model.body_radius
-    goal = np.asarray(scenario.goal.position)
+    settings = _RunSettings(
+        dt=scenario.simulation.dt,
+        frame_period=1.0 / scenario.camera.rate_hz,
+        goal=np.asarray(scenario.goal.position, dtype=float),
+        time_limit=scenario.simulation.time_limit,
+        max_replans=max_replans,
+        look_around=look_around,
+        replan_in_flight=replan_in_flight,
+        frame_log_every=frame_log_every,
+        belief_log_every=belief_log_every,
+        seed=seed,
+        wall0=wall0,
+    )
 
     recorder = None
     if rrd is not None:
@@ -406,24 +413,7 @@ def simulate(
 
         recorder = RerunRecorder(rrd, recording_id=recording_id(f"{scenario.name}-{planner}", seed))
     try:
-        result = _run(
-            loop,
-            recorder,
-            dt,
-            frame_period,
-            r,
-            goal,
-            spec.time_limit,
-            max_replans,
-            look_around,
-            replan_in_flight,
-            frame_log_every,
-            belief_log_every,
-            seed,
-            plan_problem,
-            interpolate,
-            wall0,
-        )
+        result = _run(loop, recorder, settings)
     except BaseException:
         if recorder is not None:
             recorder.abort()
@@ -446,32 +436,40 @@ def simulate(
             if result.detection_point is not None
             else None,
             start=np.asarray(scenario.start.position),
-            goal=goal,
+            goal=settings.goal,
             collision_points=[result.positions[-1]] if result.collided else (),
             title=f"{scenario.name}: {planner} ({result.outcome})",
         )
     return dataclasses.replace(result, outputs=outputs)
 
 
-def _run(
-    loop,
-    rec,
-    dt,
-    frame_period,
-    r,
-    goal,
-    time_limit,
-    max_replans,
-    look_around,
-    replan_in_flight,
-    frame_log_every,
-    belief_log_every,
-    seed,
-    plan_problem,
-    interpolate,
-    wall0,
-) -> SimResult:
+@dataclass(frozen=True)
+class _RunSettings:
+    """How one closed-loop run is flown (see :func:`simulate`)."""
+
+    dt: float
+    frame_period: float
+    goal: np.ndarray
+    time_limit: float
+    max_replans: int
+    look_around: bool
+    replan_in_flight: bool
+    frame_log_every: int
+    belief_log_every: int
+    seed: int
+    wall0: float
+
+
+def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
+    from secure3d.planning.solve import plan_problem
+    from secure3d.planning.trajectory import interpolate
+
     scenario, model = loop.scenario, loop.model
+    dt, frame_period, goal = settings.dt, settings.frame_period, settings.goal
+    max_replans, look_around = settings.max_replans, settings.look_around
+    replan_in_flight, seed, wall0 = settings.replan_in_flight, settings.seed, settings.wall0
+    frame_log_every, belief_log_every = settings.frame_log_every, settings.belief_log_every
+    time_limit, r = settings.time_limit, model.body_radius
     events: list[SimEvent] = []
     plans: list[tuple[float, PlanResult]] = []
     solve_times: list[float] = []

@@ -14,6 +14,7 @@ from secure3d.errors import GeometryError
 from secure3d.geometry.ellipsoid import ellipsoid_from_axes, surface_points
 from secure3d.geometry.polytope import (
     box_halfspaces,
+    box_pair_distances,
     box_signed_distance,
     boxes_halfspaces,
     convex_hull_halfspaces,
@@ -335,3 +336,42 @@ def test_casadi_twins_match_numpy(rng):
     # The smooth norm keeps the gradient finite where A^T lam = 0 (opposite faces balanced).
     grad = np.array(f(np.zeros(3), np.ones(3), np.eye(3), np.r_[1.0, 0, 0, 1.0, 0, 0])[3])
     assert np.all(np.isfinite(grad))
+
+
+def test_box_pair_distances_match_the_pairwise_solvers():
+    rng = np.random.default_rng(11)
+    O, C, M, lo, hi, los, expected = [], [], [], [], [], [], []
+    for i in range(60):
+        c, m, _, _ = random_ellipsoid(rng)
+        o = rng.uniform(-5, 5, 3)
+        b_lo, b_hi = random_box(rng)
+        A, b = box_halfspaces(b_lo, b_hi)
+        flag = bool(i % 2)
+        d = (
+            los_hull_distance(o, c, m, A, b)[0]
+            if flag
+            else ellipsoid_polytope_distance(c, m, A, b)[0]
+        )
+        O.append(o), C.append(c), M.append(m), lo.append(b_lo), hi.append(b_hi), los.append(flag)
+        expected.append(d)
+    got = box_pair_distances(O, C, M, lo, hi, los)
+    assert np.allclose(got, expected, atol=1e-9)
+    assert (np.asarray(expected) == 0).any() and (np.asarray(expected) > 0).any()
+    assert box_pair_distances(
+        np.zeros((0, 3)),
+        np.zeros((0, 3)),
+        np.zeros((0, 3, 3)),
+        np.zeros((0, 3)),
+        np.zeros((0, 3)),
+        [],
+    ).shape == (0,)
+
+
+def test_box_pair_distances_reject_bad_input():
+    c, m = np.zeros(3), np.eye(3)
+    with pytest.raises(GeometryError, match="expected 2 of everything"):
+        box_pair_distances([c, c], [c, c], [m], [c, c], [c + 1, c + 1], [True, False])
+    with pytest.raises(GeometryError, match="lo <= hi"):
+        box_pair_distances([c], [c], [m], [c + 1], [c], [False])
+    with pytest.raises(GeometryError, match="pair 0"):
+        box_pair_distances([c], [c], [-m], [c + 2], [c + 3], [False])
