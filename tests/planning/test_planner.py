@@ -159,6 +159,9 @@ def test_warm_replan_reuses_the_compiled_nlp_and_is_faster(corner_problem, plans
     assert cache.misses == misses, "the warm replan must reuse the compiled NLP"
     assert warm.iterations < cold.iterations
     np.testing.assert_allclose(warm.final_time, cold.final_time, rtol=1e-3)
+    # the warm-start solver is compiled once per NLP, and that is reported as build time
+    again = plan_problem(corner_problem, "secure", cache=cache, warm=warm)
+    assert warm.build_time > 0.05 and again.build_time < 1e-3
 
 
 def test_start_inside_an_obstacle_is_invalid_input(corner):
