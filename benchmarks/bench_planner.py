@@ -1,6 +1,7 @@
 """Benchmark the secure planner and its baseline on every scenario in ``maps/`` (issue #5, item 4).
 
-For each scenario, planner (``secure``, ``baseline``) and solver (``ipopt``, ``fatrop``), each of
+For each scenario, planner (``secure``, ``baseline``) and solver (``ipopt``, ``fatrop``, and
+``ipopt1s``: IPOPT with the opt-in one-sided separation duals), each of
 ``--reps`` repetitions does
 
 - a *cold* solve: a fresh :class:`~secure3d.planning.NLPCache`, so the NLP is built (transcribed and
@@ -69,7 +70,13 @@ from secure3d.world.scenario import load_scenario
 from secure3d.world.spec import Box, Scenario
 
 PLANNERS = ("baseline", "secure")
-SOLVERS = ("ipopt", "fatrop")
+SOLVERS = ("ipopt", "fatrop", "ipopt1s")
+#: Planner options behind each solver label ("ipopt1s": IPOPT with one-sided separation duals).
+SOLVER_OPTIONS = {
+    "ipopt": {"solver": "ipopt"},
+    "fatrop": {"solver": "fatrop"},
+    "ipopt1s": {"solver": "ipopt", "one_sided_duals": True},
+}
 K_VALUES = (20, 40, 80)
 OBSTACLE_COUNTS = (0, 5, 10, 20)
 QUICK_K_VALUES = (20,)
@@ -331,7 +338,10 @@ def scenario_setups(paths: Sequence[Path], args: argparse.Namespace) -> list[Set
         )
     )
     return [
-        ({"scenario": p.stem, "solver": s}, lambda p=p, s=s: base(p).with_options(solver=s))
+        (
+            {"scenario": p.stem, "solver": s},
+            lambda p=p, s=s: base(p).with_options(**SOLVER_OPTIONS[s]),
+        )
         for p in paths
         for s in args.solvers
     ]
@@ -346,11 +356,11 @@ def sweep_setups(args: argparse.Namespace) -> tuple[list[Setup], list[Setup]]:
 
     def with_bumps(n: int) -> PlanningProblem:
         variant = with_boxes(scenario(), bumps()[:n])
-        return problem_from_scenario(variant, time_limit=args.time_limit, solver=solver)
+        return problem_from_scenario(variant, time_limit=args.time_limit, **SOLVER_OPTIONS[solver])
 
     k_sweep = [
         ({"scenario": name, "solver": solver, "nodes": k},
-         lambda k=k: base().with_options(nodes=k, solver=solver))
+         lambda k=k: base().with_options(nodes=k, **SOLVER_OPTIONS[solver]))
         for k in args.k_values
     ]  # fmt: skip
     obstacle_sweep = [

@@ -415,13 +415,15 @@ def box_distances(O, C, M, lo, hi, los, rel_tol):
     """Distances of ``n`` (ellipsoid or line-of-sight hull, box) pairs in one call.
 
     ``O, C`` (n, 3), ``M`` (n, 3, 3), ``lo, hi`` (n, 3), ``los`` (n,) bool. Returns (status (n,),
-    distance (n,)): the certified lower bound of :func:`solve_separation`, 0 where the sets touch
-    within its tolerance (the same numbers as ``polytope.los_hull_distance`` /
-    ``ellipsoid_polytope_distance`` pair by pair, without their per-call Python overhead).
+    distance (n,), lam (n, 6)): the certified lower bound of :func:`solve_separation`, 0 where the
+    sets touch within its tolerance (the same numbers as ``polytope.los_hull_distance`` /
+    ``ellipsoid_polytope_distance`` pair by pair, without their per-call Python overhead), and the
+    dual that certifies it (faces ``+x, +y, +z, -x, -y, -z``; zeros where the sets touch).
     """
     n = C.shape[0]
     status = np.zeros(n, np.int64)
     dist = np.zeros(n)
+    lams = np.zeros((n, 6))
     b = np.empty(6)
     for i in range(n):
         for j in range(3):
@@ -431,8 +433,9 @@ def box_distances(O, C, M, lo, hi, los, rel_tol):
         for j in range(3):
             scale = max(scale, abs(b[j]), abs(b[3 + j]), abs(C[i, j]), abs(O[i, j]))
         tol = rel_tol * scale
-        st, lower, upper, _, _ = solve_separation(O[i], C[i], M[i], _BOX_A, b, los[i], tol)
+        st, lower, upper, lam, _ = solve_separation(O[i], C[i], M[i], _BOX_A, b, los[i], tol)
         status[i] = st
         if st == OK and upper > tol and lower > 0.0:
             dist[i] = lower
-    return status, dist
+            lams[i] = lam
+    return status, dist, lams

@@ -400,8 +400,14 @@ def ellipsoid_polytope_distance(
 
 
 def box_pair_distances(
-    origins: object, centers: object, shapes: object, lo: object, hi: object, los: object
-) -> np.ndarray:
+    origins: object,
+    centers: object,
+    shapes: object,
+    lo: object,
+    hi: object,
+    los: object,
+    with_duals: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Exact distances of ``n`` (line-of-sight hull or ellipsoid, box) pairs in one compiled call.
 
     Pair ``i`` is ``conv({o_i} ∪ E_i)`` against the box ``lo_i <= y <= hi_i`` where ``los[i]``,
@@ -414,9 +420,12 @@ def box_pair_distances(
     origins, centers : (n, 3) float. shapes : (n, 3, 3) float. lo, hi : (n, 3) float.
     los : (n,) bool.
 
+    with_duals : also return each pair's certifying dual.
+
     Returns
     -------
-    (n,) float
+    (n,) float, and with ``with_duals`` the (n, 6) duals ``lam >= 0`` on the faces ``+x, +y, +z,
+    -x, -y, -z`` (``|A^T lam| = 1``; zeros where the sets touch).
     """
     O = np.ascontiguousarray(origins, dtype=float).reshape(-1, 3)
     C = np.ascontiguousarray(centers, dtype=float).reshape(-1, 3)
@@ -434,12 +443,12 @@ def box_pair_distances(
     if np.any(lo > hi):
         raise GeometryError("box_pair_distances: every box needs lo <= hi")
     kern = _kernel()
-    status, dist = kern.box_distances(O, C, M, lo, hi, flags, DISTANCE_REL_TOL)
+    status, dist, lams = kern.box_distances(O, C, M, lo, hi, flags, DISTANCE_REL_TOL)
     bad = np.flatnonzero(status != kern.OK)
     if len(bad):
         i = int(bad[0])
         raise GeometryError(f"pair {i}: {kern.STATUS_MESSAGES[int(status[i])]}")
-    return dist
+    return (dist, lams) if with_duals else dist
 
 
 def los_hull_distance(

@@ -47,6 +47,8 @@ class NLPLayout:
     slots: int
     hermite: bool
     viewing: bool = False
+    #: one dual per box axis and slot (the side comes as a parameter), else six
+    one_sided: bool = False
     #: state coordinates the camera pose depends on (the viewing states hold only these)
     view_dims: tuple[int, ...] = ()
     i_T: int = 0
@@ -69,16 +71,28 @@ class NLPLayout:
         n_m = (K - 1) if self.hermite else 0
         self.i_Um = (n + np.arange(n_m * nu)).reshape(n_m, nu)
         n += n_m * nu
-        self.i_L = (n + np.arange(K * S * 6)).reshape(K, S, 6)
-        n += K * S * 6
+        n_l = 3 if self.one_sided else 6
+        self.i_L = (n + np.arange(K * S * n_l)).reshape(K, S, n_l)
+        n += K * S * n_l
         n_y, n_d = (K, len(self.view_dims)) if self.viewing else (0, 0)
         self.i_Y = (n + np.arange(n_y * n_d)).reshape(n_y, n_d)
         n += n_y * n_d
         self.n_w = n
 
-    def unpack(self, w: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    def unpack(
+        self, w: np.ndarray, sides: np.ndarray | None = None
+    ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """(T, X, U, L) with L the (K, S, 6) duals; one-sided duals need their ``sides``."""
         w = np.asarray(w, dtype=float).ravel()
-        return float(w[self.i_T]), w[self.i_X], w[self.i_U], w[self.i_L]
+        return float(w[self.i_T]), w[self.i_X], w[self.i_U], self._six(w[self.i_L], sides)
+
+    def _six(self, L: np.ndarray, sides: np.ndarray | None) -> np.ndarray:
+        if not self.one_sided:
+            return L
+        if sides is None:
+            raise ValueError("one-sided duals need the sides they were solved with")
+        pos = np.asarray(sides, dtype=bool)
+        return np.concatenate([np.where(pos, L, 0.0), np.where(pos, 0.0, L)], axis=-1)
 
     def pack(
         self,
@@ -89,11 +103,13 @@ class NLPLayout:
         Um: np.ndarray | None = None,
         assignment: tuple[int, ...] | None = None,
     ) -> np.ndarray:
+        """The decision vector; ``L`` holds (K, S, 6) duals (folded to one side if one-sided)."""
         w = np.zeros(self.n_w)
         w[self.i_T] = T
         w[self.i_X] = X
         w[self.i_U] = U
-        w[self.i_L] = L
+        L = np.asarray(L, dtype=float)
+        w[self.i_L] = L[..., :3] + L[..., 3:] if self.one_sided else L
         if self.hermite:
             w[self.i_Um] = 0.5 * (U[:-1] + U[1:]) if Um is None else Um
         if self.viewing and assignment is not None:
@@ -153,13 +169,22 @@ class TranscribedNLP:
         return lbg, self.ubg
 
     def parameters(
-        self, problem: PlanningProblem, slot_boxes: np.ndarray, assignment
+        self,
+        problem: PlanningProblem,
+        slot_boxes: np.ndarray,
+        assignment,
+        sides: np.ndarray | None = None,
     ) -> np.ndarray:
-        """The NLP's parameter vector (see :func:`parameter_vector`)."""
-        base = parameter_vector(problem, slot_boxes)
-        if not getattr(self.layout, "viewing", False):
-            return base
-        return np.concatenate([base, selection_matrix(assignment).ravel(order="F")])
+        """The NLP's parameter vector (see :func:`parameter_vector`), then the dual sides
+        (one-sided duals) and the selection matrix (look-back as a parameter)."""
+        parts = [parameter_vector(problem, slot_boxes)]
+        if getattr(self.layout, "one_sided", False):
+            if sides is None:
+                raise ValueError("one-sided duals need their sides")
+            parts.append(np.asarray(sides, dtype=float).ravel())
+        if getattr(self.layout, "viewing", False):
+            parts.append(selection_matrix(assignment).ravel(order="F"))
+        return np.concatenate(parts)
 
     def get_warm_solver(self) -> ca.Function:
         """Same NLP, solver options tuned for a warm start from a primal-dual guess."""
@@ -337,6 +362,7 @@ def build_nlp(
         slots=S,
         hermite=hermite,
         viewing=parametric,
+        one_sided=o.one_sided_duals,
         view_dims=camera_dims(model) if parametric else (),
     )
     kern = kernels if kernels is not None else node_kernels(problem)
@@ -351,12 +377,29 @@ def build_nlp(
         if hermite
         else SYM.zeros(nu, K - 1)
     )
-    Lam = ca.reshape(w[int(lay.i_L[0, 0, 0]) : int(lay.i_L[-1, -1, -1]) + 1], 6 * S, K)
     n_boxes = K * S * 6
-    n_p = 9 + n_boxes + (K * K if parametric else 0)
+    n_sides = K * S * 3 if lay.one_sided else 0
+    n_p = 9 + n_boxes + n_sides + (K * K if parametric else 0)
     p = SYM.sym("p", n_p)
     start_lo, start_hi, goal = p[0:3], p[3:6], p[6:9]
     Boxes = ca.reshape(p[9 : 9 + n_boxes], 6 * S, K)  # column k = [lo; hi] of each slot at node k
+    L_w = w[int(lay.i_L[0, 0, 0]) : int(lay.i_L[-1, -1, -1]) + 1]
+    if lay.one_sided:
+        # lam = [side * mu; (1 - side) * mu] per slot: mu >= 0 on the box faces facing the node
+        Mu = ca.reshape(L_w, 3 * S, K)
+        Side = ca.reshape(p[9 + n_boxes : 9 + n_boxes + n_sides], 3 * S, K)
+        Lam = ca.vertcat(
+            *[
+                blk
+                for s_ in range(S)
+                for blk in (
+                    Side[3 * s_ : 3 * s_ + 3, :] * Mu[3 * s_ : 3 * s_ + 3, :],
+                    (1 - Side[3 * s_ : 3 * s_ + 3, :]) * Mu[3 * s_ : 3 * s_ + 3, :],
+                )
+            ]
+        )
+    else:
+        Lam = ca.reshape(L_w, 6 * S, K)
     h = T / (K - 1)
     exprs: list = []
     meta: list[tuple[str, float, float]] = []
@@ -444,7 +487,7 @@ def build_nlp(
         # rows local to (x_i, y_i), so the Hessian stays block-sparse for every assignment.
         dims = list(lay.view_dims)
         Yv = ca.reshape(w[int(lay.i_Y[0, 0]) : int(lay.i_Y[-1, -1]) + 1], len(dims), K)
-        Sel = ca.reshape(p[9 + n_boxes :], K, K)
+        Sel = ca.reshape(p[9 + n_boxes + n_sides :], K, K)
         link = ca.horzcat(*[Yv[:, i] - ca.mtimes(X[dims, :i], Sel[i, :i].T) for i in nodes])
         add(link, [("viewing_state", 0.0, 0.0)] * len(dims), len(nodes), nodes)
         # the full viewing state, zero in the coordinates the camera pose does not depend on
@@ -549,6 +592,7 @@ def nlp_key(problem: PlanningProblem, planner: str, assignment: tuple[int, ...])
         planner,
         o.nodes,
         o.obstacle_slots,
+        o.one_sided_duals and o.solver == "ipopt",
         o.collocation,
         o.margin,
         o.occlusion if planner == "secure" else False,

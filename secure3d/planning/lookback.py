@@ -222,7 +222,7 @@ def select_slots(
     Empty slots hold a small box far outside the world (its constraint is inactive)."""
     o = problem.options
     K, S = len(states), o.obstacle_slots
-    far = np.asarray(problem.bounds_hi) + 1e3
+    far = np.asarray(problem.bounds_hi) + 1e3  # slot_sides recognises empty slots by it
     slots = np.empty((K, S, 6))
     slots[:, :, 0:3] = far
     slots[:, :, 3:6] = far + 0.1
@@ -265,6 +265,55 @@ def keep_slot_positions(previous: np.ndarray, slots: np.ndarray) -> np.ndarray:
     return out
 
 
+def slot_sides(
+    problem: PlanningProblem,
+    planner: str,
+    states: np.ndarray,
+    slots: np.ndarray,
+    assignment: tuple[int, ...] | None = None,
+) -> np.ndarray:
+    """(K, S, 3) bool: for one-sided duals, whether each slot's dual acts on the box's upper face
+    along each axis or on its lower face.
+
+    The side is the one the optimal separating plane uses on ``states``: the exact dual of what the
+    slot's rows constrain (the line-of-sight hull from camera j to E_k, or E_k alone, for the secure
+    planner; the segment from the body at node k to node k+1 for the baseline). Where that dual has
+    no component along an axis (or the sets touch), the side of the box's middle the set's centre
+    lies on. Any choice is sound (weak duality holds for every dual-feasible lam); a poor one only
+    makes the constraint conservative.
+    """
+    K, S = slots.shape[:2]
+    if planner == "secure":
+        geo = node_geometry(problem, states)
+        centres, shapes = geo["C"], geo["M"]
+        j = np.zeros(K, int) - 1 if assignment is None else np.asarray(assignment, dtype=int)
+        los = (j >= 0) & bool(problem.options.occlusion)
+        origins = np.where(los[:, None], geo["o"][np.maximum(j, 0)], centres)
+    else:
+        centres = np.asarray(problem.model.position(states), dtype=float)
+        shapes = np.broadcast_to(problem.model.body_radius * np.eye(3), (K, 3, 3))
+        origins = np.concatenate([centres[1:], centres[-1:]])
+        los = np.ones(K, bool)
+    middle = 0.5 * (slots[:, :, 0:3] + slots[:, :, 3:6])
+    sides = centres[:, None, :] >= middle
+    real = ~np.all(np.isclose(slots[:, :, 0:3], np.asarray(problem.bounds_hi) + 1e3), axis=-1)
+    k_idx, s_idx = np.nonzero(real)
+    if len(k_idx):
+        _, lam = box_pair_distances(
+            origins[k_idx],
+            centres[k_idx],
+            shapes[k_idx],
+            slots[k_idx, s_idx, 0:3],
+            slots[k_idx, s_idx, 3:6],
+            los[k_idx],
+            with_duals=True,
+        )
+        nu = lam[:, 0:3] - lam[:, 3:6]
+        decided = np.abs(nu) > 1e-6
+        sides[k_idx, s_idx] = np.where(decided, nu > 0, sides[k_idx, s_idx])
+    return sides
+
+
 def min_box_distance_all(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """(n_points, n_boxes) Euclidean distance from points to boxes (0 inside)."""
     q = np.clip(points[:, None, :], lo[None], hi[None])
@@ -305,5 +354,6 @@ __all__ = [
     "node_geometry",
     "occluded",
     "select_slots",
+    "slot_sides",
     "start_margins",
 ]

@@ -151,7 +151,9 @@ def _solve_once(
         w0 = lay.pack(float(np.clip(T, T_MIN, T_MAX)), X, U, L, assignment=assignment)
     else:
         w0 = lay.pack(float(np.clip(T, T_MIN, T_MAX)), X, U, L)
-    p = nlp.parameters(problem, slots, assignment)
+    one_sided = getattr(lay, "one_sided", False)
+    sides = lb.slot_sides(problem, planner, X, slots, assignment) if one_sided else None
+    p = nlp.parameters(problem, slots, assignment, sides)
     lbx, ubx = _variable_bounds(problem, nlp, T)
     lbg, ubg = nlp.bounds_for(assignment)
     if extra_margin:
@@ -195,7 +197,7 @@ def _solve_once(
     solve_time = time.perf_counter() - t0
     stats = solver.stats()
     w = np.asarray(sol["x"]).ravel()
-    Ts, Xs, Us, Ls = lay.unpack(w)
+    Ts, Xs, Us, Ls = lay.unpack(w, sides) if one_sided else lay.unpack(w)
     viol = _violations(nlp, w, p, lbg, ubg)
     worst = max(viol.values(), default=0.0)
     rs = str(stats.get("return_status", "unknown"))

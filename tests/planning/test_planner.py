@@ -208,3 +208,35 @@ def test_extra_starts_keep_the_fastest_certified_plan(corner_problem, plans):
         corner_problem.with_options(extra_starts=[0.0])
     with pytest.raises(secure3d.errors.ConfigError, match="region"):
         corner_problem.with_start(corner_problem.x0, region=(np.ones(3), np.zeros(3)))
+
+
+def test_one_sided_duals_plan_the_same_corner_and_certify(corner_problem, plans):
+    problem = corner_problem.with_options(one_sided_duals=True)
+    cache = NLPCache()
+    for name in ("baseline", "secure"):
+        result = plan_problem(problem, name, cache=cache)
+        assert result.ok, f"{name}: {result.message}"
+        np.testing.assert_allclose(result.final_time, plans[name].final_time, rtol=0.01)
+    assert result.certificate is not None and result.certificate.ok
+    nlp = next(iter(cache._items.values()))[0]
+    assert nlp.layout.i_L.shape[-1] == 3  # half the separation variables
+    np.testing.assert_allclose(result.warm["L"][..., :3] * result.warm["L"][..., 3:], 0.0)
+
+
+def test_one_sided_layout_round_trip():
+    from secure3d.planning.collocation import NLPLayout
+
+    lay = NLPLayout(K=3, nx=2, nu=1, slots=2, hermite=False, one_sided=True)
+    rng = np.random.default_rng(0)
+    sides = rng.random((3, 2, 3)) > 0.5
+    mu = rng.random((3, 2, 3))
+    L6 = np.concatenate([np.where(sides, mu, 0.0), np.where(sides, 0.0, mu)], axis=-1)
+    w = lay.pack(1.0, np.zeros((3, 2)), np.zeros((3, 1)), L6)
+    np.testing.assert_allclose(lay.unpack(w, sides)[3], L6)
+    with pytest.raises(ValueError, match="sides"):
+        lay.unpack(w)
+
+
+def test_one_sided_duals_option_is_validated(corner_problem):
+    with pytest.raises(secure3d.errors.ConfigError, match="one_sided_duals"):
+        corner_problem.with_options(one_sided_duals="yes")
