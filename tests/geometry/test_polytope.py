@@ -356,6 +356,17 @@ def test_box_pair_distances_match_the_pairwise_solvers():
         expected.append(d)
     got = box_pair_distances(O, C, M, lo, hi, los)
     assert np.allclose(got, expected, atol=1e-9)
+    # the duals certify those distances (weak duality, DESIGN.md section 4)
+    dist, lam = box_pair_distances(O, C, M, lo, hi, los, with_duals=True)
+    np.testing.assert_array_equal(dist, got)
+    for i in np.flatnonzero(dist > 0):
+        A, b = box_halfspaces(lo[i], hi[i])
+        assert np.all(lam[i] >= 0) and np.isclose(np.linalg.norm(A.T @ lam[i]), 1.0)
+        bound = lam[i] @ (A @ C[i] - b) - np.linalg.norm(M[i] @ (A.T @ lam[i]))
+        if los[i]:
+            bound = min(bound, lam[i] @ (A @ O[i] - b))
+        assert bound == pytest.approx(dist[i], abs=1e-7)
+    assert np.all(lam[dist == 0] == 0)
     assert (np.asarray(expected) == 0).any() and (np.asarray(expected) > 0).any()
     assert box_pair_distances(
         np.zeros((0, 3)),
