@@ -246,6 +246,13 @@ def _simulate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--speed-png", type=Path, metavar="FILE", help="write the speed profiles of the flights"
     )
+    parser.add_argument(
+        "--replan-latency",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="simulated seconds a replan in flight takes; the robot follows its old plan meanwhile (0)",
+    )
     parser.add_argument("--events", action="store_true", help="print every event of each run")
 
 
@@ -283,6 +290,7 @@ def _simulate(args: argparse.Namespace) -> int:
         args.seed,
         rrd=lambda planner: _per_planner(rrd, planner, several),
         report=lambda result: _print_run(result, args.events),
+        replan_latency=args.replan_latency,
         **_planner_options(args),
     )
     if several:

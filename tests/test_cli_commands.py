@@ -143,6 +143,12 @@ def test_simulate_writes_recording_and_figures(tiny: Path, tmp_path: Path, capsy
     _no_partials(tmp_path)
 
 
+def test_simulate_rejects_a_negative_replan_latency(tiny: Path, capsys) -> None:
+    assert main(["simulate", str(tiny), "--planner", "baseline", "--replan-latency", "-1"]) == 2
+    err = capsys.readouterr().err
+    assert "replan_latency" in err and len(err.strip().splitlines()) == 1, err
+
+
 @pytest.mark.slow
 def test_simulate_both_names_one_recording_per_planner(tiny: Path, tmp_path: Path, capsys) -> None:
     rrd = tmp_path / "run.rrd"

@@ -666,7 +666,8 @@ def fly_planners(
     seed : simulation seed shared by every run, so the planners face the same camera noise.
     rrd : planner -> path of its Rerun recording (or None for none).
     report : called with each SimResult as soon as it is finished (e.g. to print its summary).
-    **options : planner options (:class:`~secure3d.planning.problem.PlannerOptions` fields).
+    **options : planner options (:class:`~secure3d.planning.problem.PlannerOptions` fields) and
+        :func:`~secure3d.simulation.closed_loop.simulate`'s keyword options (``replan_latency``).
     """
     from secure3d.planning.collocation import NLPCache
     from secure3d.simulation.closed_loop import simulate

@@ -136,6 +136,10 @@ class SimResult:
         )
 
 
+#: The certificate's sampling step (s): a manoeuvre that fails at plan time t_bad leaves the robot
+#: until t_bad minus this to switch to a new plan.
+CERT_STEP = 0.02
+
 #: Obstacle slots per node in closed loop (the planner's default is 8; see ``_Loop``).
 CLOSED_LOOP_OBSTACLE_SLOTS = 12
 
@@ -338,8 +342,12 @@ def _path_clearance(
     return float(np.maximum(min_box_distance(P, lo, hi), 0.0).min() - loop.model.body_radius)
 
 
-def _plan_unsafe(loop: _Loop, plan: PlanResult, plan_problem_: object, t_rel: float) -> str | None:
-    """Why the rest of ``plan`` (from ``t_rel`` on) is no longer safe in the updated belief, or None."""
+def _plan_unsafe(
+    loop: _Loop, plan: PlanResult, plan_problem_: object, t_rel: float
+) -> tuple[str, float] | None:
+    """Why the rest of ``plan`` (from ``t_rel`` on) is no longer safe in the updated belief, and the
+    plan time from which it is not (the first manoeuvre that fails the certificate; ``inf`` for the
+    baseline, which promises no manoeuvre), or None."""
     from secure3d.planning.certificate import certify, sample_plan
 
     if loop.planner == "secure":
@@ -349,13 +357,19 @@ def _plan_unsafe(loop: _Loop, plan: PlanResult, plan_problem_: object, t_rel: fl
         if loop.sampled is None or loop.sampled[0] is not plan:
             loop.sampled = (plan, sample_plan(plan, judged))
         cert = certify(plan, judged, t_from=t_rel, sampled=loop.sampled[1])
-        return None if cert.ok else str(cert.first_violation)
+        if cert.ok:
+            return None
+        first = cert.first_violation
+        return str(first), float(first.time) if first is not None else t_rel
     # The baseline only promises a collision-free path: react when the new evidence brings an obstacle
     # into the body's planned path.
     after = _path_clearance(loop, plan, t_rel, loop.problem.boxes_lo, loop.problem.boxes_hi)
     before = _path_clearance(loop, plan, t_rel, plan_problem_.boxes_lo, plan_problem_.boxes_hi)
     if after < 0.0 and after < before - 1e-3:
-        return f"an obstacle seen in flight blocks the planned path (clearance {after:+.3f} m)"
+        return (
+            f"an obstacle seen in flight blocks the planned path (clearance {after:+.3f} m)",
+            np.inf,
+        )
     return None
 
 
@@ -370,6 +384,7 @@ def simulate(
     max_replans: int = 25,
     look_around: bool = False,
     replan_in_flight: bool = True,
+    replan_latency: float = 0.0,
     frame_log_every: int = 2,
     belief_log_every: int = 5,
     **options: object,
@@ -388,6 +403,10 @@ def simulate(
     max_replans : give up (robot holds still) after this many failed or successful replans.
     replan_in_flight : when new evidence breaks the rest of the plan, first try to replan from the
         moving state (the solve takes no simulated time); brake only if that fails.
+    replan_latency : simulated seconds a replan in flight takes (default 0: instantaneous). With
+        latency L the robot plans from where its current plan puts it L seconds later, keeps
+        following that plan meanwhile, and switches at t + L; if the current plan's first
+        uncertified manoeuvre comes before the switch, it brakes instead (take-over).
     look_around : after a take-over (and after a failed replan), turn the camera half a field of
         view to either side at rest before replanning (see :func:`scan_headings`).
     frame_log_every, belief_log_every : decimation of camera frames and belief voxels in the recording.
@@ -399,6 +418,12 @@ def simulate(
         scenario = load_scenario(scenario)
     if planner not in ("secure", "baseline"):
         raise SimulationError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
+    if (
+        isinstance(replan_latency, bool)
+        or not isinstance(replan_latency, (int, float))
+        or not 0.0 <= replan_latency < 10.0
+    ):
+        raise SimulationError(f"replan_latency: seconds in [0, 10), got {replan_latency!r}")
     wall0 = time.perf_counter()
     loop = _Loop(scenario, planner, seed, dict(options), cache)
     settings = _RunSettings(
@@ -409,6 +434,7 @@ def simulate(
         max_replans=max_replans,
         look_around=look_around,
         replan_in_flight=replan_in_flight,
+        replan_latency=float(replan_latency),
         frame_log_every=frame_log_every,
         belief_log_every=belief_log_every,
         seed=seed,
@@ -462,6 +488,7 @@ class _RunSettings:
     max_replans: int
     look_around: bool
     replan_in_flight: bool
+    replan_latency: float
     frame_log_every: int
     belief_log_every: int
     seed: int
@@ -476,6 +503,7 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
     dt, frame_period, goal = settings.dt, settings.frame_period, settings.goal
     max_replans, look_around = settings.max_replans, settings.look_around
     replan_in_flight, seed, wall0 = settings.replan_in_flight, settings.seed, settings.wall0
+    latency = settings.replan_latency
     frame_log_every, belief_log_every = settings.frame_log_every, settings.belief_log_every
     time_limit, r = settings.time_limit, model.body_radius
     events: list[SimEvent] = []
@@ -578,6 +606,7 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
     mode = "follow" if current is not None else "hold"
     last_attempt = 0.0
     headings: list[float] = []  # look-around headings still to turn to
+    pending = None  # (switch time, plan, its problem): a replan in flight waiting out its latency
     hfov = loop.problem.frustum.hfov
     replans = takeovers = 0
     detection_time = None
@@ -603,25 +632,56 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
                 event(t, "hidden obstacle seen", ", ".join(sorted(hidden_seen)), "WARN")
             if new and mode == "follow" and current is not None:
                 loop.refresh_obstacles()
-                why = _plan_unsafe(loop, current, plan_problem_snapshot, t - plan_start)
-                if why is None:
+                t_rel = t - plan_start
+                unsafe = _plan_unsafe(loop, current, plan_problem_snapshot, t_rel)
+                if pending is not None:
+                    broken = _plan_unsafe(loop, pending[1], pending[2], 0.0)
+                    if broken is not None:
+                        event(t, "pending plan dropped", broken[0], "WARN")
+                        pending = None
+                        unsafe = unsafe or broken
+                if unsafe is None:
                     loop.judged_against_current()
+                elif pending is not None and unsafe[1] > pending[0] - plan_start + CERT_STEP:
+                    loop.judged_against_current()  # the pending plan takes over in time
                 else:
+                    why, t_bad = unsafe
+                    # with latency, the current plan must stay certified until the new one starts
+                    in_time = latency <= 0.0 or t_bad > t_rel + latency + CERT_STEP
                     replanned = None
-                    if replan_in_flight and replans < max_replans:
+                    if replan_in_flight and replans < max_replans and in_time:
                         # Line 1 of Algorithm 1 from the current (moving) state: the new plan is
                         # certified from here on, its first reactive set in space the camera saw.
                         replans += 1
                         event(t, "replan in flight", why)
-                        replanned = make_plan(t, x)
-                    if replanned is not None:
+                        x_from = x
+                        if latency > 0.0:
+                            x_pred, _ = interpolate(
+                                model,
+                                current.times,
+                                current.states,
+                                current.controls,
+                                np.array([t_rel + latency]),
+                            )
+                            x_from = x_pred[0]
+                        replanned = make_plan(t, x_from)
+                    if replanned is not None and latency > 0.0:
+                        pending = (t + latency, replanned, loop.start_problem)
+                        event(t, "plan pending", f"takes over at {t + latency:.2f} s")
+                        loop.judged_against_current()
+                    elif replanned is not None:
                         current, plan_start = replanned, t
                         plan_problem_snapshot = loop.start_problem
                         loop.judged_against_current()
                     else:
+                        pending = None
                         mode = "brake"
                         takeovers += 1
                         event(t, "take-over", why, "WARN")
+        if pending is not None and mode == "follow" and t + 1e-9 >= pending[0]:
+            plan_start, current, plan_problem_snapshot = pending
+            pending = None
+            event(t, "plan takes over", f"T={current.final_time:.2f}s")
         # ---- act -----------------------------------------------------------------------------
         if mode == "follow":
             x_ref, u_ref = interpolate(

@@ -127,3 +127,37 @@ def test_look_around_turns_the_camera_at_rest(maps_dir):
         x = model.step(x, _scan_control(model, brake, x, 1.0, 0.01), 0.01)
     assert float(model.yaw(x)) == pytest.approx(1.0, abs=0.02)
     np.testing.assert_allclose(model.position(x), [1.0, 1.0, 1.0], atol=1e-9)
+
+
+@pytest.mark.slow
+def test_replan_latency_keeps_the_old_plan_until_the_new_one_takes_over(maps_dir):
+    from secure3d.world.attacks import random_hidden_obstacle_scenarios
+
+    base = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    variant = random_hidden_obstacle_scenarios(base, 1, 0)[0]  # replans in flight several times
+    run = simulate(variant, "secure", seed=0, nodes=30, replan_latency=0.2)
+    assert not run.collided, run.summary()
+    kinds = [e.kind for e in run.events]
+    assert "plan pending" in kinds and "plan takes over" in kinds, kinds
+    for i, e in enumerate(run.events):
+        if e.kind != "plan pending":
+            continue
+        switch = float(e.detail.split("at ")[1].split(" s")[0])
+        assert switch == pytest.approx(e.time + 0.2, abs=1e-6)
+        # it takes over at its switch time, unless new evidence dropped it (or a take-over) before
+        after = next(f for f in run.events[i + 1 :] if f.kind in _SWITCH_OUTCOMES)
+        if after.kind == "plan takes over":
+            assert after.time == pytest.approx(switch, abs=0.011)
+        else:
+            assert after.time < switch + 1e-9
+    assert all(p.certificate is not None and p.certificate.ok for _, p in run.plans)
+
+
+_SWITCH_OUTCOMES = ("plan takes over", "pending plan dropped", "take-over", "collision")
+
+
+def test_replan_latency_is_validated(maps_dir):
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    for bad in (-0.1, 10.0, True, "0.2"):
+        with pytest.raises(SimulationError, match="replan_latency"):
+            simulate(scenario, "secure", replan_latency=bad)
