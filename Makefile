@@ -29,6 +29,7 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/bench_mapping.py
 	$(PY) benchmarks/bench_planner.py
+	$(PY) benchmarks/bench_closed_loop.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info
