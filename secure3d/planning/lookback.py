@@ -146,25 +146,41 @@ def _hull_box_distances(
     return d.reshape(K, -1, n).min(axis=1) - reach[:, None]
 
 
+def _constrained_sets(
+    problem: PlanningProblem, planner: str, states: np.ndarray, assignment: tuple[int, ...] | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per node, what its obstacle rows keep clear, as (origins, centres, shapes, los) for
+    :func:`~secure3d.geometry.polytope.box_pair_distances`: the line-of-sight hull from camera j to
+    E_k (secure, seen from node j), E_k alone (secure, start region or no occlusion), or the segment
+    from the body at node k to node k+1 (baseline: one plane keeps both clear)."""
+    K = len(states)
+    if planner == "secure":
+        geo = node_geometry(problem, states)
+        j = np.full(K, -1) if assignment is None else np.asarray(assignment, dtype=int)
+        los = (j >= 0) & bool(problem.options.occlusion)
+        origins = np.where(los[:, None], geo["o"][np.maximum(j, 0)], geo["C"])
+        return origins, geo["C"], geo["M"], los
+    centres = np.asarray(problem.model.position(states), dtype=float)
+    shapes = np.broadcast_to(problem.model.body_radius * np.eye(3), (K, 3, 3))
+    return np.concatenate([centres[1:], centres[-1:]]), centres, shapes, np.ones(K, bool)
+
+
 def _exact_distances(
     problem: PlanningProblem,
-    geo: dict[str, np.ndarray],
-    assignment: tuple[int, ...],
+    sets: tuple[np.ndarray, ...],
     k_idx: np.ndarray,
     b_idx: np.ndarray,
 ) -> np.ndarray:
-    """Exact distance from what node ``k_idx[i]`` constrains (its line-of-sight hull from camera
-    j, or E_k alone at a start-region node or without occlusion) to box ``b_idx[i]``."""
-    j = np.asarray(assignment, dtype=int)[k_idx]
-    los = (j >= 0) & bool(problem.options.occlusion)
-    origins = np.where(los[:, None], geo["o"][np.maximum(j, 0)], geo["C"][k_idx])
+    """Exact distance from node ``k_idx[i]``'s constrained set (:func:`_constrained_sets`) to box
+    ``b_idx[i]``."""
+    origins, centres, shapes, los = sets
     return box_pair_distances(
-        origins,
-        geo["C"][k_idx],
-        geo["M"][k_idx],
+        origins[k_idx],
+        centres[k_idx],
+        shapes[k_idx],
         problem.boxes_lo[b_idx],
         problem.boxes_hi[b_idx],
-        los,
+        los[k_idx],
     )
 
 
@@ -177,14 +193,14 @@ def _refine_distances(
 ) -> np.ndarray:
     """Replace the screening distances of each node's ``keep`` nearest boxes by exact ones (the
     screening subtracts the largest semi-axis, which ranks boxes poorly beside long reactive sets)."""
-    geo = node_geometry(problem, states)
+    sets = _constrained_sets(problem, "secure", states, assignment)
     out = np.full_like(screen, np.inf)
     order = np.argsort(screen, axis=1)[:, :keep]
     k_idx = np.repeat(np.arange(len(states)), order.shape[1])
     b_idx = order.ravel()
     near = screen[k_idx, b_idx] <= problem.options.obstacle_radius
     k_idx, b_idx = k_idx[near], b_idx[near]
-    out[k_idx, b_idx] = _exact_distances(problem, geo, assignment, k_idx, b_idx)
+    out[k_idx, b_idx] = _exact_distances(problem, sets, k_idx, b_idx)
     return out
 
 
@@ -209,8 +225,8 @@ def slots_missing(
     if len(flagged) == 0 or planner != "secure":
         return bool(len(flagged))
     # the screening bound is loose for elongated reactive sets: confirm with exact distances
-    geo = node_geometry(problem, states)
-    d = _exact_distances(problem, geo, assignment, flagged[:, 0], flagged[:, 1])
+    sets = _constrained_sets(problem, planner, states, assignment)
+    d = _exact_distances(problem, sets, flagged[:, 0], flagged[:, 1])
     return bool(np.any(d < limit))
 
 
@@ -282,18 +298,7 @@ def slot_sides(
     lies on. Any choice is sound (weak duality holds for every dual-feasible lam); a poor one only
     makes the constraint conservative.
     """
-    K, S = slots.shape[:2]
-    if planner == "secure":
-        geo = node_geometry(problem, states)
-        centres, shapes = geo["C"], geo["M"]
-        j = np.zeros(K, int) - 1 if assignment is None else np.asarray(assignment, dtype=int)
-        los = (j >= 0) & bool(problem.options.occlusion)
-        origins = np.where(los[:, None], geo["o"][np.maximum(j, 0)], centres)
-    else:
-        centres = np.asarray(problem.model.position(states), dtype=float)
-        shapes = np.broadcast_to(problem.model.body_radius * np.eye(3), (K, 3, 3))
-        origins = np.concatenate([centres[1:], centres[-1:]])
-        los = np.ones(K, bool)
+    origins, centres, shapes, los = _constrained_sets(problem, planner, states, assignment)
     middle = 0.5 * (slots[:, :, 0:3] + slots[:, :, 3:6])
     sides = centres[:, None, :] >= middle
     real = ~np.all(np.isclose(slots[:, :, 0:3], np.asarray(problem.bounds_hi) + 1e3), axis=-1)
