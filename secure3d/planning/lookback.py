@@ -230,6 +230,11 @@ def slots_missing(
     return bool(np.any(d < limit))
 
 
+def _empty_slot_lo(problem: PlanningProblem) -> np.ndarray:
+    """Lower corner of the small box an empty slot holds, far outside the world (inactive rows)."""
+    return np.asarray(problem.bounds_hi, dtype=float) + 1e3
+
+
 def select_slots(
     problem: PlanningProblem, planner: str, states: np.ndarray, assignment: tuple[int, ...]
 ) -> np.ndarray:
@@ -238,7 +243,7 @@ def select_slots(
     Empty slots hold a small box far outside the world (its constraint is inactive)."""
     o = problem.options
     K, S = len(states), o.obstacle_slots
-    far = np.asarray(problem.bounds_hi) + 1e3  # slot_sides recognises empty slots by it
+    far = _empty_slot_lo(problem)
     slots = np.empty((K, S, 6))
     slots[:, :, 0:3] = far
     slots[:, :, 3:6] = far + 0.1
@@ -301,7 +306,7 @@ def slot_sides(
     origins, centres, shapes, los = _constrained_sets(problem, planner, states, assignment)
     middle = 0.5 * (slots[:, :, 0:3] + slots[:, :, 3:6])
     sides = centres[:, None, :] >= middle
-    real = ~np.all(np.isclose(slots[:, :, 0:3], np.asarray(problem.bounds_hi) + 1e3), axis=-1)
+    real = ~np.all(np.isclose(slots[:, :, 0:3], _empty_slot_lo(problem)), axis=-1)
     k_idx, s_idx = np.nonzero(real)
     if len(k_idx):
         _, lam = box_pair_distances(
