@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import os
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import IntEnum
 from pathlib import Path
 
@@ -148,6 +148,9 @@ class InsertStats:
         Voxels updated as free (each once).
     voxels_occupied : int
         Voxels updated as occupied (each once; occupied wins over free within a scan).
+    occupied_codes : (voxels_occupied,) int64
+        Their Morton codes: the only voxels this scan can have turned into known obstacles (a
+        miss only ever lowers a voxel's log-odds).
     """
 
     points_used: int
@@ -156,6 +159,9 @@ class InsertStats:
     clipped: int
     voxels_free: int
     voxels_occupied: int
+    occupied_codes: NDArray[np.int64] = field(
+        default_factory=lambda: np.empty(0, np.int64), repr=False, compare=False
+    )
 
     @property
     def voxels_updated(self) -> int:
@@ -327,6 +333,7 @@ class OccupancyMap:
             upd.clipped,
             int(upd.free.size),
             int(upd.occupied.size),
+            upd.occupied,
         )
 
     @staticmethod

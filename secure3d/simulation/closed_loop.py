@@ -200,9 +200,10 @@ class _Loop:
         self.judged_lo, self.judged_hi = self.problem.boxes_lo, self.problem.boxes_hi
 
 
-def _new_obstacle_voxels(loop: _Loop, frame: object) -> int:
-    """Known obstacle voxels hit by ``frame`` (already inserted) that the boxes the current plan was
-    last judged against do not cover.
+def _new_obstacle_voxels(loop: _Loop, occupied_codes: np.ndarray) -> int:
+    """Known obstacle voxels among those a frame (already inserted) updated as occupied
+    (``occupied_codes``, Morton codes) that the boxes the current plan was last judged against do
+    not cover.
 
     Only a hit can make a voxel a known obstacle (misses only ever free voxels, which shrinks the
     obstacle set and so cannot break a plan: fewer obstacles never block a view or a manoeuvre). So
@@ -210,24 +211,15 @@ def _new_obstacle_voxels(loop: _Loop, frame: object) -> int:
     judged boxes and the plan stays certified; otherwise the frame revealed something new. Voxels
     that merely flicker (hit, then carved by grazing rays) are not news unless they end up occupied.
     """
-    if loop.judged_lo is None:
+    if loop.judged_lo is None or not len(occupied_codes):
         return 0
-    valid = np.isfinite(frame.depth)
-    if not valid.any():
-        return 0
-    rays = frame.rays_optical()[valid]
-    depth = frame.depth[valid].astype(float) - SURFACE_BIAS  # where the hits were inserted
-    pts = (rays * depth[:, None]) @ frame.rotation.T + frame.origin
-    from secure3d.mapping.keys import codes_to_coords, coords_to_codes
+    from secure3d.geometry.polytope import min_box_distance
+    from secure3d.mapping.keys import codes_to_coords
 
-    res = loop.belief.resolution
-    codes, valid = coords_to_codes(pts, res)
-    centres = codes_to_coords(np.unique(codes[valid]), res)  # one per voxel hit
+    centres = codes_to_coords(occupied_codes, loop.belief.resolution)
     centres = centres[loop.belief.is_known_obstacle(centres)]
     if not len(centres):
         return 0
-    from secure3d.geometry.polytope import min_box_distance
-
     return int((min_box_distance(centres, loop.judged_lo, loop.judged_hi) >= 0.0).sum())
 
 
@@ -524,14 +516,14 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
         # Insert hits a hair (0.1 mm) in front of the surface: a wall lying exactly on a voxel
         # boundary then marks the voxel in front of it (which its claim covers) instead of flipping
         # between the two voxels with float rounding and carving the claim into fragments.
-        loop.belief.insert_depth_image(
+        stats = loop.belief.insert_depth_image(
             frame.depth - SURFACE_BIAS,
             (cam.fx, cam.fy, cam.cx, cam.cy),
             R,
             o,
             scenario.camera.max_range,
         )
-        new = _new_obstacle_voxels(loop, frame) > 0
+        new = _new_obstacle_voxels(loop, stats.occupied_codes) > 0
         if rec is not None and frame_no % frame_log_every == 0:
             rec.log_camera(
                 t, R, o, cam.fx, cam.fy, scenario.camera.width, scenario.camera.height, frame.depth

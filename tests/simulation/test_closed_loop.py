@@ -82,15 +82,16 @@ def test_a_frame_is_news_only_if_it_finds_obstacle_voxels_outside_the_judged_box
         lo, hi = belief.known_obstacle_boxes(close_gaps=1)
         R, o = (np.asarray(a, float) for a in model.camera_pose(np.r_[position, 0, 0, 0, yaw]))
         frame = camera.render(R, o.ravel())
-        belief.insert_depth_image(
+        stats = belief.insert_depth_image(
             frame.depth - SURFACE_BIAS,
             (camera.fx, camera.fy, camera.cx, camera.cy),
             R,
             o.ravel(),
             scenario.camera.max_range,
         )
+        assert len(stats.occupied_codes) == stats.voxels_occupied > 0
         loop = SimpleNamespace(belief=belief, judged_lo=lo, judged_hi=hi)
-        return _new_obstacle_voxels(loop, frame), frame.hit_names()
+        return _new_obstacle_voxels(loop, stats.occupied_codes), frame.hit_names()
 
     n, seen = news([1.0, 1.25, 1.25], 0.0)  # down the first leg: claimed walls only
     assert "crate" not in seen and n == 0
