@@ -199,11 +199,25 @@ class _Loop:
         """The plan being followed is now known safe against the current obstacle boxes."""
         self.judged_lo, self.judged_hi = self.problem.boxes_lo, self.problem.boxes_hi
 
+    def judged_plus(self, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The judged boxes plus the voxels at ``centres`` (merged into few boxes): a superset of
+        the known obstacles when ``centres`` are all the known obstacle voxels found outside the
+        judged boxes since they were set (see :func:`_new_obstacle_voxels`). Certifying against it
+        is sound (more obstacles never help a plan) and needs no re-merge of the whole map."""
+        from secure3d.mapping.boxes import merge_cells
 
-def _new_obstacle_voxels(loop: _Loop, occupied_codes: np.ndarray) -> int:
-    """Known obstacle voxels among those a frame (already inserted) updated as occupied
-    (``occupied_codes``, Morton codes) that the boxes the current plan was last judged against do
-    not cover.
+        res = self.belief.resolution
+        klo, khi = merge_cells(np.floor(centres / res).astype(np.int64))
+        return (
+            np.concatenate([self.judged_lo, klo * res]),
+            np.concatenate([self.judged_hi, (khi + 1) * res]),
+        )
+
+
+def _new_obstacle_voxels(loop: _Loop, occupied_codes: np.ndarray) -> np.ndarray:
+    """Centres ``(n, 3)`` of the known obstacle voxels among those a frame (already inserted)
+    updated as occupied (``occupied_codes``, Morton codes) that the boxes the current plan was last
+    judged against do not cover.
 
     Only a hit can make a voxel a known obstacle (misses only ever free voxels, which shrinks the
     obstacle set and so cannot break a plan: fewer obstacles never block a view or a manoeuvre). So
@@ -212,15 +226,15 @@ def _new_obstacle_voxels(loop: _Loop, occupied_codes: np.ndarray) -> int:
     that merely flicker (hit, then carved by grazing rays) are not news unless they end up occupied.
     """
     if loop.judged_lo is None or not len(occupied_codes):
-        return 0
+        return np.empty((0, 3))
     from secure3d.geometry.polytope import min_box_distance
     from secure3d.mapping.keys import codes_to_coords
 
     centres = codes_to_coords(occupied_codes, loop.belief.resolution)
     centres = centres[loop.belief.is_known_obstacle(centres)]
     if not len(centres):
-        return 0
-    return int((min_box_distance(centres, loop.judged_lo, loop.judged_hi) >= 0.0).sum())
+        return centres
+    return centres[min_box_distance(centres, loop.judged_lo, loop.judged_hi) >= 0.0]
 
 
 def observed_box(
@@ -335,17 +349,20 @@ def _path_clearance(
 
 
 def _plan_unsafe(
-    loop: _Loop, plan: PlanResult, plan_problem_: object, t_rel: float
+    loop: _Loop,
+    plan: PlanResult,
+    plan_problem_: object,
+    t_rel: float,
+    lo: np.ndarray,
+    hi: np.ndarray,
 ) -> tuple[str, float] | None:
-    """Why the rest of ``plan`` (from ``t_rel`` on) is no longer safe in the updated belief, and the
-    plan time from which it is not (the first manoeuvre that fails the certificate; ``inf`` for the
-    baseline, which promises no manoeuvre), or None."""
+    """Why the rest of ``plan`` (from ``t_rel`` on) is not safe among the obstacle boxes ``lo, hi``
+    (the updated belief), and the plan time from which it is not (the first manoeuvre that fails
+    the certificate; ``inf`` for the baseline, which promises no manoeuvre), or None."""
     from secure3d.planning.certificate import certify, sample_plan
 
     if loop.planner == "secure":
-        judged = dataclasses.replace(
-            plan_problem_, boxes_lo=loop.problem.boxes_lo, boxes_hi=loop.problem.boxes_hi
-        )
+        judged = dataclasses.replace(plan_problem_, boxes_lo=lo, boxes_hi=hi)
         if loop.sampled is None or loop.sampled[0] is not plan:
             loop.sampled = (plan, sample_plan(plan, judged))
         cert = certify(plan, judged, t_from=t_rel, sampled=loop.sampled[1])
@@ -355,7 +372,7 @@ def _plan_unsafe(
         return str(first), float(first.time) if first is not None else t_rel
     # The baseline only promises a collision-free path: react when the new evidence brings an obstacle
     # into the body's planned path.
-    after = _path_clearance(loop, plan, t_rel, loop.problem.boxes_lo, loop.problem.boxes_hi)
+    after = _path_clearance(loop, plan, t_rel, lo, hi)
     before = _path_clearance(loop, plan, t_rel, plan_problem_.boxes_lo, plan_problem_.boxes_hi)
     if after < 0.0 and after < before - 1e-3:
         return (
@@ -507,8 +524,9 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
         if rec is not None:
             rec.log_event(t, f"{kind}: {detail}", level)
 
-    def sense(t: float, x: np.ndarray, frame_no: int) -> tuple[bool, set[str]]:
-        """Capture a frame, insert it, return (new obstacle evidence?, hidden obstacles seen)."""
+    def sense(t: float, x: np.ndarray, frame_no: int) -> tuple[np.ndarray, set[str]]:
+        """Capture a frame, insert it, return (centres of the obstacle voxels it revealed outside
+        the judged boxes, hidden obstacles seen)."""
         R, o = model.camera_pose(x)
         R, o = np.asarray(R, float), np.asarray(o, float).ravel()
         frame = loop.camera.render(R, o)
@@ -523,7 +541,7 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
             o,
             scenario.camera.max_range,
         )
-        new = _new_obstacle_voxels(loop, stats.occupied_codes) > 0
+        new = _new_obstacle_voxels(loop, stats.occupied_codes)
         if rec is not None and frame_no % frame_log_every == 0:
             rec.log_camera(
                 t, R, o, cam.fx, cam.fy, scenario.camera.width, scenario.camera.height, frame.depth
@@ -622,20 +640,29 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
             if hidden_seen and detection_time is None:
                 detection_time, detection_point = t, np.asarray(model.position(x), float).copy()
                 event(t, "hidden obstacle seen", ", ".join(sorted(hidden_seen)), "WARN")
-            if new and mode == "follow" and current is not None:
-                loop.refresh_obstacles()
+            if len(new) and mode == "follow" and current is not None:
                 t_rel = t - plan_start
-                unsafe = _plan_unsafe(loop, current, plan_problem_snapshot, t_rel)
+                # First against the judged boxes plus the new voxels (a superset of the known
+                # obstacles); only if that fails, against the whole map merged afresh.
+                lo, hi = loop.judged_plus(new)
+                unsafe = _plan_unsafe(loop, current, plan_problem_snapshot, t_rel, lo, hi)
+                broken = None
                 if pending is not None:
-                    broken = _plan_unsafe(loop, pending[1], pending[2], 0.0)
-                    if broken is not None:
-                        event(t, "pending plan dropped", broken[0], "WARN")
-                        pending = None
-                        unsafe = unsafe or broken
+                    broken = _plan_unsafe(loop, pending[1], pending[2], 0.0, lo, hi)
+                if unsafe is not None or broken is not None:
+                    loop.refresh_obstacles()
+                    lo, hi = loop.problem.boxes_lo, loop.problem.boxes_hi
+                    unsafe = _plan_unsafe(loop, current, plan_problem_snapshot, t_rel, lo, hi)
+                    if pending is not None:
+                        broken = _plan_unsafe(loop, pending[1], pending[2], 0.0, lo, hi)
+                if broken is not None:
+                    event(t, "pending plan dropped", broken[0], "WARN")
+                    pending = None
+                    unsafe = unsafe or broken
                 if unsafe is None:
-                    loop.judged_against_current()
+                    loop.judged_lo, loop.judged_hi = lo, hi
                 elif pending is not None and unsafe[1] > pending[0] - plan_start + CERT_STEP:
-                    loop.judged_against_current()  # the pending plan takes over in time
+                    loop.judged_lo, loop.judged_hi = lo, hi  # the pending plan takes over in time
                 else:
                     why, t_bad = unsafe
                     # with latency, the current plan must stay certified until the new one starts

@@ -91,12 +91,39 @@ def test_a_frame_is_news_only_if_it_finds_obstacle_voxels_outside_the_judged_box
         )
         assert len(stats.occupied_codes) == stats.voxels_occupied > 0
         loop = SimpleNamespace(belief=belief, judged_lo=lo, judged_hi=hi)
-        return _new_obstacle_voxels(loop, stats.occupied_codes), frame.hit_names()
+        return len(_new_obstacle_voxels(loop, stats.occupied_codes)), frame.hit_names()
 
     n, seen = news([1.0, 1.25, 1.25], 0.0)  # down the first leg: claimed walls only
     assert "crate" not in seen and n == 0
     n, seen = news([6.5, 1.25, 1.25], np.pi / 2)  # facing the crate the server hid
     assert "crate" in seen and n > 20
+
+
+def test_judged_boxes_plus_new_voxels_cover_both():
+    """The cheap re-certification set: the judged boxes and every new voxel whole, merged."""
+    from types import SimpleNamespace
+
+    from secure3d.geometry.polytope import min_box_distance
+    from secure3d.simulation.closed_loop import _Loop
+
+    res = 0.1
+    judged_lo, judged_hi = np.array([[0.0, 0.0, 0.0]]), np.array([[1.0, 1.0, 1.0]])
+    keys = np.array([[12, 3, 4], [13, 3, 4], [14, 3, 4], [12, 4, 4], [-3, 0, 0]])
+    centres = (keys + 0.5) * res
+    loop = SimpleNamespace(
+        belief=SimpleNamespace(resolution=res), judged_lo=judged_lo, judged_hi=judged_hi
+    )
+    lo, hi = _Loop.judged_plus(loop, centres)
+    np.testing.assert_array_equal(lo[:1], judged_lo)
+    np.testing.assert_array_equal(hi[:1], judged_hi)
+    assert 1 < len(lo) <= 1 + len(keys)  # the row of three merges
+    corners = centres[:, None, :] + 0.5 * res * np.array(
+        [[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
+    )
+    # every corner of every new voxel is inside (distance <= 0) some box: the voxel is covered
+    assert np.all(min_box_distance(corners.reshape(-1, 3), lo[1:], hi[1:]) <= 1e-12)
+    # and nothing beyond them: the new boxes' volume is the voxels' volume
+    np.testing.assert_allclose(np.prod(hi[1:] - lo[1:], axis=1).sum(), len(keys) * res**3)
 
 
 def test_blind_corner_baseline_meets_the_crate(maps_dir):
