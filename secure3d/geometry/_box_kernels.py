@@ -94,45 +94,50 @@ def _cone_gap(p0, d0, d1, d2, t, lo, hi, radius) -> float:  # pragma: no cover -
 
 
 @numba.njit(cache=True)
+def _cone_blocked(p0, c, lo, hi, radius, grow_lo, grow_hi) -> bool:  # pragma: no cover - compiled
+    """Whether some box meets conv({p0} ∪ B(c, radius)) = ∪_t B(p0 + t (c - p0), t radius). The gap
+    dist(point(t), box) - t radius is convex in t, so a golden-section search finds its minimum;
+    boxes whose slab test grown by ``radius`` misses are skipped (``grow_*``: scratch (3,))."""
+    g = 0.5 * (np.sqrt(5.0) - 1.0)
+    d0, d1, d2 = c[0] - p0[0], c[1] - p0[1], c[2] - p0[2]
+    for j in range(lo.shape[0]):
+        for a in range(3):
+            grow_lo[a] = lo[j, a] - radius
+            grow_hi[a] = hi[j, a] + radius
+        if not _hits(p0[0], p0[1], p0[2], d0, d1, d2, grow_lo, grow_hi):
+            continue
+        a_, b_ = 0.0, 1.0
+        c_ = b_ - g * (b_ - a_)
+        e_ = a_ + g * (b_ - a_)
+        fc = _cone_gap(p0, d0, d1, d2, c_, lo[j], hi[j], radius)
+        fe = _cone_gap(p0, d0, d1, d2, e_, lo[j], hi[j], radius)
+        for _ in range(48):
+            if fc < fe:
+                b_, e_, fe = e_, c_, fc
+                c_ = b_ - g * (b_ - a_)
+                fc = _cone_gap(p0, d0, d1, d2, c_, lo[j], hi[j], radius)
+            else:
+                a_, c_, fc = c_, e_, fe
+                e_ = a_ + g * (b_ - a_)
+                fe = _cone_gap(p0, d0, d1, d2, e_, lo[j], hi[j], radius)
+        best = min(
+            fc,
+            fe,
+            _cone_gap(p0, d0, d1, d2, 0.0, lo[j], hi[j], radius),
+            _cone_gap(p0, d0, d1, d2, 1.0, lo[j], hi[j], radius),
+        )
+        if best < 0.0:
+            return True
+    return False
+
+
+@numba.njit(cache=True)
 def cone_box_blocked_any(apex, centre, lo, hi, radius):  # pragma: no cover - compiled
-    """True where some box meets conv({apex} ∪ B(centre, radius)) = ∪_t B(apex + t (centre - apex),
-    t radius). The gap dist(point(t), box) - t radius is convex in t, so a golden-section search
-    finds its minimum; boxes whose slab test grown by ``radius`` misses are skipped."""
-    n, m = apex.shape[0], lo.shape[0]
+    """True where some box meets the sight cone from ``apex[i]`` to the ball B(centre[i], radius)."""
+    n = apex.shape[0]
     out = np.zeros(n, dtype=np.bool_)
     grow_lo = np.empty(3)
     grow_hi = np.empty(3)
-    g = 0.5 * (np.sqrt(5.0) - 1.0)
     for i in range(n):
-        p0 = apex[i]
-        d0, d1, d2 = centre[i, 0] - p0[0], centre[i, 1] - p0[1], centre[i, 2] - p0[2]
-        for j in range(m):
-            for a in range(3):
-                grow_lo[a] = lo[j, a] - radius
-                grow_hi[a] = hi[j, a] + radius
-            if not _hits(p0[0], p0[1], p0[2], d0, d1, d2, grow_lo, grow_hi):
-                continue
-            a_, b_ = 0.0, 1.0
-            c_ = b_ - g * (b_ - a_)
-            e_ = a_ + g * (b_ - a_)
-            fc = _cone_gap(p0, d0, d1, d2, c_, lo[j], hi[j], radius)
-            fe = _cone_gap(p0, d0, d1, d2, e_, lo[j], hi[j], radius)
-            for _ in range(48):
-                if fc < fe:
-                    b_, e_, fe = e_, c_, fc
-                    c_ = b_ - g * (b_ - a_)
-                    fc = _cone_gap(p0, d0, d1, d2, c_, lo[j], hi[j], radius)
-                else:
-                    a_, c_, fc = c_, e_, fe
-                    e_ = a_ + g * (b_ - a_)
-                    fe = _cone_gap(p0, d0, d1, d2, e_, lo[j], hi[j], radius)
-            best = min(
-                fc,
-                fe,
-                _cone_gap(p0, d0, d1, d2, 0.0, lo[j], hi[j], radius),
-                _cone_gap(p0, d0, d1, d2, 1.0, lo[j], hi[j], radius),
-            )
-            if best < 0.0:
-                out[i] = True
-                break
+        out[i] = _cone_blocked(apex[i], centre[i], lo, hi, radius, grow_lo, grow_hi)
     return out

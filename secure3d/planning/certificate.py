@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from secure3d.errors import PlanningError
-from secure3d.geometry.polytope import cones_blocked
+from secure3d.geometry.polytope import min_box_distance
 from secure3d.planning.result import Certificate, PlanResult, Violation
 from secure3d.planning.trajectory import interpolate
 
@@ -71,25 +71,45 @@ def _manoeuvres(controller: object, model: object, X: np.ndarray, dt: float, m: 
     return pos.reshape(sel.shape[0], sel.shape[1], 3)
 
 
-def _view_margins(
-    points: np.ndarray, R: np.ndarray, o: np.ndarray, frustum: object, radius: float
-) -> np.ndarray:
-    """(n_points, n_cams) signed margin of a ball of ``radius`` at each point inside each camera's
-    field of view, computed in the camera frame from the FOV angles (independent of the NLP's
-    half-space code). Positive: the whole ball is inside."""
-    # camera-frame coordinates (x right, y down, z forward): R_c^T (p - o_c), as one matrix product
-    Rt = np.ascontiguousarray(np.transpose(R, (0, 2, 1)))  # (n_cams, 3, 3)
-    pc = (points @ Rt.reshape(-1, 3).T).reshape(len(points), len(R), 3)
-    pc -= np.einsum("cij,cj->ci", Rt, o)[None]
-    x, y, z = pc[..., 0], pc[..., 1], pc[..., 2]
+def _clear_views(
+    points: np.ndarray,
+    owner: np.ndarray,
+    R: np.ndarray,
+    o: np.ndarray,
+    frustum: object,
+    radius: float,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    tol: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For each ball of ``radius`` at ``points[i]``, seen from the cameras (R, o) of the samples
+    before ``owner[i]``: whether one sees the whole ball with a sight cone clear of the boxes, that
+    camera's margin, and the best margin ignoring occlusion (-inf: no earlier camera).
+
+    A camera's margin is computed in its own frame (x right, y down, z forward) from the FOV angles
+    and the sensor range, independently of the NLP's half-space code: the smallest of the distances
+    inside the horizontal and vertical sides and the far limit, minus the radius. Positive: the
+    whole ball is inside the field of view."""
+    from secure3d.planning._certificate_kernel import best_clear_views
+
     ah, av = 0.5 * frustum.hfov, 0.5 * frustum.vfov
-    side_h = z * np.sin(ah) - np.abs(x) * np.cos(ah)
-    side_v = z * np.sin(av) - np.abs(y) * np.cos(av)
-    if frustum.far_kind == "range":
-        far = frustum.far - np.linalg.norm(pc, axis=-1)
-    else:
-        far = frustum.far - z
-    return np.minimum(np.minimum(side_h, side_v), far) - radius
+    return best_clear_views(
+        np.ascontiguousarray(points, dtype=float),
+        np.ascontiguousarray(owner, dtype=np.int64),
+        np.ascontiguousarray(R, dtype=float),
+        np.ascontiguousarray(o, dtype=float),
+        np.sin(ah),
+        np.cos(ah),
+        np.sin(av),
+        np.cos(av),
+        float(frustum.far),
+        frustum.far_kind == "range",
+        float(radius),
+        np.ascontiguousarray(np.asarray(lo, dtype=float).reshape(-1, 3)),
+        np.ascontiguousarray(np.asarray(hi, dtype=float).reshape(-1, 3)),
+        float(tol),
+        TOP_VIEWS,
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -178,11 +198,7 @@ def certify(
 
     # ---- clear of known obstacles and inside the map -------------------------------------------
     lo_b, hi_b = problem.boxes_lo, problem.boxes_hi
-    if len(lo_b):
-        q = np.clip(flat[:, None, :], lo_b[None], hi_b[None])
-        dist = np.linalg.norm(flat[:, None, :] - q, axis=-1).min(axis=1)
-    else:
-        dist = np.full(len(flat), np.inf)
+    dist = np.maximum(min_box_distance(flat, lo_b, hi_b), 0.0)  # 0 inside a box
     in_map = np.minimum(flat - problem.bounds_lo, problem.bounds_hi - flat).min(axis=1)
     obstacle_margin = np.minimum(dist, in_map) - r
 
@@ -190,38 +206,14 @@ def certify(
     start_margin = (
         np.minimum(flat - problem.start_region_lo, problem.start_region_hi - flat).min(axis=1) - r
     )
-    view = _view_margins(flat, R, o, problem.frustum, r)
-    earlier = np.arange(n_t)[None, :] < owner[:, None]
-    view = np.where(earlier, view, -np.inf)
-
     # The body ball is seen only if the whole cone of sight lines from the camera to it is clear.
     vis_margin = start_margin.copy()
     unresolved = np.flatnonzero(start_margin < -tol)
     occluded_only = np.zeros(len(unresolved), bool)
     if len(unresolved):
-        V = view[unresolved]
-        order = np.argsort(-V, axis=1)
-        found = np.zeros(len(unresolved), bool)
-        best = np.full(len(unresolved), -np.inf)
-        for rank in range(V.shape[1]):
-            cams = order[:, rank]
-            cand = V[np.arange(len(unresolved)), cams]
-            active = ~found & np.isfinite(cand)
-            if (
-                rank >= TOP_VIEWS
-            ):  # past the best few views only a passing one can change the verdict
-                active &= cand > -tol
-            if not active.any():
-                break
-            idx = np.flatnonzero(active)
-            if len(lo_b):
-                blocked = cones_blocked(o[cams[idx]], flat[unresolved[idx]], lo_b, hi_b, r)
-            else:
-                blocked = np.zeros(len(idx), bool)
-            ok = idx[~blocked]
-            found[ok] = True
-            best[ok] = cand[ok]
-        raw = V.max(axis=1)
+        found, best, raw = _clear_views(
+            flat[unresolved], owner[unresolved], R, o, problem.frustum, r, lo_b, hi_b, tol
+        )
         occluded_only = ~found & (raw > -tol)
         # never seen with a clear line of sight: 1 cm worse than the best (blocked) view, or -1 m
         # when no earlier view exists at all
