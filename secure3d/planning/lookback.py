@@ -210,10 +210,11 @@ def slots_missing(
     states: np.ndarray,
     assignment: tuple[int, ...],
     slots: np.ndarray,
-    slack: float = 0.05,
+    slack: float = 0.0,
 ) -> bool:
     """Whether some box left out of a node's slots comes within ``margin + slack`` of what that
-    node constrains on ``states`` (then the slots must be re-selected and the NLP re-solved)."""
+    node constrains on ``states`` (then the slots must be re-selected and the NLP re-solved). With
+    ``slack`` 0: whether ``states`` violate a row of the NLP with every box."""
     if len(problem.boxes_lo) == 0:
         return False
     d = _hull_box_distances(problem, planner, states, assignment)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from secure3d.planning.lookback import keep_slot_positions
@@ -28,3 +30,27 @@ def test_duplicate_far_boxes_and_shape_changes():
     assert out[0, :, 0].tolist() == [2, 7, 7]
     assert keep_slot_positions(None, selected) is selected
     assert keep_slot_positions(_slots([1, 2]), selected) is selected
+
+
+def test_a_solution_is_re_solved_only_if_a_left_out_box_breaks_a_row(maps_dir):
+    """The slots make the NLP a relaxation: its solution needs no second solve unless a box left
+    out of the slots comes closer than the margin (then the solution violates the full problem)."""
+    import secure3d
+    from secure3d.planning import plan_problem, problem_from_scenario
+    from secure3d.planning.lookback import select_slots, slots_missing
+
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    problem = problem_from_scenario(scenario)
+    secure = plan_problem(problem, "secure")
+    assert secure.ok, secure.message
+    assignment = tuple(int(j) for j in secure.lookback)
+    no_boxes = dataclasses.replace(problem, boxes_lo=np.empty((0, 3)), boxes_hi=np.empty((0, 3)))
+    empty = select_slots(no_boxes, "secure", secure.states, assignment)
+    # feasible for every box: nothing to re-solve for, whatever the slots hold
+    for slots in (select_slots(problem, "secure", secure.states, assignment), empty):
+        assert not slots_missing(problem, "secure", secure.states, assignment, slots)
+    # a generous slack flags the boxes that keep their distance too
+    assert slots_missing(problem, "secure", secure.states, assignment, empty, slack=1.0)
+    # the baseline cuts the corner: its sight lines graze the walls the empty slots leave out
+    baseline = plan_problem(problem, "baseline")
+    assert slots_missing(problem, "secure", baseline.states, assignment, empty)
