@@ -1,9 +1,11 @@
 """How fast the closed loop (the paper's Algorithm 1) runs, and where its wall time goes (issue #6).
 
 For each scenario and planner, ``--reps`` flights (same seed: same outcome, timing varies) with one
-NLP cache per repetition, so every flight pays its own NLP builds, as ``make demo`` does. Reported
-per case (medians): the outcome, simulated time, wall time and real-time factor (simulated / wall),
-and the wall time split into
+NLP cache per repetition, so every flight pays its own NLP builds, as ``make demo`` does; then
+``--reps`` more with the compiled NLPs already cached (after one flight that builds them), as every
+flight after the first in a campaign worker or any long-lived process. Reported per case
+(medians): the outcome, simulated time, wall time and real-time factor (simulated / wall) both
+ways, and the fresh flights' wall time split into
 
 - *plan calls*: every ``plan_problem`` call of the flight (graph-search guess, NLP builds, solves,
   slot re-selections, certificate), with *build* (NLP compilation) shown separately;
@@ -30,12 +32,13 @@ PLANNERS = ("secure", "baseline")
 TARGET_RTF = 5.0
 
 
-def fly(scenario_path: Path, planner: str, seed: int) -> dict:
-    """One flight with a fresh NLP cache: outcome and the wall-time split."""
+def fly(scenario_path: Path, planner: str, seed: int, cache: object = None) -> dict:
+    """One flight (with a fresh NLP cache unless given one): outcome and the wall-time split."""
     import secure3d
     from secure3d.planning.collocation import NLPCache
 
-    run = secure3d.simulate(scenario_path, planner, seed=seed, cache=NLPCache())
+    cache = NLPCache() if cache is None else cache
+    run = secure3d.simulate(scenario_path, planner, seed=seed, cache=cache)
     plan_wall = float(sum(run.solve_times))
     build = float(sum(p.build_time for _, p in run.plans))
     return {
@@ -57,14 +60,24 @@ def measure(args: argparse.Namespace) -> dict:
     cases = [(s, p) for s in args.scenarios for p in args.planners]
     machine = machine_info()
     rows = []
-    with tqdm(total=len(cases) * args.reps, unit="flight", desc="closed loop") as bar:
+    from secure3d.planning.collocation import NLPCache
+
+    with tqdm(total=len(cases) * (2 * args.reps + 1), unit="flight", desc="closed loop") as bar:
         for name, planner in cases:
-            reps = []
+            path = args.maps / f"{name}.yaml"
+            reps, cached = [], []
             for _ in range(args.reps):
                 bar.set_postfix_str(f"{name} {planner}")
-                reps.append(fly(args.maps / f"{name}.yaml", planner, args.seed))
+                reps.append(fly(path, planner, args.seed))
                 bar.update()
-            rows.append({"scenario": name, "planner": planner, "reps": reps})
+            cache = NLPCache()
+            fly(path, planner, args.seed, cache)  # builds the NLPs the flights below reuse
+            bar.update()
+            for _ in range(args.reps):
+                bar.set_postfix_str(f"{name} {planner} cached")
+                cached.append(fly(path, planner, args.seed, cache))
+                bar.update()
+            rows.append({"scenario": name, "planner": planner, "reps": reps, "cached": cached})
     return {"settings": vars(args) | {"maps": str(args.maps)}, "machine": machine, "rows": rows}
 
 
@@ -86,6 +99,8 @@ def report(data: dict) -> str:
                 fmt(median(reps, "sim")),
                 fmt(median(reps, "wall")),
                 fmt(median(reps, "rtf")) + "x",
+                fmt(median(row["cached"], "wall")),
+                fmt(median(row["cached"], "rtf")) + "x",
                 f"{median(reps, 'plan_calls'):.0f}",
                 fmt(median(reps, "plan_wall")),
                 fmt(median(reps, "build")),
@@ -101,6 +116,8 @@ def report(data: dict) -> str:
         "sim (s)",
         "wall (s)",
         "real-time factor",
+        "wall, NLPs cached (s)",
+        "real-time factor, NLPs cached",
         "plan calls",
         "plan calls (s)",
         "of which build (s)",
@@ -114,10 +131,13 @@ def report(data: dict) -> str:
     verdict = ""
     if corner:
         rtf = median(corner[0]["reps"], "rtf")
+        rtf_cached = median(corner[0]["cached"], "rtf")
         met = "yes" if rtf >= TARGET_RTF else "NO"
+        met_cached = "yes" if rtf_cached >= TARGET_RTF else "NO"
         verdict = (
             f"\nTarget (issue #6): secure blind-corner flight at least {TARGET_RTF:.0f}x faster than"
-            f" real time. Measured {rtf:.2f}x: met: {met}.\n"
+            f" real time. Measured {rtf:.2f}x with its own NLP builds (met: {met}), {rtf_cached:.2f}x"
+            f" with the NLPs cached (met: {met_cached}).\n"
         )
     return "\n".join(
         [
@@ -125,13 +145,16 @@ def report(data: dict) -> str:
             "",
             f"Commit {m['commit']}{' (dirty)' if m['dirty'] else ''}, {m['date']}, {m['cpus']} CPUs,"
             f" load average {m['load_avg'][0]:.2f} before; casadi {m['casadi']}. Medians of"
-            f" {s['reps']} flight(s), seed {s['seed']}, a fresh NLP cache per flight.",
+            f" {s['reps']} flight(s) each way, seed {s['seed']}.",
             "",
-            markdown_table(headers, table, right=[False, False, False] + [True] * 9),
+            markdown_table(headers, table, right=[False, False, False] + [True] * 11),
             "",
-            "plan calls: wall time of every `plan_problem` call (guess, NLP builds, solves,"
-            " certificate); rest: world set-up, camera frames, map updates, re-certification,"
-            " tracking, integration and collision checks.",
+            "Fresh: a new NLP cache per flight (every flight compiles its NLPs, as `make demo`);"
+            " NLPs cached: the compiled NLPs of an earlier flight reused (a campaign worker after"
+            " its first flight). The split is of the fresh flights. plan calls: wall time of every"
+            " `plan_problem` call (guess, NLP builds, solves, certificate); rest: world set-up,"
+            " camera frames, map updates, re-certification, tracking, integration and collision"
+            " checks.",
             verdict,
         ]
     )

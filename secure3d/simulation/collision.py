@@ -20,6 +20,7 @@ descent plus exact tests against the few obstacles whose bounding boxes overlap 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -59,13 +60,20 @@ def rotation_z_to(direction: np.ndarray) -> np.ndarray:
     Used to align a capsule (axis z in fcl) with a segment. ``direction`` : (3,) float, nonzero.
     """
     d = np.asarray(direction, dtype=float)
-    z = d / np.linalg.norm(d)
-    # The world axis least aligned with z keeps the cross product well conditioned.
-    helper = np.eye(3)[np.argmin(np.abs(z))]
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return np.column_stack([x, y, z])
+    z0, z1, z2 = (float(v) for v in d / np.linalg.norm(d))
+    # The world axis least aligned with z keeps the cross product well conditioned; x = axis x z
+    # written out (called once per simulation step, where np.cross's overhead showed).
+    a0, a1, a2 = abs(z0), abs(z1), abs(z2)
+    if a0 <= a1 and a0 <= a2:
+        x0, x1, x2 = 0.0, -z2, z1
+    elif a1 <= a2:
+        x0, x1, x2 = z2, 0.0, -z0
+    else:
+        x0, x1, x2 = -z1, z0, 0.0
+    n = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+    x0, x1, x2 = x0 / n, x1 / n, x2 / n
+    y0, y1, y2 = z1 * x2 - z2 * x1, z2 * x0 - z0 * x2, z0 * x1 - z1 * x0
+    return np.array([[x0, y0, z0], [x1, y1, z1], [x2, y2, z2]])
 
 
 class CollisionWorld:
