@@ -126,6 +126,33 @@ def test_judged_boxes_plus_new_voxels_cover_both():
     np.testing.assert_allclose(np.prod(hi[1:] - lo[1:], axis=1).sum(), len(keys) * res**3)
 
 
+def test_every_in_flight_verdict_is_against_all_known_obstacles(maps_dir, monkeypatch):
+    """Re-certification in flight first tries the judged boxes plus the new voxels, not the whole
+    map merged afresh: every set of boxes a plan is judged against must still cover every voxel
+    the robot then knows to be an obstacle."""
+    import secure3d.simulation.closed_loop as cl
+    from secure3d.geometry.polytope import min_box_distance
+
+    judged = []
+    original = cl._plan_unsafe
+
+    def checked(loop, plan, problem, t_rel, lo, hi):
+        centres = loop.belief.known_obstacle_voxels()
+        inside = centres[
+            np.all(
+                (centres >= loop.problem.bounds_lo) & (centres <= loop.problem.bounds_hi), axis=1
+            )
+        ]
+        judged.append(float(min_box_distance(inside, lo, hi).max()))
+        return original(loop, plan, problem, t_rel, lo, hi)
+
+    monkeypatch.setattr(cl, "_plan_unsafe", checked)
+    run = simulate(secure3d.load_scenario(maps_dir / "blind_corner.yaml"), "secure")
+    assert run.reached_goal and not run.collided, run.summary()
+    assert len(judged) >= 3, "the crate is news on several frames"
+    assert max(judged) <= 1e-9, "a voxel centre outside every judged box"
+
+
 def test_blind_corner_baseline_meets_the_crate(maps_dir):
     """The paper's Fig. 3: the planner that trusts the server sees the crate too late."""
     run = simulate(secure3d.load_scenario(maps_dir / "blind_corner.yaml"), "baseline")
