@@ -253,7 +253,19 @@ def _simulate_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="S",
         help="simulated seconds a replan in flight takes; the robot follows its old plan meanwhile (0)",
     )
+    _add_replan_defer(parser)
     parser.add_argument("--events", action="store_true", help="print every event of each run")
+
+
+def _add_replan_defer(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--replan-defer",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="when new evidence breaks the plan but its first failing manoeuvre is more than S"
+        " seconds ahead, keep following it and replan S seconds before (0: replan at once)",
+    )
 
 
 def _check_seed(seed: int) -> None:
@@ -291,6 +303,7 @@ def _simulate(args: argparse.Namespace) -> int:
         rrd=lambda planner: _per_planner(rrd, planner, several),
         report=lambda result: _print_run(result, args.events),
         replan_latency=args.replan_latency,
+        replan_defer=args.replan_defer,
         **_planner_options(args),
     )
     if several:
@@ -345,6 +358,7 @@ def _campaign_arguments(parser: argparse.ArgumentParser) -> None:
         "--count", type=int, default=1, metavar="C", help="hidden obstacles per variant (1)"
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_replan_defer(parser)
     _add_planner_options(parser)
 
 
@@ -361,6 +375,7 @@ def _campaign(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         kind=args.kind,
         count=args.count,
+        replan_defer=args.replan_defer,
         **_planner_options(args),
     )
     print(result.summary_markdown().rstrip())

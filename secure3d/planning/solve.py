@@ -396,7 +396,9 @@ def _solve_rounds(
         for _ in range(SLOT_REFRESHES):
             # Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may
             # have come closer. Re-select and re-solve warm until the selection is stable.
-            if not s.status.ok or not lb.slots_missing(problem, planner, s.X, assignment, s.slots, SLOT_SLACK):
+            if not s.status.ok or not lb.slots_missing(
+                problem, planner, s.X, assignment, s.slots, SLOT_SLACK
+            ):
                 break
             nxt = _solve_once(
                 problem,

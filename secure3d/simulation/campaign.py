@@ -437,6 +437,7 @@ def run_campaign(
     kind: str = "auto",
     count: int = 1,
     flush_every: int = FLUSH_EVERY,
+    replan_defer: float = 0.0,
     **options: object,
 ) -> CampaignResult:
     """Fly ``n`` randomised hidden-obstacle variants of ``base`` with each planner.
@@ -455,6 +456,8 @@ def run_campaign(
     kind, count : placement and number of hidden obstacles per variant (see
         :func:`~secure3d.world.attacks.random_hidden_obstacle_scenarios`).
     flush_every : finished runs between intermediate copies (``campaign.in_progress.csv``).
+    replan_defer : :func:`~secure3d.simulation.closed_loop.simulate`'s ``replan_defer`` for every
+        run (s; 0: off).
     **options : planner options for every run (:class:`~secure3d.planning.problem.PlannerOptions`
         fields, ``reactive_family``, ``controller``).
 
@@ -479,6 +482,12 @@ def run_campaign(
     _check_args(n, planners, seed, workers)
     if isinstance(flush_every, bool) or not isinstance(flush_every, int) or flush_every < 1:
         raise ConfigError(f"flush_every: must be a positive integer (got {flush_every!r})")
+    if (
+        isinstance(replan_defer, bool)
+        or not isinstance(replan_defer, (int, float))
+        or not 0.0 <= replan_defer < 10.0
+    ):
+        raise ConfigError(f"replan_defer: seconds in [0, 10), got {replan_defer!r}")
     if isinstance(base, (str, os.PathLike)):
         from secure3d.world.scenario import load_scenario
 
@@ -493,7 +502,7 @@ def run_campaign(
         raise ConfigError(f"out_dir: cannot create {str(out)!r}: {exc.strerror or exc}") from None
     variants = random_hidden_obstacle_scenarios(base, n, seed, kind=kind, count=count)
     jobs = [
-        _Job(i, scenario, seed + i, planner, dict(options))
+        _Job(i, scenario, seed + i, planner, dict(options, replan_defer=float(replan_defer)))
         for i, scenario in enumerate(variants)
         for planner in planners
     ]
@@ -524,7 +533,13 @@ def run_campaign(
         bar.close()
 
     records = tuple(finished())
-    settings = {"kind": kind, "count": count, "workers": workers, "options": dict(options)}
+    settings = {
+        "kind": kind,
+        "count": count,
+        "workers": workers,
+        "options": dict(options),
+        "replan_defer": float(replan_defer),
+    }
     result = CampaignResult(
         base=base.name,
         n=n,
@@ -603,7 +618,8 @@ def _summary_markdown(result: CampaignResult) -> str:
         "",
         f"Seed {result.seed} (variant i simulated with seed {result.seed} + i), placement"
         f" `{s.get('kind')}`, {s.get('count')} hidden obstacle(s) per variant, planner options:"
-        f" {opts or 'scenario defaults'}; {s.get('workers')} worker(s),"
+        f" {opts or 'scenario defaults'}; replans deferred by {s.get('replan_defer', 0.0)} s"
+        f" (0: off); {s.get('workers')} worker(s),"
         f" {result.wall_time:.1f} s wall. One row per run in `{CSV_NAME}`.",
         "",
         "| planner | runs | collisions | collision rate (95 % CI) | goal rate |"

@@ -394,6 +394,7 @@ def simulate(
     look_around: bool = False,
     replan_in_flight: bool = True,
     replan_latency: float = 0.0,
+    replan_defer: float = 0.0,
     frame_log_every: int = 2,
     belief_log_every: int = 5,
     **options: object,
@@ -416,6 +417,11 @@ def simulate(
         latency L the robot plans from where its current plan puts it L seconds later, keeps
         following that plan meanwhile, and switches at t + L; if the current plan's first
         uncertified manoeuvre comes before the switch, it brakes instead (take-over).
+    replan_defer : seconds (default 0: off). When new evidence breaks the plan but its first
+        failing manoeuvre is more than this far ahead, keep following the plan (certified up to
+        that manoeuvre) and replan this long before it, or sooner if later frames bring it closer.
+        A hidden obstacle revealed a few voxels per frame then costs one replan, made with more
+        of it seen, instead of one per frame. Not combined with ``replan_latency``.
     look_around : after a take-over (and after a failed replan), turn the camera half a field of
         view to either side at rest before replanning (see :func:`scan_headings`).
     frame_log_every, belief_log_every : decimation of camera frames and belief voxels in the recording.
@@ -433,6 +439,16 @@ def simulate(
         or not 0.0 <= replan_latency < 10.0
     ):
         raise SimulationError(f"replan_latency: seconds in [0, 10), got {replan_latency!r}")
+    if (
+        isinstance(replan_defer, bool)
+        or not isinstance(replan_defer, (int, float))
+        or not 0.0 <= replan_defer < 10.0
+    ):
+        raise SimulationError(f"replan_defer: seconds in [0, 10), got {replan_defer!r}")
+    if replan_defer > 0.0 and replan_latency > 0.0:
+        raise SimulationError(
+            f"replan_defer ({replan_defer}) and replan_latency ({replan_latency}): set one, not both"
+        )
     wall0 = time.perf_counter()
     loop = _Loop(scenario, planner, seed, dict(options), cache)
     settings = _RunSettings(
@@ -444,6 +460,7 @@ def simulate(
         look_around=look_around,
         replan_in_flight=replan_in_flight,
         replan_latency=float(replan_latency),
+        replan_defer=float(replan_defer),
         frame_log_every=frame_log_every,
         belief_log_every=belief_log_every,
         seed=seed,
@@ -498,6 +515,7 @@ class _RunSettings:
     look_around: bool
     replan_in_flight: bool
     replan_latency: float
+    replan_defer: float
     frame_log_every: int
     belief_log_every: int
     seed: int
@@ -512,7 +530,7 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
     dt, frame_period, goal = settings.dt, settings.frame_period, settings.goal
     max_replans, look_around = settings.max_replans, settings.look_around
     replan_in_flight, seed, wall0 = settings.replan_in_flight, settings.seed, settings.wall0
-    latency = settings.replan_latency
+    latency, defer = settings.replan_latency, settings.replan_defer
     frame_log_every, belief_log_every = settings.frame_log_every, settings.belief_log_every
     time_limit, r = settings.time_limit, model.body_radius
     events: list[SimEvent] = []
@@ -617,6 +635,7 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
     last_attempt = 0.0
     headings: list[float] = []  # look-around headings still to turn to
     pending = None  # (switch time, plan, its problem): a replan in flight waiting out its latency
+    deferred = None  # (due time, (why, t_bad)): a replan in flight put off (``replan_defer``)
     hfov = loop.problem.frustum.hfov
     replans = takeovers = 0
     detection_time = None
@@ -633,6 +652,7 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
     n_steps = int(np.ceil(time_limit / dt))
     for _ in range(n_steps):
         # ---- sense ---------------------------------------------------------------------------
+        unsafe = None  # (why, plan time of the first failing manoeuvre) when the plan must go
         if t + 1e-9 >= next_frame:
             frame_no += 1
             next_frame += frame_period
@@ -661,42 +681,63 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
                     unsafe = unsafe or broken
                 if unsafe is None:
                     loop.judged_lo, loop.judged_hi = lo, hi
+                    deferred = None
                 elif pending is not None and unsafe[1] > pending[0] - plan_start + CERT_STEP:
                     loop.judged_lo, loop.judged_hi = lo, hi  # the pending plan takes over in time
+                    unsafe = None
+                elif (
+                    defer > 0.0
+                    and replan_in_flight
+                    and np.isfinite(unsafe[1])  # the baseline promises no manoeuvre: no deferring
+                    and unsafe[1] - t_rel > defer + CERT_STEP
+                ):
+                    # The plan stays certified until its first failing manoeuvre: keep following
+                    # it and replan `defer` before then (sooner if later evidence brings that
+                    # manoeuvre closer), once, with all the camera sees meanwhile. The judged
+                    # boxes stay as they were, so every later frame re-checks the plan.
+                    if deferred is None:
+                        event(t, "replan deferred", unsafe[0])
+                    deferred = (plan_start + unsafe[1] - defer, unsafe)
+                    unsafe = None
                 else:
-                    why, t_bad = unsafe
-                    # with latency, the current plan must stay certified until the new one starts
-                    in_time = latency <= 0.0 or t_bad > t_rel + latency + CERT_STEP
-                    replanned = None
-                    if replan_in_flight and replans < max_replans and in_time:
-                        # Line 1 of Algorithm 1 from the current (moving) state: the new plan is
-                        # certified from here on, its first reactive set in space the camera saw.
-                        replans += 1
-                        event(t, "replan in flight", why)
-                        x_from = x
-                        if latency > 0.0:
-                            x_pred, _ = interpolate(
-                                model,
-                                current.times,
-                                current.states,
-                                current.controls,
-                                np.array([t_rel + latency]),
-                            )
-                            x_from = x_pred[0]
-                        replanned = make_plan(t, x_from)
-                    if replanned is not None and latency > 0.0:
-                        pending = (t + latency, replanned, loop.start_problem)
-                        event(t, "plan pending", f"takes over at {t + latency:.2f} s")
-                        loop.judged_against_current()
-                    elif replanned is not None:
-                        current, plan_start = replanned, t
-                        plan_problem_snapshot = loop.start_problem
-                        loop.judged_against_current()
-                    else:
-                        pending = None
-                        mode = "brake"
-                        takeovers += 1
-                        event(t, "take-over", why, "WARN")
+                    deferred = None
+        if deferred is not None and mode == "follow" and t + 1e-9 >= deferred[0]:
+            unsafe, deferred = deferred[1], None  # the deferred replan is due
+        if unsafe is not None:
+            t_rel = t - plan_start
+            why, t_bad = unsafe
+            # with latency, the current plan must stay certified until the new one starts
+            in_time = latency <= 0.0 or t_bad > t_rel + latency + CERT_STEP
+            replanned = None
+            if replan_in_flight and replans < max_replans and in_time:
+                # Line 1 of Algorithm 1 from the current (moving) state: the new plan is
+                # certified from here on, its first reactive set in space the camera saw.
+                replans += 1
+                event(t, "replan in flight", why)
+                x_from = x
+                if latency > 0.0:
+                    x_pred, _ = interpolate(
+                        model,
+                        current.times,
+                        current.states,
+                        current.controls,
+                        np.array([t_rel + latency]),
+                    )
+                    x_from = x_pred[0]
+                replanned = make_plan(t, x_from)
+            if replanned is not None and latency > 0.0:
+                pending = (t + latency, replanned, loop.start_problem)
+                event(t, "plan pending", f"takes over at {t + latency:.2f} s")
+                loop.judged_against_current()
+            elif replanned is not None:
+                current, plan_start = replanned, t
+                plan_problem_snapshot = loop.start_problem
+                loop.judged_against_current()
+            else:
+                pending = None
+                mode = "brake"
+                takeovers += 1
+                event(t, "take-over", why, "WARN")
         if pending is not None and mode == "follow" and t + 1e-9 >= pending[0]:
             plan_start, current, plan_problem_snapshot = pending
             pending = None
@@ -733,6 +774,7 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
                 new_plan = make_plan(t, x)
                 if new_plan is not None:
                     current, plan_start, mode = new_plan, t, "follow"
+                    deferred = None
                     plan_problem_snapshot = loop.start_problem
                     loop.judged_against_current()
                 elif look_around and replans < max_replans:

@@ -199,6 +199,7 @@ def test_interrupted_campaign_leaves_no_partial_output(
         ({"n": 1, "workers": 0}, "workers: must be a positive integer"),
         ({"n": 1, "seed": -1}, "seed: must be a non-negative integer"),
         ({"n": 1, "flush_every": 0}, "flush_every"),
+        ({"n": 1, "replan_defer": -0.5}, "replan_defer"),
         ({"n": 1, "nodes": 2}, "nodes"),
         ({"n": 1, "warp_drive": True}, "unknown planner option"),
     ],

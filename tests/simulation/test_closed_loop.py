@@ -216,3 +216,23 @@ def test_replan_latency_is_validated(maps_dir):
     for bad in (-0.1, 10.0, True, "0.2"):
         with pytest.raises(SimulationError, match="replan_latency"):
             simulate(scenario, "secure", replan_latency=bad)
+
+
+def test_deferred_replans_wait_for_more_of_the_obstacle_and_stay_safe(maps_dir):
+    """A hidden obstacle revealed a few voxels per frame: replanning at once costs one replan per
+    frame; deferring (the plan is certified until its first failing manoeuvre) replans once."""
+    from secure3d.world.attacks import random_hidden_obstacle_scenarios
+
+    base = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    variant = random_hidden_obstacle_scenarios(base, 4, 0)[3]
+    at_once = simulate(variant, "secure", seed=3, nodes=30)
+    deferred = simulate(variant, "secure", seed=3, nodes=30, replan_defer=0.5)
+    for run in (at_once, deferred):
+        assert run.reached_goal and not run.collided and run.takeovers == 0, run.summary()
+    assert any(e.kind == "replan deferred" for e in deferred.events)
+    assert not any(e.kind == "replan deferred" for e in at_once.events)
+    assert deferred.replans < at_once.replans
+    with pytest.raises(SimulationError, match="replan_defer"):
+        simulate(variant, "secure", replan_defer=-1.0)
+    with pytest.raises(SimulationError, match="not both"):
+        simulate(variant, "secure", replan_defer=0.5, replan_latency=0.1)
