@@ -482,12 +482,9 @@ def run_campaign(
     _check_args(n, planners, seed, workers)
     if isinstance(flush_every, bool) or not isinstance(flush_every, int) or flush_every < 1:
         raise ConfigError(f"flush_every: must be a positive integer (got {flush_every!r})")
-    if (
-        isinstance(replan_defer, bool)
-        or not isinstance(replan_defer, (int, float))
-        or not 0.0 <= replan_defer < 10.0
-    ):
-        raise ConfigError(f"replan_defer: seconds in [0, 10), got {replan_defer!r}")
+    from secure3d.simulation.closed_loop import check_replan_seconds
+
+    replan_defer = check_replan_seconds("replan_defer", replan_defer, ConfigError)
     if isinstance(base, (str, os.PathLike)):
         from secure3d.world.scenario import load_scenario
 
@@ -502,7 +499,7 @@ def run_campaign(
         raise ConfigError(f"out_dir: cannot create {str(out)!r}: {exc.strerror or exc}") from None
     variants = random_hidden_obstacle_scenarios(base, n, seed, kind=kind, count=count)
     jobs = [
-        _Job(i, scenario, seed + i, planner, dict(options, replan_defer=float(replan_defer)))
+        _Job(i, scenario, seed + i, planner, dict(options, replan_defer=replan_defer))
         for i, scenario in enumerate(variants)
         for planner in planners
     ]
@@ -538,7 +535,7 @@ def run_campaign(
         "count": count,
         "workers": workers,
         "options": dict(options),
-        "replan_defer": float(replan_defer),
+        "replan_defer": replan_defer,
     }
     result = CampaignResult(
         base=base.name,

@@ -382,6 +382,16 @@ def _plan_unsafe(
     return None
 
 
+def check_replan_seconds(
+    name: str, value: object, error: type[Exception] = SimulationError
+) -> float:
+    """``value`` (``replan_latency``, ``replan_defer``) as seconds in [0, 10), else ``error`` naming
+    ``name`` and the value."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < 10.0:
+        raise error(f"{name}: seconds in [0, 10), got {value!r}")
+    return float(value)
+
+
 def simulate(
     scenario: Scenario | str | Path,
     planner: str = "secure",
@@ -433,18 +443,8 @@ def simulate(
         scenario = load_scenario(scenario)
     if planner not in ("secure", "baseline"):
         raise SimulationError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
-    if (
-        isinstance(replan_latency, bool)
-        or not isinstance(replan_latency, (int, float))
-        or not 0.0 <= replan_latency < 10.0
-    ):
-        raise SimulationError(f"replan_latency: seconds in [0, 10), got {replan_latency!r}")
-    if (
-        isinstance(replan_defer, bool)
-        or not isinstance(replan_defer, (int, float))
-        or not 0.0 <= replan_defer < 10.0
-    ):
-        raise SimulationError(f"replan_defer: seconds in [0, 10), got {replan_defer!r}")
+    replan_latency = check_replan_seconds("replan_latency", replan_latency)
+    replan_defer = check_replan_seconds("replan_defer", replan_defer)
     if replan_defer > 0.0 and replan_latency > 0.0:
         raise SimulationError(
             f"replan_defer ({replan_defer}) and replan_latency ({replan_latency}): set one, not both"
@@ -459,8 +459,8 @@ def simulate(
         max_replans=max_replans,
         look_around=look_around,
         replan_in_flight=replan_in_flight,
-        replan_latency=float(replan_latency),
-        replan_defer=float(replan_defer),
+        replan_latency=replan_latency,
+        replan_defer=replan_defer,
         frame_log_every=frame_log_every,
         belief_log_every=belief_log_every,
         seed=seed,
