@@ -9,7 +9,8 @@ For each scenario, planner (``secure``, ``baseline``) and solver (``ipopt``, ``f
   ``solve_time``, *total* is the wall time of the whole ``plan_problem`` call (graph-search guess,
   node kernels, look-back rounds and, for the secure planner, the certificate included);
 - a *warm replan*: same cache, start moved ``--replan-dt`` seconds along the cold plan
-  (``problem.with_start(x(dt))``, ``warm=cold, warm_time=dt``), as the closed loop does in flight.
+  (``problem.with_start(x(dt), region=<the start region>)``, ``warm=cold, warm_time=dt``): the
+  previous plan's later nodes are kept as they are, the passed ones spread over the gap.
 
 Tables report medians over the repetitions: final time, build, solve and total seconds, solver
 iterations, the certificate's verdict and smallest margin (baseline plans are certified after the
@@ -180,7 +181,10 @@ def one_rep(problem: PlanningProblem, planner: str, replan_dt: float) -> dict:
             rec_cold["certify_error"] = error_text(check.error)
     if not result.ok:
         return rec
-    moved = problem.with_start(state_along(problem, result, replan_dt))
+    # The start region observed before take-off still counts as observed (the closed loop's
+    # observed_box assumes it too); it grows to contain the new start's own region.
+    region = (problem.start_region_lo, problem.start_region_hi)
+    moved = problem.with_start(state_along(problem, result, replan_dt), region=region)
     _, rec["warm"] = _planned(moved, planner, cache, warm=result, warm_time=replan_dt)
     return rec
 

@@ -2,7 +2,9 @@
 
 Decision variables, stage by stage: the final time T, states x_k and controls u_k at K nodes
 (Hermite-Simpson adds midpoint controls), and one dual vector lam in R^6 per (node, obstacle slot).
-h = T / (K - 1). Obstacles enter as *parameters* (a fixed number of box slots per node). The
+Interval k lasts r_k T / (K - 1), the ratios r a parameter: all 1 (evenly spaced nodes, exactly the
+uniform grid's arithmetic) for a cold solve; a warm replan keeps the previous plan's later nodes at
+their times (:func:`~secure3d.planning.trajectory.remainder_keeping_nodes`). Obstacles enter as *parameters* (a fixed number of box slots per node). The
 look-back assignment (which earlier node's frustum must contain node i's reactive set) enters in
 one of two ways (``PlannerOptions.lookback_encoding``):
 
@@ -51,6 +53,8 @@ class NLPLayout:
     one_sided: bool = False
     #: state coordinates the camera pose depends on (the viewing states hold only these)
     view_dims: tuple[int, ...] = ()
+    #: the K-1 interval lengths, in units of T/(K-1), are the last parameters (else all 1)
+    grid: bool = False
     i_T: int = 0
     i_X: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     i_U: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
@@ -174,9 +178,11 @@ class TranscribedNLP:
         slot_boxes: np.ndarray,
         assignment,
         sides: np.ndarray | None = None,
+        grid: np.ndarray | None = None,
     ) -> np.ndarray:
         """The NLP's parameter vector (see :func:`parameter_vector`), then the dual sides
-        (one-sided duals) and the selection matrix (look-back as a parameter)."""
+        (one-sided duals), the selection matrix (look-back as a parameter) and the interval
+        ratios of the node time fractions ``grid`` (default, None: evenly spaced)."""
         parts = [parameter_vector(problem, slot_boxes)]
         if getattr(self.layout, "one_sided", False):
             if sides is None:
@@ -184,6 +190,11 @@ class TranscribedNLP:
             parts.append(np.asarray(sides, dtype=float).ravel())
         if getattr(self.layout, "viewing", False):
             parts.append(selection_matrix(assignment).ravel(order="F"))
+        if getattr(self.layout, "grid", False):
+            K = self.layout.K
+            parts.append(
+                np.ones(K - 1) if grid is None else (K - 1) * np.diff(node_fractions(grid, K))
+            )
         return np.concatenate(parts)
 
     def get_warm_solver(self) -> ca.Function:
@@ -207,6 +218,14 @@ class TranscribedNLP:
                 )
             self.warm_solver = ca.nlpsol("secure3d_warm", self.solver_name, self.nlp, opts)
         return self.warm_solver
+
+
+def node_fractions(times: np.ndarray, K: int) -> np.ndarray:
+    """Node times (K,) as fractions of the last, checked: 0 first, 1 last, increasing."""
+    t = np.asarray(times, dtype=float).ravel()
+    if t.shape != (K,) or t[0] != 0.0 or t[-1] <= 0.0 or np.any(np.diff(t) <= 0.0):
+        raise ValueError(f"node times must be {K} increasing values from 0, got {t}")
+    return t / t[-1]
 
 
 def parameter_vector(problem: PlanningProblem, slot_boxes: np.ndarray) -> np.ndarray:
@@ -371,6 +390,7 @@ def build_nlp(
         viewing=parametric,
         one_sided=o.one_sided_duals,
         view_dims=camera_dims(model) if parametric else (),
+        grid=True,
     )
     kern = kernels if kernels is not None else node_kernels(problem)
 
@@ -386,8 +406,10 @@ def build_nlp(
     )
     n_boxes = K * S * 6
     n_sides = K * S * 3 if lay.one_sided else 0
-    n_p = 9 + n_boxes + n_sides + (K * K if parametric else 0)
+    n_sel = K * K if parametric else 0
+    n_p = 9 + n_boxes + n_sides + n_sel + K - 1
     p = SYM.sym("p", n_p)
+    ratios = p[n_p - (K - 1) :].T  # (1, K-1) interval lengths in units of the mean step
     start_lo, start_hi, goal = p[0:3], p[3:6], p[6:9]
     Boxes = ca.reshape(p[9 : 9 + n_boxes], 6 * S, K)  # column k = [lo; hi] of each slot at node k
     L_w = w[int(lay.i_L[0, 0, 0]) : int(lay.i_L[-1, -1, -1]) + 1]
@@ -407,7 +429,8 @@ def build_nlp(
         )
     else:
         Lam = ca.reshape(L_w, 6 * S, K)
-    h = T / (K - 1)
+    h = T / (K - 1)  # the mean step
+    steps = h * ratios
     exprs: list = []
     meta: list[tuple[str, float, float]] = []
     row_node: list[int] = []
@@ -430,9 +453,7 @@ def build_nlp(
     J = T + o.effort_weight * h * ca.sumsqr((U - ca.repmat(u_mid, 1, K)) / ca.repmat(u_scale, 1, K))
 
     # ---- dynamics defects ------------------------------------------------------------------------
-    dyn = kern.dyn.map(K - 1)(
-        X[:, : K - 1], U[:, : K - 1], X[:, 1:], U[:, 1:], Um, ca.repmat(h, 1, K - 1)
-    )
+    dyn = kern.dyn.map(K - 1)(X[:, : K - 1], U[:, : K - 1], X[:, 1:], U[:, 1:], Um, steps)
     add(dyn, [("dynamics", 0.0, 0.0)] * nx, K - 1)
 
     # ---- path constraints: model limits and world bounds -----------------------------------------
@@ -494,7 +515,7 @@ def build_nlp(
         # rows local to (x_i, y_i), so the Hessian stays block-sparse for every assignment.
         dims = list(lay.view_dims)
         Yv = ca.reshape(w[int(lay.i_Y[0, 0]) : int(lay.i_Y[-1, -1]) + 1], len(dims), K)
-        Sel = ca.reshape(p[9 + n_boxes + n_sides :], K, K)
+        Sel = ca.reshape(p[9 + n_boxes + n_sides : 9 + n_boxes + n_sides + n_sel], K, K)
         link = ca.horzcat(*[Yv[:, i] - ca.mtimes(X[dims, :i], Sel[i, :i].T) for i in nodes])
         add(link, [("viewing_state", 0.0, 0.0)] * len(dims), len(nodes), nodes)
         # the full viewing state, zero in the coordinates the camera pose does not depend on

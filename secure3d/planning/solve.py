@@ -27,7 +27,7 @@ from secure3d.planning.fatrop_transcription import fatrop_status
 from secure3d.planning.guess import Guess, NoPathError, initial_guess
 from secure3d.planning.problem import PlanningProblem, problem_from_scenario
 from secure3d.planning.result import PlanResult, PlanStatus
-from secure3d.planning.trajectory import resample
+from secure3d.planning.trajectory import remainder_keeping_nodes, resample
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.mapping.occupancy import OccupancyMap
@@ -85,6 +85,8 @@ class _Solve:
     cached: bool
     #: time spent compiling the warm-start solver for this call (once per NLP; 0 otherwise)
     warm_build: float = 0.0
+    #: node times as fractions of T; None: evenly spaced (a warm replan keeps earlier nodes)
+    grid: np.ndarray | None = None
 
 
 #: The final time may not exceed this multiple of the initial guess's (a feasible-ish flight): keeps
@@ -136,9 +138,14 @@ def _solve_once(
     multipliers: tuple[tuple, np.ndarray, np.ndarray] | None = None,
     prev_slots: np.ndarray | None = None,
     extra_margin: float = 0.0,
+    grid: np.ndarray | None = None,
 ) -> _Solve:
+    """One NLP solve from the guess (T, X, U) on node time fractions ``grid`` (None: evenly
+    spaced; only NLPs with a time-grid parameter take others)."""
     nlp, cached = cache.get(problem, planner, assignment)
     lay = nlp.layout
+    if not getattr(lay, "grid", False):
+        grid = None
     X = np.array(X, dtype=float)
     X[0] = problem.x0
     U = np.clip(U, problem.model.u_lo, problem.model.u_hi)
@@ -155,7 +162,7 @@ def _solve_once(
         w0 = lay.pack(float(np.clip(T, T_MIN, T_MAX)), X, U, L)
     one_sided = getattr(lay, "one_sided", False)
     sides = lb.slot_sides(problem, planner, X, slots, assignment) if one_sided else None
-    p = nlp.parameters(problem, slots, assignment, sides)
+    p = nlp.parameters(problem, slots, assignment, sides, grid)
     lbx, ubx = _variable_bounds(problem, nlp, T)
     lbg, ubg = nlp.bounds_for(assignment)
     if extra_margin:
@@ -195,6 +202,7 @@ def _solve_once(
             0,
             cached,
             warm_build,
+            grid,
         )
     solve_time = time.perf_counter() - t0
     stats = solver.stats()
@@ -229,6 +237,7 @@ def _solve_once(
         iterations=int(stats.get("iter_count", 0)),
         cached=cached,
         warm_build=warm_build,
+        grid=grid,
     )
 
 
@@ -283,7 +292,7 @@ def _result(
 ) -> PlanResult:
     model = problem.model
     K = problem.options.nodes
-    times = np.linspace(0.0, s.T, K)
+    times = s.T * (np.linspace(0.0, 1.0, K) if s.grid is None else s.grid)
     geo = lb.node_geometry(problem, s.X)
     speeds = np.linalg.norm(np.asarray(model.velocity(s.X), dtype=float), axis=1)
     return PlanResult(
@@ -318,15 +327,26 @@ def _result(
             "T": s.T,
             "X": s.X,
             "U": s.U,
+            "grid": s.grid,
         },
     )
 
 
-def _guess_from_warm(problem: PlanningProblem, warm: PlanResult, t_offset: float) -> Guess:
+def _guesses_from_warm(problem: PlanningProblem, warm: PlanResult, t_offset: float) -> list[Guess]:
+    """The previous plan from ``t_offset`` on: its later nodes kept as they are (where the NLP takes
+    a time grid: IPOPT), then, tried if that fails, resampled on evenly spaced nodes."""
     K = problem.options.nodes
-    times, X, U = resample(problem.model, warm.times, warm.states, warm.controls, t_offset, K)
-    X[0] = problem.x0
-    return Guess(times=times, states=X, controls=U, path=X[:, :3])
+    args = (problem.model, warm.times, warm.states, warm.controls, t_offset)
+    remainders = [resample(*args, K)]
+    if problem.options.solver == "ipopt":
+        kept = remainder_keeping_nodes(*args)
+        if kept is not None:
+            remainders.insert(0, kept)
+    guesses = []
+    for times, X, U in remainders:
+        X[0] = problem.x0
+        guesses.append(Guess(times=times, states=X, controls=U, path=X[:, :3]))
+    return guesses
 
 
 def _solve_rounds(
@@ -362,6 +382,7 @@ def _solve_rounds(
     build = solve_t = 0.0
     iters = 0
     T, X, U = guess.final_time, guess.states, guess.controls
+    grid = guess.times / guess.final_time if warm is not None else None
     rounds = o.lookback_rounds if (planner == "secure" and o.lookback == "adaptive") else 1
     if multipliers is not None:
         rounds = 1  # a warm replan keeps the previous, already refined, assignment
@@ -379,6 +400,7 @@ def _solve_rounds(
             L=L0,
             multipliers=multipliers,
             prev_slots=prev_slots,
+            grid=grid,
         )
         if cache.misses > n_before:
             build += s.nlp.build_time
@@ -405,6 +427,7 @@ def _solve_rounds(
                 L=s.L,
                 multipliers=None,
                 prev_slots=s.slots,
+                grid=s.grid,
             )
             solve_t += nxt.solve_time
             iters += nxt.iterations
@@ -418,6 +441,7 @@ def _solve_rounds(
             break
         assignment = new_assignment
         T, X, U, L0, multipliers, prev_slots = s.T, s.X, s.U, s.L, None, s.slots
+        grid = s.grid
     return best, build, solve_t, iters
 
 
@@ -452,7 +476,7 @@ def plan_problem(
         and len(warm.times) == o.nodes
         and warm.model_name == problem.model.name
     ):
-        guess = _guess_from_warm(problem, warm, warm_time)
+        attempts: list[Guess | None] = _guesses_from_warm(problem, warm, warm_time)
     else:
         warm = None
         try:
@@ -463,12 +487,11 @@ def plan_problem(
             )
         except NoPathError as exc:
             return _failed(problem, planner, PlanStatus.INFEASIBLE, str(exc))
-
-    attempts = [guess]
-    if warm is None and planner == "secure":
-        # The paper: poor guesses stop convergence. A slower flight along the same path is a more
-        # conservative (more feasible) start; it is tried when the first one fails.
-        attempts.append(None)
+        attempts = [guess]
+        if planner == "secure":
+            # The paper: poor guesses stop convergence. A slower flight along the same path is a
+            # more conservative (more feasible) start; it is tried when the first one fails.
+            attempts.append(None)
     s = None
     build = solve_t = 0.0
     iters = 0
@@ -532,6 +555,7 @@ def _judged(
             multipliers=(s.nlp.key, s.lam_x, s.lam_g),
             prev_slots=s.slots,
             extra_margin=extra,
+            grid=s.grid,
         )
         solve_t, iters = solve_t + t_.solve_time, iters + t_.iterations
         build += t_.warm_build
