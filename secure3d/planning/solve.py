@@ -332,21 +332,14 @@ def _result(
     )
 
 
-def _guesses_from_warm(problem: PlanningProblem, warm: PlanResult, t_offset: float) -> list[Guess]:
-    """The previous plan from ``t_offset`` on: its later nodes kept as they are (where the NLP takes
-    a time grid: IPOPT), then, tried if that fails, resampled on evenly spaced nodes."""
-    K = problem.options.nodes
+def _guess_from_warm(problem: PlanningProblem, warm: PlanResult, t_offset: float) -> Guess:
+    """The previous plan from ``t_offset`` on: its later nodes kept as they are where the NLP takes
+    a time grid (IPOPT) and they fit, else resampled on evenly spaced nodes."""
     args = (problem.model, warm.times, warm.states, warm.controls, t_offset)
-    remainders = [resample(*args, K)]
-    if problem.options.solver == "ipopt":
-        kept = remainder_keeping_nodes(*args)
-        if kept is not None:
-            remainders.insert(0, kept)
-    guesses = []
-    for times, X, U in remainders:
-        X[0] = problem.x0
-        guesses.append(Guess(times=times, states=X, controls=U, path=X[:, :3]))
-    return guesses
+    kept = remainder_keeping_nodes(*args) if problem.options.solver == "ipopt" else None
+    times, X, U = kept if kept is not None else resample(*args, problem.options.nodes)
+    X[0] = problem.x0
+    return Guess(times=times, states=X, controls=U, path=X[:, :3])
 
 
 def _solve_rounds(
@@ -356,8 +349,11 @@ def _solve_rounds(
     warm: PlanResult | None,
     warm_time: float,
     cache: NLPCache,
+    dual_start: bool = True,
 ) -> tuple[_Solve, float, float, int]:
-    """Assign look-backs on the guess, solve, and (adaptive rule) re-assign and re-solve."""
+    """Assign look-backs on the guess, solve, and (adaptive rule) re-assign and re-solve. A warm
+    replan starts from the previous plan's multipliers too, with the warm-start solver, unless
+    ``dual_start`` is False (then the cold solver's barrier schedule from the primal guess)."""
     o = problem.options
     K = o.nodes
     if planner == "baseline":
@@ -373,7 +369,8 @@ def _solve_rounds(
     if warm is not None and warm.warm is not None:
         # Same structure as the previous plan: its multipliers are a good start even after the
         # remaining trajectory was resampled from warm_time on (node i keeps its role).
-        multipliers = (warm.warm["key"], warm.warm["lam_x"], warm.warm["lam_g"])
+        if dual_start:
+            multipliers = (warm.warm["key"], warm.warm["lam_x"], warm.warm["lam_g"])
         L0 = warm.warm["L"]
         prev_slots = warm.warm["slots"]
         if planner == "secure" and o.lookback == "adaptive":
@@ -384,7 +381,7 @@ def _solve_rounds(
     T, X, U = guess.final_time, guess.states, guess.controls
     grid = guess.times / guess.final_time if warm is not None else None
     rounds = o.lookback_rounds if (planner == "secure" and o.lookback == "adaptive") else 1
-    if multipliers is not None:
+    if warm is not None:
         rounds = 1  # a warm replan keeps the previous, already refined, assignment
     best: _Solve | None = None
     for _ in range(rounds):
@@ -476,7 +473,13 @@ def plan_problem(
         and len(warm.times) == o.nodes
         and warm.model_name == problem.model.name
     ):
-        attempts: list[Guess | None] = _guesses_from_warm(problem, warm, warm_time)
+        guess = _guess_from_warm(problem, warm, warm_time)
+        # From the previous primal-dual solution first; if that fails, from its primal part
+        # alone with the cold solver's barrier schedule. (The diff-drive's warm starts are
+        # fragile: planar_passage_20cm ran to the 60 s limit from the multipliers and solves in
+        # 1.4 s / 77 iterations without them; the point mass's are not: blind_corner 6
+        # iterations with them, 17 without.)
+        attempts: list[tuple[Guess | None, bool]] = [(guess, True), (guess, False)]
     else:
         warm = None
         try:
@@ -487,18 +490,18 @@ def plan_problem(
             )
         except NoPathError as exc:
             return _failed(problem, planner, PlanStatus.INFEASIBLE, str(exc))
-        attempts = [guess]
+        attempts = [(guess, True)]
         if planner == "secure":
             # The paper: poor guesses stop convergence. A slower flight along the same path is a
             # more conservative (more feasible) start; it is tried when the first one fails.
-            attempts.append(None)
+            attempts.append((None, True))
     s = None
     build = solve_t = 0.0
     iters = 0
-    for g in attempts:
+    for g, dual_start in attempts:
         if g is None:
             g = initial_guess(problem, secure=True, speed_fraction=0.5 * o.guess_speed_fraction)
-        s, b_, t_, i_ = _solve_rounds(problem, planner, g, warm, warm_time, cache)
+        s, b_, t_, i_ = _solve_rounds(problem, planner, g, warm, warm_time, cache, dual_start)
         build, solve_t, iters = build + b_, solve_t + t_, iters + i_
         if s.status.ok:
             break

@@ -89,3 +89,22 @@ def test_warm_replan_along_the_plan_keeps_nodes_and_certifies(cold, corner_probl
     # the dynamics hold on the uneven grid: the interpolant reaches the goal at rest
     xe, _ = interpolate(model, warm.times, warm.states, warm.controls, warm.times[-1:])
     np.testing.assert_allclose(model.velocity(xe)[0], 0.0, atol=1e-4)
+
+
+def test_warm_replan_without_multipliers_uses_the_cold_solver(corner_problem):
+    """The fall-back of a failed warm start: the kept nodes, primal only, cold barrier schedule."""
+    from secure3d.planning.solve import _guess_from_warm, _solve_rounds
+
+    cache = NLPCache()
+    plan = plan_problem(corner_problem, "secure", cache=cache)
+    x, _ = interpolate(
+        corner_problem.model, plan.times, plan.states, plan.controls, np.array([0.1])
+    )
+    moved = corner_problem.with_start(x[0])
+    guess = _guess_from_warm(moved, plan, 0.1)
+    s, build, _, iters = _solve_rounds(moved, "secure", guess, plan, 0.1, cache, dual_start=False)
+    assert s.status.ok and iters > 0 and build == 0.0
+    assert s.nlp.warm_solver is None, "primal-only: the warm-start solver is never compiled"
+    assert s.grid is not None and np.ptp(np.diff(s.grid)) > 1e-6, "still on the kept nodes"
+    s2, build2, _, _ = _solve_rounds(moved, "secure", guess, plan, 0.1, cache, dual_start=True)
+    assert s2.status.ok and s2.nlp.warm_solver is not None and build2 > 0.0
