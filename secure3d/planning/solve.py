@@ -24,7 +24,7 @@ from secure3d.errors import ConfigError
 from secure3d.planning import lookback as lb
 from secure3d.planning.collocation import T_MAX, T_MIN, NLPCache, TranscribedNLP
 from secure3d.planning.fatrop_transcription import fatrop_status
-from secure3d.planning.guess import Guess, NoPathError, initial_guess
+from secure3d.planning.guess import Guess, NoPathError, initial_guess, profile_guess
 from secure3d.planning.problem import PlanningProblem, problem_from_scenario
 from secure3d.planning.result import PlanResult, PlanStatus
 from secure3d.planning.trajectory import remainder_keeping_nodes, resample
@@ -342,6 +342,17 @@ def _guess_from_warm(problem: PlanningProblem, warm: PlanResult, t_offset: float
     return Guess(times=times, states=X, controls=U, path=X[:, :3])
 
 
+def _guess_from_path(
+    problem: PlanningProblem, planner: str, other: PlanResult, t_offset: float
+) -> Guess:
+    """Another plan's path from ``t_offset`` on (its node positions after that time, from the
+    problem's start), time-scaled as the graph-search guess is (:func:`profile_guess`)."""
+    later = other.positions[other.times > t_offset + 1e-9]
+    path = np.vstack([problem.start_position[None], later])
+    frac = 1.0 if planner == "baseline" else problem.options.guess_speed_fraction
+    return profile_guess(problem, path, frac, planner == "secure")
+
+
 def _solve_rounds(
     problem: PlanningProblem,
     planner: str,
@@ -366,7 +377,11 @@ def _solve_rounds(
     multipliers = None
     L0 = None
     prev_slots = None
-    if warm is not None and warm.warm is not None:
+    # A plan of the other planner (the secure planner warm-started from the baseline's solution)
+    # lends its trajectory only: its duals, slots and look-back (all start region) belong to
+    # other constraints.
+    same_planner = warm is not None and warm.planner == planner
+    if same_planner and warm.warm is not None:
         # Same structure as the previous plan: its multipliers are a good start even after the
         # remaining trajectory was resampled from warm_time on (node i keeps its role).
         if dual_start:
@@ -381,7 +396,7 @@ def _solve_rounds(
     T, X, U = guess.final_time, guess.states, guess.controls
     grid = guess.times / guess.final_time if warm is not None else None
     rounds = o.lookback_rounds if (planner == "secure" and o.lookback == "adaptive") else 1
-    if warm is not None:
+    if same_planner:
         rounds = 1  # a warm replan keeps the previous, already refined, assignment
     best: _Solve | None = None
     for _ in range(rounds):
@@ -467,6 +482,13 @@ def plan_problem(
     reason = _precheck(problem)
     if reason is not None:
         return _failed(problem, planner, PlanStatus.INVALID_INPUT, reason)
+    from_other = None
+    if warm is not None and warm.ok and warm.planner != planner and len(warm.times) >= 2:
+        # The other planner's plan (e.g. the secure planner from the baseline's solution): its
+        # path, time-scaled for this planner; then a cold solve (its duals, slots and look-back
+        # belong to other constraints, and the baseline's speeds along a corner it cuts are no
+        # start for the secure NLP: from them blind_corner ran into the iteration limit).
+        from_other, warm = warm, None
     if (
         warm is not None
         and warm.ok
@@ -483,11 +505,14 @@ def plan_problem(
     else:
         warm = None
         try:
-            guess = initial_guess(
-                problem,
-                secure=planner == "secure",
-                speed_fraction=1.0 if planner == "baseline" else None,
-            )
+            if from_other is not None:
+                guess = _guess_from_path(problem, planner, from_other, warm_time)
+            else:
+                guess = initial_guess(
+                    problem,
+                    secure=planner == "secure",
+                    speed_fraction=1.0 if planner == "baseline" else None,
+                )
         except NoPathError as exc:
             return _failed(problem, planner, PlanStatus.INFEASIBLE, str(exc))
         attempts = [(guess, True)]

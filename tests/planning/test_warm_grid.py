@@ -108,3 +108,16 @@ def test_warm_replan_without_multipliers_uses_the_cold_solver(corner_problem):
     assert s.grid is not None and np.ptp(np.diff(s.grid)) > 1e-6, "still on the kept nodes"
     s2, build2, _, _ = _solve_rounds(moved, "secure", guess, plan, 0.1, cache, dual_start=True)
     assert s2.status.ok and s2.nlp.warm_solver is not None and build2 > 0.0
+
+
+def test_secure_plan_warm_started_from_the_baseline(corner_problem, cold):
+    """The baseline's path, time-scaled for the secure planner, then a cold secure solve (the
+    baseline's duals and all-start-region look-back would make it infeasible)."""
+    cache = cold[0]
+    base = plan_problem(corner_problem, "baseline", cache=cache)
+    assert base.ok
+    result = plan_problem(corner_problem, "secure", cache=cache, warm=base)
+    assert result.ok, result.message
+    assert result.certificate is not None and result.certificate.ok
+    assert (result.lookback[1:] >= 0).any(), "nodes seen from earlier nodes, not all start region"
+    assert result.final_time < 1.2 * cold[1].final_time
