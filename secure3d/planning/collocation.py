@@ -4,9 +4,10 @@ Decision variables, stage by stage: the final time T, states x_k and controls u_
 (Hermite-Simpson adds midpoint controls), and one dual vector lam in R^6 per (node, obstacle slot).
 Interval k lasts r_k T / (K - 1), the ratios r a parameter: all 1 (evenly spaced nodes, exactly the
 uniform grid's arithmetic) for a cold solve; a warm replan keeps the previous plan's later nodes at
-their times (:func:`~secure3d.planning.trajectory.remainder_keeping_nodes`). Obstacles enter as *parameters* (a fixed number of box slots per node). The
-look-back assignment (which earlier node's frustum must contain node i's reactive set) enters in
-one of two ways (``PlannerOptions.lookback_encoding``):
+their times (:func:`~secure3d.planning.trajectory.remainder_keeping_nodes`). Obstacles enter as
+*parameters* (a fixed number of box slots per node). The look-back assignment (which earlier
+node's frustum must contain node i's reactive set) enters in one of two ways
+(``PlannerOptions.lookback_encoding``):
 
 - ``"structure"``: node i's frustum rows read x_j directly; one compiled NLP per assignment, cached;
 - ``"parameter"``: a selection matrix ties each node's *viewing state* y_i to the earlier node it is

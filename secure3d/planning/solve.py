@@ -348,7 +348,7 @@ def _guess_from_path(
     """Another plan's path from ``t_offset`` on (its node positions after that time, from the
     problem's start), time-scaled as the graph-search guess is (:func:`profile_guess`)."""
     later = other.positions[other.times > t_offset + 1e-9]
-    path = np.vstack([problem.start_position[None], later])
+    path = np.vstack([problem.start_position[None], later if len(later) else problem.goal[None]])
     frac = 1.0 if planner == "baseline" else problem.options.guess_speed_fraction
     return profile_guess(problem, path, frac, planner == "secure")
 
@@ -377,11 +377,7 @@ def _solve_rounds(
     multipliers = None
     L0 = None
     prev_slots = None
-    # A plan of the other planner (the secure planner warm-started from the baseline's solution)
-    # lends its trajectory only: its duals, slots and look-back (all start region) belong to
-    # other constraints.
-    same_planner = warm is not None and warm.planner == planner
-    if same_planner and warm.warm is not None:
+    if warm is not None and warm.warm is not None:
         # Same structure as the previous plan: its multipliers are a good start even after the
         # remaining trajectory was resampled from warm_time on (node i keeps its role).
         if dual_start:
@@ -396,7 +392,7 @@ def _solve_rounds(
     T, X, U = guess.final_time, guess.states, guess.controls
     grid = guess.times / guess.final_time if warm is not None else None
     rounds = o.lookback_rounds if (planner == "secure" and o.lookback == "adaptive") else 1
-    if same_planner:
+    if warm is not None:
         rounds = 1  # a warm replan keeps the previous, already refined, assignment
     best: _Solve | None = None
     for _ in range(rounds):
