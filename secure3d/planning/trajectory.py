@@ -98,7 +98,16 @@ def remainder_keeping_nodes(
     resampled remainder, and shorter plans each time. Returns node times starting at 0, states
     and controls, or None if fewer than two nodes would be kept (use :func:`resample`).
     """
+    if not np.isfinite(t_start) or not (np.isfinite(min_gap) and min_gap > 0.0):
+        raise PlanningError(
+            f"remainder_keeping_nodes: t_start must be finite and min_gap > 0, got t_start"
+            f" {t_start!r}, min_gap {min_gap!r}"
+        )
     times = np.asarray(times, dtype=float)
+    if times.ndim != 1 or len(times) < 3 or np.any(np.diff(times) <= 0):
+        raise PlanningError(
+            f"remainder_keeping_nodes: node times must be increasing with >= 3 entries, got {times}"
+        )
     K, t_end = len(times), float(times[-1])
     t_start = float(np.clip(t_start, times[0], t_end))
     mean_h = (t_end - times[0]) / (K - 1)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import secure3d
+from secure3d.errors import PlanningError
 from secure3d.planning import certify, plan_problem, problem_from_scenario
 from secure3d.planning.collocation import NLPCache, node_fractions
 from secure3d.planning.trajectory import interpolate, remainder_keeping_nodes, resample
@@ -55,6 +56,19 @@ def test_remainder_late_in_the_plan_falls_back(cold, corner_problem, fraction):
     assert remainder_keeping_nodes(*args, t_start) is None
     times, _, _ = resample(*args, t_start, len(plan.times))
     assert len(times) == len(plan.times)
+
+
+def test_remainder_rejects_bad_arguments(cold, corner_problem):
+    plan = cold[1]
+    args = (corner_problem.model, plan.times, plan.states, plan.controls)
+    with pytest.raises(PlanningError, match="t_start"):
+        remainder_keeping_nodes(*args, float("nan"))
+    with pytest.raises(PlanningError, match="min_gap"):
+        remainder_keeping_nodes(*args, 0.1, min_gap=0.0)
+    with pytest.raises(PlanningError, match="increasing"):
+        remainder_keeping_nodes(
+            corner_problem.model, plan.times[::-1], plan.states, plan.controls, 0.1
+        )
 
 
 def test_node_fractions_are_checked():
