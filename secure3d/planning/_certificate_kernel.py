@@ -27,7 +27,8 @@ def best_clear_views(
     - ``raw[i]``: the best view margin min(horizontal side, vertical side, far) - radius;
     - ``found[i]``, ``best[i]``: the best margin among cameras whose sight cone is clear of the boxes
       (lo, hi), trying cameras by decreasing margin and giving up past the ``top`` best once margins
-      are <= -tol (then no camera can pass).
+      are <= -tol (then no camera can pass);
+    - ``view[i]``: that camera (-1 if none was found).
 
     Margins are -inf where no earlier camera exists.
     """
@@ -35,6 +36,7 @@ def best_clear_views(
     found = np.zeros(n, dtype=np.bool_)
     best = np.full(n, -np.inf)
     raw = np.full(n, -np.inf)
+    view = np.full(n, -1, dtype=np.int64)
     m = np.empty(c)
     used = np.zeros(c, dtype=np.bool_)
     grow_lo = np.empty(3)
@@ -80,5 +82,6 @@ def best_clear_views(
             if not _cone_blocked(o[cam], points[i], lo, hi, radius, grow_lo, grow_hi):
                 found[i] = True
                 best[i] = cand
+                view[i] = cam
                 break
-    return found, best, raw
+    return found, best, raw, view

@@ -194,6 +194,7 @@ def certify(
     n_t = len(t)
     # only the part of the plan from t_from on is judged (views from before it still count)
     keep = t[owner] >= t_from - 1e-9
+    kept = np.flatnonzero(keep)
     flat, owner = flat[keep], owner[keep]
 
     # ---- clear of known obstacles and inside the map -------------------------------------------
@@ -210,8 +211,9 @@ def certify(
     vis_margin = start_margin.copy()
     unresolved = np.flatnonzero(start_margin < -tol)
     occluded_only = np.zeros(len(unresolved), bool)
+    view = np.full(len(flat), -1, dtype=np.int64)  # -1: the start region
     if len(unresolved):
-        found, best, raw = _clear_views(
+        found, best, raw, view[unresolved] = _clear_views(
             flat[unresolved], owner[unresolved], R, o, problem.frustum, r, lo_b, hi_b, tol
         )
         occluded_only = ~found & (raw > -tol)
@@ -221,9 +223,11 @@ def certify(
         vis_margin[unresolved] = np.maximum(start_margin[unresolved], np.where(found, best, unseen))
 
     margin = np.minimum(vis_margin, obstacle_margin)
-    if len(margin) == 0:  # nothing left to judge (t_from past the end of the plan)
-        return Certificate(True, np.inf, np.inf, np.inf, None, 0, 0)
     bad = margin < -tol
+    views = np.full(len(sampled.points), -2, dtype=np.int64)
+    views[kept] = np.where(bad | (vis_margin < -tol), -2, view)
+    if len(margin) == 0:  # nothing left to judge (t_from past the end of the plan)
+        return Certificate(True, np.inf, np.inf, np.inf, None, 0, 0, views)
     first = None
     if bad.any():
         k = int(np.flatnonzero(bad)[np.argmin(owner[bad])])
@@ -248,4 +252,74 @@ def certify(
         first_violation=first,
         n_samples=n_t,
         n_points=len(flat),
+        views=views,
     )
+
+
+def views_after_adding(
+    views: np.ndarray,
+    sampled: SampledPlan,
+    problem: object,
+    added_lo: np.ndarray,
+    added_hi: np.ndarray,
+    *,
+    t_from: float = 0.0,
+    settings: CertificateSettings | None = None,
+) -> np.ndarray | None:
+    """Re-certify, from ``t_from`` on, a plan that passed with ``views`` (a passing
+    :attr:`Certificate.views`, from ``sampled``) once the boxes (``added_lo``, ``added_hi``) joined
+    the obstacles it passed against; ``problem`` holds all of them now. A sound shortcut of
+    :func:`certify` for a map whose obstacles only grew.
+
+    More obstacles never help a plan, so only the checks the added boxes take part in can fail:
+    every judged manoeuvre point must stay clear of them by the body radius, and the sight cone
+    that observed it must stay clear of them. Points whose cone an added box blocks get the view
+    search of :func:`certify` again, against all the boxes. Returns the views that now observe each
+    point (a passing certificate against all the boxes would hold such views), or None when a point
+    is not shown safe so (an added box near a manoeuvre, no clear view left, a point not judged
+    before): then :func:`certify` in full, which also names the violation.
+    """
+    from secure3d.geometry._box_kernels import cone_box_blocked_any
+
+    settings = settings or CertificateSettings()
+    tol, r = settings.tolerance, problem.model.body_radius
+    if views is None or len(views) != len(sampled.points):
+        return None
+    judge = np.flatnonzero(sampled.times[sampled.owner] >= t_from - 1e-9)
+    if np.any(views[judge] < -1):
+        return None
+    added_lo = np.ascontiguousarray(np.asarray(added_lo, dtype=float).reshape(-1, 3))
+    added_hi = np.ascontiguousarray(np.asarray(added_hi, dtype=float).reshape(-1, 3))
+    if not len(added_lo):
+        return views
+    points = sampled.points[judge]
+    if np.any(np.maximum(min_box_distance(points, added_lo, added_hi), 0.0) - r < -tol):
+        return None
+    seen = judge[views[judge] >= 0]
+    blocked = seen[
+        cone_box_blocked_any(
+            np.ascontiguousarray(sampled.origins[views[seen]]),
+            np.ascontiguousarray(sampled.points[seen]),
+            added_lo,
+            added_hi,
+            float(r),
+        )
+    ]
+    if not len(blocked):
+        return views
+    found, best, _, view = _clear_views(
+        sampled.points[blocked],
+        sampled.owner[blocked],
+        sampled.rotations,
+        sampled.origins,
+        problem.frustum,
+        r,
+        problem.boxes_lo,
+        problem.boxes_hi,
+        tol,
+    )
+    if not np.all(found & (best >= -tol)):
+        return None
+    out = views.copy()
+    out[blocked] = view
+    return out

@@ -29,12 +29,17 @@ import casadi as ca
 import numpy as np
 
 from secure3d.planning import constraints as cons
+from secure3d.planning.assembled_derivatives import KernelCall, assembled_derivatives
 from secure3d.planning.problem import PlanningProblem
 
 #: Symbol type of the transcription. Measured on blind_corner (K=40): MX builds in ~0.2 s but its
 #: Hessian costs ~18 ms per iteration; SX builds in ~0.6 s and iterates in ~1.5 ms. Builds are
 #: cached (NLPCache), so SX wins.
 SYM = ca.SX
+
+#: Give IPOPT the constraint Jacobian and Lagrangian Hessian assembled from the node kernels
+#: (:mod:`secure3d.planning.assembled_derivatives`) instead of CasADi's whole-graph derivatives.
+ASSEMBLED_DERIVATIVES = True
 
 #: Bounds on the final time (s): below is numerically meaningless, above is a unit error.
 T_MIN, T_MAX = 0.05, 300.0
@@ -286,6 +291,8 @@ class NodeKernels:
     obs_view_rows: list[tuple[str, float, float]]
     obs_start_rows: list[tuple[str, float, float]]
     obs_base_rows: list[tuple[str, float, float]]
+    #: the kernels' derivative Functions (see :func:`assembled_derivatives`), built on first use
+    derivatives: dict = field(default_factory=dict)
 
 
 def _rows_function(
@@ -441,6 +448,7 @@ def build_nlp(
     h = T / (K - 1)  # the mean step
     steps = h * ratios
     exprs: list = []
+    parts: list = []  # what each block of rows is, for the assembled derivatives
     meta: list[tuple[str, float, float]] = []
     row_node: list[int] = []
 
@@ -450,7 +458,11 @@ def build_nlp(
         n_cols: int,
         nodes: list[int] | None = None,
     ) -> None:
-        exprs.append(ca.vec(out))
+        if isinstance(out, KernelCall):
+            exprs.append(out.rows())
+        else:
+            exprs.append(ca.vec(out))
+        parts.append(out if isinstance(out, KernelCall) else exprs[-1])
         meta.extend(rows * n_cols)
         row_node.extend(
             np.repeat(nodes, len(rows)) if nodes is not None else [-1] * (len(rows) * n_cols)
@@ -462,12 +474,12 @@ def build_nlp(
     J = T + o.effort_weight * h * ca.sumsqr((U - ca.repmat(u_mid, 1, K)) / ca.repmat(u_scale, 1, K))
 
     # ---- dynamics defects ------------------------------------------------------------------------
-    dyn = kern.dyn.map(K - 1)(X[:, : K - 1], U[:, : K - 1], X[:, 1:], U[:, 1:], Um, steps)
+    dyn = KernelCall(kern.dyn, [X[:, : K - 1], U[:, : K - 1], X[:, 1:], U[:, 1:], Um, steps], K - 1)
     add(dyn, [("dynamics", 0.0, 0.0)] * nx, K - 1)
 
     # ---- path constraints: model limits and world bounds -----------------------------------------
     if kern.path_rows:
-        add(kern.path.map(K - 1)(X[:, 1:], U[:, 1:]), kern.path_rows, K - 1)
+        add(KernelCall(kern.path, [X[:, 1:], U[:, 1:]], K - 1), kern.path_rows, K - 1)
 
     # ---- boundary conditions: x(0) fixed through variable bounds; at rest at the goal -------------
     x_end = X[:, K - 1]
@@ -486,7 +498,7 @@ def build_nlp(
     if not secure:
         X_next = ca.horzcat(X[:, 2:], X[:, K - 1])
         add(
-            kern.obs_base.map(K - 1)(X[:, 1:], X_next, Boxes[:, 1:], Lam[:, 1:]),
+            KernelCall(kern.obs_base, [X[:, 1:], X_next, Boxes[:, 1:], Lam[:, 1:]], K - 1),
             kern.obs_base_rows,
             K - 1,
         )
@@ -496,12 +508,12 @@ def build_nlp(
         if view:
             Xi, Xj = X[:, view], X[:, [assignment[k] for k in view]]
             add(
-                kern.vis.map(len(view))(Xi, Xj),
+                KernelCall(kern.vis, [Xi, Xj], len(view)),
                 [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
                 len(view),
             )
             add(
-                kern.obs_view.map(len(view))(Xi, Xj, Boxes[:, view], Lam[:, view]),
+                KernelCall(kern.obs_view, [Xi, Xj, Boxes[:, view], Lam[:, view]], len(view)),
                 kern.obs_view_rows,
                 len(view),
             )
@@ -509,12 +521,14 @@ def build_nlp(
             Xs = X[:, start]
             n_s = len(start)
             add(
-                kern.start.map(n_s)(Xs, ca.repmat(start_lo, 1, n_s), ca.repmat(start_hi, 1, n_s)),
+                KernelCall(
+                    kern.start, [Xs, ca.repmat(start_lo, 1, n_s), ca.repmat(start_hi, 1, n_s)], n_s
+                ),
                 [("start_region", o.margin, ca.inf)] * 6,
                 n_s,
             )
             add(
-                kern.obs_start.map(n_s)(Xs, Boxes[:, start], Lam[:, start]),
+                KernelCall(kern.obs_start, [Xs, Boxes[:, start], Lam[:, start]], n_s),
                 kern.obs_start_rows,
                 n_s,
             )
@@ -533,19 +547,23 @@ def build_nlp(
             Y[d, :] = Yv[r_, :]
         Xi, Yi, Bi, Li = X[:, 1:], Y[:, 1:], Boxes[:, 1:], Lam[:, 1:]
         add(
-            kern.vis.map(K - 1)(Xi, Yi),
+            KernelCall(kern.vis, [Xi, Yi], K - 1),
             [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
             K - 1,
             nodes,
         )
         add(
-            kern.start.map(K - 1)(Xi, ca.repmat(start_lo, 1, K - 1), ca.repmat(start_hi, 1, K - 1)),
+            KernelCall(
+                kern.start,
+                [Xi, ca.repmat(start_lo, 1, K - 1), ca.repmat(start_hi, 1, K - 1)],
+                K - 1,
+            ),
             [("start_region", o.margin, ca.inf)] * 6,
             K - 1,
             nodes,
         )
         # [dual, clear, occlusion] per slot; occlusion rows are switched off for start nodes
-        add(kern.obs_view.map(K - 1)(Xi, Yi, Bi, Li), kern.obs_view_rows, K - 1, nodes)
+        add(KernelCall(kern.obs_view, [Xi, Yi, Bi, Li], K - 1), kern.obs_view_rows, K - 1, nodes)
 
     names = [m_[0] for m_ in meta]
     g_all = ca.vertcat(*exprs)
@@ -556,6 +574,10 @@ def build_nlp(
 
     nlp = {"x": w, "p": p, "f": J, "g": g_all}
     solver_name, opts = _solver_options(problem, planner)
+    if ASSEMBLED_DERIVATIVES:
+        derivatives = assembled_derivatives(w, p, J, g_all, parts, kern.derivatives)
+        if derivatives is not None:
+            opts["jac_g"], opts["hess_lag"] = derivatives
     solver = ca.nlpsol(f"secure3d_{planner}", solver_name, nlp, opts)
     g_fun = ca.Function("g", [w, p], [g_all])
     key = nlp_key(problem, planner, assignment)

@@ -55,6 +55,10 @@ class Certificate:
     min_visibility_margin, min_obstacle_margin : the same split by family (m).
     first_violation : earliest violation in time, or None.
     n_samples : number of trajectory times checked; n_points : manoeuvre points checked.
+    views : what observed each manoeuvre point of the sampled plan (its order, see
+        :class:`~secure3d.planning.certificate.SampledPlan`): the sample whose camera saw it with a
+        clear sight cone, -1 the start region, -2 not judged (before ``t_from``) or not observed.
+        None when the certificate was not computed from a sampled plan.
     """
 
     ok: bool
@@ -64,6 +68,7 @@ class Certificate:
     first_violation: Violation | None
     n_samples: int
     n_points: int
+    views: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def __str__(self) -> str:
         verdict = "CERTIFIED" if self.ok else "NOT CERTIFIED"

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -186,7 +187,9 @@ class _Loop:
         self.hidden = set(scenario.hidden_obstacles)
         self.start_problem = self.problem
         self.first_problem = self.problem  # its start region was observed before take-off
-        self.sampled: tuple | None = None  # (plan, SampledPlan) of the plan being re-certified
+        #: per plan re-certified in flight (by id, the last few): its sampled manoeuvres, its last
+        #: passing certificate and the boxes it was judged against (see :func:`_plan_unsafe`)
+        self.rechecks: OrderedDict[int, _Recheck] = OrderedDict()
         # obstacle boxes the plan being followed was last planned or certified against
         self.judged_lo: np.ndarray | None = None
         self.judged_hi: np.ndarray | None = None
@@ -348,6 +351,19 @@ def _path_clearance(
     return float(np.maximum(min_box_distance(P, lo, hi), 0.0).min() - loop.model.body_radius)
 
 
+@dataclass(eq=False)
+class _Recheck:
+    """A plan being re-certified in flight: its sampled manoeuvres (map-independent), the obstacle
+    boxes it last passed against and what observed each manoeuvre point then (``Certificate.views``;
+    None until it first passed)."""
+
+    plan: PlanResult
+    sampled: object
+    views: np.ndarray | None = None
+    lo: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    hi: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
 def _plan_unsafe(
     loop: _Loop,
     plan: PlanResult,
@@ -358,15 +374,34 @@ def _plan_unsafe(
 ) -> tuple[str, float] | None:
     """Why the rest of ``plan`` (from ``t_rel`` on) is not safe among the obstacle boxes ``lo, hi``
     (the updated belief), and the plan time from which it is not (the first manoeuvre that fails
-    the certificate; ``inf`` for the baseline, which promises no manoeuvre), or None."""
-    from secure3d.planning.certificate import certify, sample_plan
+    the certificate; ``inf`` for the baseline, which promises no manoeuvre), or None.
+
+    A secure plan that already passed against a prefix of these boxes (the boxes only grew, as
+    :meth:`_Loop.judged_plus` grows them) is judged against the added boxes alone first
+    (:func:`~secure3d.planning.certificate.views_after_adding`, sound); the full certificate runs
+    only if that does not show it safe."""
+    from secure3d.planning.certificate import certify, sample_plan, views_after_adding
 
     if loop.planner == "secure":
         judged = dataclasses.replace(plan_problem_, boxes_lo=lo, boxes_hi=hi)
-        if loop.sampled is None or loop.sampled[0] is not plan:
-            loop.sampled = (plan, sample_plan(plan, judged))
-        cert = certify(plan, judged, t_from=t_rel, sampled=loop.sampled[1])
+        rec = loop.rechecks.get(id(plan))
+        if rec is None or rec.plan is not plan:
+            rec = _Recheck(plan, sample_plan(plan, judged))
+            loop.rechecks[id(plan)] = rec
+            while len(loop.rechecks) > 4:
+                loop.rechecks.popitem(last=False)
+        n = len(rec.lo)
+        if rec.views is not None and (
+            len(lo) >= n and np.array_equal(lo[:n], rec.lo) and np.array_equal(hi[:n], rec.hi)
+        ):
+            # the boxes only grew since the plan last passed: check what the new ones touch
+            views = views_after_adding(rec.views, rec.sampled, judged, lo[n:], hi[n:], t_from=t_rel)
+            if views is not None:
+                rec.views, rec.lo, rec.hi = views, lo, hi
+                return None
+        cert = certify(plan, judged, t_from=t_rel, sampled=rec.sampled)
         if cert.ok:
+            rec.views, rec.lo, rec.hi = cert.views, lo, hi
             return None
         first = cert.first_violation
         return str(first), float(first.time) if first is not None else t_rel

@@ -53,7 +53,7 @@ def test_clear_views_match_the_numpy_definition(rng, far_kind):
     points = rng.uniform([0, -3, 0], [9, 3, 2], (400, 3))
     owner = rng.integers(0, n_cams + 1, len(points))
     r, tol = 0.12, 1e-6
-    found, best, raw = _clear_views(points, owner, R, o, frustum, r, lo, hi, tol)
+    found, best, raw, _ = _clear_views(points, owner, R, o, frustum, r, lo, hi, tol)
     want = _reference(points, owner, R, o, frustum, r, lo, hi, tol)
     np.testing.assert_array_equal(found, want[0])
     np.testing.assert_allclose(best, want[1], atol=1e-12)
@@ -76,7 +76,7 @@ def test_many_blocked_views_are_walked_past_the_scans(rng):
     lo = np.array([[2.0, -10.0, -2.0], [2.0, -1.15, -2.0]])
     hi = np.array([[2.2, -1.45, 2.0], [2.2, 10.0, 2.0]])
     point = np.array([[4.0, 0.0, 0.0]])
-    found, best, raw = _clear_views(point, np.array([n_cams]), R, o, frustum, 0.05, lo, hi, 1e-6)
+    found, best, raw, _ = _clear_views(point, np.array([n_cams]), R, o, frustum, 0.05, lo, hi, 1e-6)
     want = _reference(point, np.array([n_cams]), R, o, frustum, 0.05, lo, hi, 1e-6)
     assert want[0][0] and found[0]
     assert best[0] == pytest.approx(want[1][0]) and best[0] < raw[0]

@@ -1,0 +1,102 @@
+"""Re-certifying a plan after obstacles were added (the closed loop's shortcut) agrees with the
+full certificate: whenever the shortcut passes a plan, the full certificate passes it too."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import secure3d
+from secure3d.geometry._box_kernels import cone_box_blocked_any
+from secure3d.planning import certify, plan_problem, problem_from_scenario
+from secure3d.planning.certificate import sample_plan, views_after_adding
+from secure3d.planning.collocation import NLPCache
+
+
+@pytest.fixture(scope="module")
+def corner(maps_dir):
+    problem = problem_from_scenario(secure3d.load_scenario(maps_dir / "blind_corner.yaml"))
+    plan = plan_problem(problem, "secure", cache=NLPCache())
+    assert plan.ok
+    sampled = sample_plan(plan, problem)
+    cert = certify(plan, problem, sampled=sampled)
+    assert cert.ok
+    return problem, plan, sampled, cert
+
+
+def _with(problem, lo, hi):
+    return dataclasses.replace(
+        problem,
+        boxes_lo=np.concatenate([problem.boxes_lo, lo]),
+        boxes_hi=np.concatenate([problem.boxes_hi, hi]),
+    )
+
+
+def test_views_name_a_clear_witness_for_every_point(corner):
+    problem, _, sampled, cert = corner
+    views = cert.views
+    assert views.shape == (len(sampled.points),) and np.all(views >= -1)
+    seen = np.flatnonzero(views >= 0)
+    assert len(seen) > 0.5 * len(views)
+    assert np.all(views[seen] < sampled.owner[seen])  # an earlier camera
+    blocked = cone_box_blocked_any(
+        sampled.origins[views[seen]],
+        sampled.points[seen],
+        problem.boxes_lo,
+        problem.boxes_hi,
+        problem.model.body_radius,
+    )
+    assert not blocked.any()
+    # later t_from: the points before it are not judged
+    late = certify(corner[1], problem, sampled=sampled, t_from=1.0)
+    before = sampled.times[sampled.owner] < 1.0 - 1e-9
+    assert np.all(late.views[before] == -2) and np.all(late.views[~before] >= -1)
+
+
+def test_shortcut_never_passes_what_the_certificate_fails(corner, rng):
+    """Random small boxes near the manoeuvres and across the sight lines: each outcome of the
+    shortcut (unchanged, some points re-searched, not shown) occurs, and a pass is always a pass of
+    the full certificate against all the boxes."""
+    problem, plan, sampled, cert = corner
+    outcomes = {"unchanged": 0, "re-searched": 0, "not shown": 0}
+    for _ in range(60):
+        i = rng.integers(len(sampled.points))
+        cam = sampled.origins[max(cert.views[i], 0)]
+        # somewhere between the point and the camera that saw it, or near the point itself
+        s = rng.uniform(0.0, 1.0)
+        centre = cam + s * (sampled.points[i] - cam) + rng.normal(0.0, 0.25, 3)
+        half = rng.uniform(0.02, 0.15, 3)
+        lo, hi = (centre - half)[None], (centre + half)[None]
+        t_from = float(rng.choice([0.0, 0.5, 1.5]))
+        grown = _with(problem, lo, hi)
+        views = views_after_adding(cert.views, sampled, grown, lo, hi, t_from=t_from)
+        full = certify(plan, grown, sampled=sampled, t_from=t_from)
+        if views is None:
+            outcomes["not shown"] += 1
+            continue
+        assert full.ok, "the shortcut passed a plan the certificate fails"
+        outcomes["unchanged" if views is cert.views else "re-searched"] += 1
+        judged = sampled.times[sampled.owner] >= t_from - 1e-9
+        seen = np.flatnonzero(judged & (views >= 0))
+        assert not cone_box_blocked_any(
+            sampled.origins[views[seen]],
+            sampled.points[seen],
+            grown.boxes_lo,
+            grown.boxes_hi,
+            problem.model.body_radius,
+        ).any()
+    assert all(n > 0 for n in outcomes.values()), outcomes
+
+
+def test_shortcut_declines_points_it_never_judged(corner):
+    problem, plan, sampled, _ = corner
+    late = certify(plan, problem, sampled=sampled, t_from=2.0)
+    far = np.array([[-50.0, -50.0, -50.0]])
+    assert views_after_adding(late.views, sampled, problem, far, far + 0.1, t_from=2.0) is not None
+    assert views_after_adding(late.views, sampled, problem, far, far + 0.1, t_from=1.0) is None
+    assert views_after_adding(None, sampled, problem, far, far + 0.1) is None
+    # nothing added: the views stand
+    empty = np.zeros((0, 3))
+    assert views_after_adding(late.views, sampled, problem, empty, empty, t_from=2.0) is late.views
