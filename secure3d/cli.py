@@ -253,18 +253,20 @@ def _simulate_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="S",
         help="simulated seconds a replan in flight takes; the robot follows its old plan meanwhile (0)",
     )
-    _add_replan_defer(parser)
+    _add_replan_defer(parser, with_latency=True)
     parser.add_argument("--events", action="store_true", help="print every event of each run")
 
 
-def _add_replan_defer(parser: argparse.ArgumentParser) -> None:
+def _add_replan_defer(parser: argparse.ArgumentParser, with_latency: bool = False) -> None:
+    default = "default 0.5, or 0 with --replan-latency" if with_latency else "default 0.5"
     parser.add_argument(
         "--replan-defer",
         type=float,
-        default=0.0,
+        default=None,
         metavar="S",
         help="when new evidence breaks the plan but its first failing manoeuvre is more than S"
-        " seconds ahead, keep following it and replan S seconds before (0: replan at once)",
+        f" seconds ahead, keep following it and replan S seconds before ({default}; 0: replan"
+        " at once)",
     )
 
 

@@ -393,11 +393,17 @@ def _fly(job: _Job) -> RunRecord:
     return RunRecord.from_result(job.variant, result)
 
 
-def _ignore_sigint() -> None:
-    """Worker initialiser: Ctrl-C is the parent's to handle (it stops the workers itself)."""
+def _init_worker() -> None:
+    """Worker initialiser: Ctrl-C is the parent's to handle (it stops the workers itself), and the
+    BLAS under IPOPT's linear solver runs on the worker's own thread (unless the user chose
+    otherwise): the workers already fill the cores. CasADi loads its OpenBLAS with the IPOPT plugin,
+    after this runs. Measured on 8 hidden-obstacle flights in one process: same wall time with one
+    BLAS thread, and 0.5 s of system time instead of 22.8 s of the second core spent spinning."""
+    import os
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def _completed(jobs: Sequence[_Job], workers: int) -> Iterator[tuple[int, RunRecord]]:
@@ -410,7 +416,7 @@ def _completed(jobs: Sequence[_Job], workers: int) -> Iterator[tuple[int, RunRec
     # child: start clean interpreters instead.
     context = multiprocessing.get_context("spawn")
     before = set(multiprocessing.active_children())
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_ignore_sigint)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker)
     try:
         futures = {pool.submit(_fly, job): i for i, job in enumerate(jobs)}
         for future in as_completed(futures):
@@ -437,7 +443,7 @@ def run_campaign(
     kind: str = "auto",
     count: int = 1,
     flush_every: int = FLUSH_EVERY,
-    replan_defer: float = 0.0,
+    replan_defer: float | None = None,
     **options: object,
 ) -> CampaignResult:
     """Fly ``n`` randomised hidden-obstacle variants of ``base`` with each planner.
@@ -457,7 +463,7 @@ def run_campaign(
         :func:`~secure3d.world.attacks.random_hidden_obstacle_scenarios`).
     flush_every : finished runs between intermediate copies (``campaign.in_progress.csv``).
     replan_defer : :func:`~secure3d.simulation.closed_loop.simulate`'s ``replan_defer`` for every
-        run (s; 0: off).
+        run (s; None: its default, 0.5 s; 0: replan at once).
     **options : planner options for every run (:class:`~secure3d.planning.problem.PlannerOptions`
         fields, ``reactive_family``, ``controller``).
 
@@ -482,9 +488,9 @@ def run_campaign(
     _check_args(n, planners, seed, workers)
     if isinstance(flush_every, bool) or not isinstance(flush_every, int) or flush_every < 1:
         raise ConfigError(f"flush_every: must be a positive integer (got {flush_every!r})")
-    from secure3d.simulation.closed_loop import check_replan_seconds
+    from secure3d.simulation.closed_loop import replan_defer_for
 
-    replan_defer = check_replan_seconds("replan_defer", replan_defer, ConfigError)
+    replan_defer = replan_defer_for(replan_defer, 0.0, ConfigError)
     if isinstance(base, (str, os.PathLike)):
         from secure3d.world.scenario import load_scenario
 

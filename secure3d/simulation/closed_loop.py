@@ -417,6 +417,27 @@ def _plan_unsafe(
     return None
 
 
+#: Default ``replan_defer`` of :func:`simulate` (s). Measured on the 200 hidden-obstacle variants of
+#: the blind corner: see README ("Closed loop") and ``benchmarks/results/campaign_blind_corner.md``.
+DEFAULT_REPLAN_DEFER = 0.5
+
+
+def replan_defer_for(
+    replan_defer: float | None, replan_latency: float, error: type[Exception] = SimulationError
+) -> float:
+    """The ``replan_defer`` a run uses: as given (checked), or by default
+    :data:`DEFAULT_REPLAN_DEFER`, off (0) when a ``replan_latency`` is set, as the two do not
+    combine; both set explicitly is an ``error``."""
+    if replan_defer is None:
+        return 0.0 if replan_latency > 0.0 else DEFAULT_REPLAN_DEFER
+    replan_defer = check_replan_seconds("replan_defer", replan_defer, error)
+    if replan_defer > 0.0 and replan_latency > 0.0:
+        raise error(
+            f"replan_defer ({replan_defer}) and replan_latency ({replan_latency}): set one, not both"
+        )
+    return replan_defer
+
+
 def check_replan_seconds(
     name: str, value: object, error: type[Exception] = SimulationError
 ) -> float:
@@ -439,7 +460,7 @@ def simulate(
     look_around: bool = False,
     replan_in_flight: bool = True,
     replan_latency: float = 0.0,
-    replan_defer: float = 0.0,
+    replan_defer: float | None = None,
     frame_log_every: int = 2,
     belief_log_every: int = 5,
     **options: object,
@@ -462,11 +483,12 @@ def simulate(
         latency L the robot plans from where its current plan puts it L seconds later, keeps
         following that plan meanwhile, and switches at t + L; if the current plan's first
         uncertified manoeuvre comes before the switch, it brakes instead (take-over).
-    replan_defer : seconds (default 0: off). When new evidence breaks the plan but its first
-        failing manoeuvre is more than this far ahead, keep following the plan (certified up to
-        that manoeuvre) and replan this long before it, or sooner if later frames bring it closer.
-        A hidden obstacle revealed a few voxels per frame then costs one replan, made with more
-        of it seen, instead of one per frame. Not combined with ``replan_latency``.
+    replan_defer : seconds (default None: :data:`DEFAULT_REPLAN_DEFER`, 0.5 s, or 0 when
+        ``replan_latency`` is set; 0: replan at once). When new evidence breaks the plan but its
+        first failing manoeuvre is more than this far ahead, keep following the plan (certified up
+        to that manoeuvre) and replan this long before it, or sooner if later frames bring it
+        closer. A hidden obstacle revealed a few voxels per frame then costs one replan, made with
+        more of it seen, instead of one per frame. Not combined with ``replan_latency``.
     look_around : after a take-over (and after a failed replan), turn the camera half a field of
         view to either side at rest before replanning (see :func:`scan_headings`).
     frame_log_every, belief_log_every : decimation of camera frames and belief voxels in the recording.
@@ -479,11 +501,7 @@ def simulate(
     if planner not in ("secure", "baseline"):
         raise SimulationError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
     replan_latency = check_replan_seconds("replan_latency", replan_latency)
-    replan_defer = check_replan_seconds("replan_defer", replan_defer)
-    if replan_defer > 0.0 and replan_latency > 0.0:
-        raise SimulationError(
-            f"replan_defer ({replan_defer}) and replan_latency ({replan_latency}): set one, not both"
-        )
+    replan_defer = replan_defer_for(replan_defer, replan_latency)
     wall0 = time.perf_counter()
     loop = _Loop(scenario, planner, seed, dict(options), cache)
     settings = _RunSettings(

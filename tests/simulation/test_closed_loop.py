@@ -8,7 +8,7 @@ import pytest
 import secure3d
 from secure3d.errors import SimulationError
 from secure3d.mapping import OccupancyMap
-from secure3d.simulation.closed_loop import observed_box, simulate
+from secure3d.simulation.closed_loop import observed_box, replan_defer_for, simulate
 
 
 def test_only_what_the_camera_saw_counts_as_observed_around_the_robot():
@@ -225,8 +225,8 @@ def test_deferred_replans_wait_for_more_of_the_obstacle_and_stay_safe(maps_dir):
 
     base = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
     variant = random_hidden_obstacle_scenarios(base, 4, 0)[3]
-    at_once = simulate(variant, "secure", seed=3, nodes=30)
-    deferred = simulate(variant, "secure", seed=3, nodes=30, replan_defer=0.5)
+    at_once = simulate(variant, "secure", seed=3, nodes=30, replan_defer=0.0)
+    deferred = simulate(variant, "secure", seed=3, nodes=30)  # the default: 0.5 s
     for run in (at_once, deferred):
         assert run.reached_goal and not run.collided and run.takeovers == 0, run.summary()
     assert any(e.kind == "replan deferred" for e in deferred.events)
@@ -236,3 +236,6 @@ def test_deferred_replans_wait_for_more_of_the_obstacle_and_stay_safe(maps_dir):
         simulate(variant, "secure", replan_defer=-1.0)
     with pytest.raises(SimulationError, match="not both"):
         simulate(variant, "secure", replan_defer=0.5, replan_latency=0.1)
+    # the default gives way to a latency (the two do not combine)
+    assert replan_defer_for(None, 0.1) == 0.0 and replan_defer_for(None, 0.0) == 0.5
+    assert replan_defer_for(0.0, 0.1) == 0.0 and replan_defer_for(0.3, 0.0) == 0.3
