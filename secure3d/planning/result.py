@@ -57,7 +57,7 @@ class Certificate:
     n_samples : number of trajectory times checked; n_points : manoeuvre points checked.
     views : what observed each manoeuvre point of the sampled plan (its order, see
         :class:`~secure3d.planning.certificate.SampledPlan`): the sample whose camera saw it with a
-        clear sight cone, -1 the start region, -2 not judged (before ``t_from``) or not observed.
+        clear sight cone, -1 the start region, -2 not judged (before ``t_from``) or failing.
         None when the certificate was not computed from a sampled plan.
     """
 

@@ -397,8 +397,9 @@ def _init_worker() -> None:
     """Worker initialiser: Ctrl-C is the parent's to handle (it stops the workers itself), and the
     BLAS under IPOPT's linear solver runs on the worker's own thread (unless the user chose
     otherwise): the workers already fill the cores. CasADi loads its OpenBLAS with the IPOPT plugin,
-    after this runs. Measured on 8 hidden-obstacle flights in one process: same wall time with one
-    BLAS thread, and 0.5 s of system time instead of 22.8 s of the second core spent spinning."""
+    after this runs. Measured: 12 blind-corner variants on 2 workers, 51.5 s -> 45.7 s wall and
+    13.7 s -> 1.3 s of system time (BLAS threads spinning); one process flying 8 variants, the same
+    wall time either way."""
     import os
     import signal
 

@@ -187,8 +187,8 @@ class _Loop:
         self.hidden = set(scenario.hidden_obstacles)
         self.start_problem = self.problem
         self.first_problem = self.problem  # its start region was observed before take-off
-        #: per plan re-certified in flight (by id, the last few): its sampled manoeuvres, its last
-        #: passing certificate and the boxes it was judged against (see :func:`_plan_unsafe`)
+        #: per plan re-certified in flight (by id, the last few): its sampled manoeuvres, the boxes
+        #: it last passed against and what observed its manoeuvre points then (:func:`_plan_unsafe`)
         self.rechecks: OrderedDict[int, _Recheck] = OrderedDict()
         # obstacle boxes the plan being followed was last planned or certified against
         self.judged_lo: np.ndarray | None = None
