@@ -453,6 +453,15 @@ def _solve_rounds(
     return best, build, solve_t, iters
 
 
+#: Cruise speeds of the slower guesses a secure cold plan falls back to, in turn, when the solve
+#: from the first guess fails (fractions of ``guess_speed_fraction``). The third start came with
+#: the assembled derivatives: planar_blind_corner (diff drive) failed from 1.0 and 0.5 (solver error
+#: after 24 iterations, iteration limit) and solves from 0.3 in 28 iterations. The diff-drive NLPs
+#: are this fragile either way: with CasADi's own derivatives a 1e-9 relative change of the guess
+#: took the same solve from 25 to 471 iterations.
+RETRY_GUESS_SPEEDS = (0.5, 0.3)
+
+
 def plan_problem(
     problem: PlanningProblem,
     planner: str = "secure",
@@ -497,7 +506,7 @@ def plan_problem(
         # fragile: planar_passage_20cm ran to the 60 s limit from the multipliers and solves in
         # 1.4 s / 77 iterations without them; the point mass's are not: blind_corner 6
         # iterations with them, 17 without.)
-        attempts: list[tuple[Guess | None, bool]] = [(guess, True), (guess, False)]
+        attempts: list[tuple[Guess | float, bool]] = [(guess, True), (guess, False)]
     else:
         warm = None
         try:
@@ -513,15 +522,15 @@ def plan_problem(
             return _failed(problem, planner, PlanStatus.INFEASIBLE, str(exc))
         attempts = [(guess, True)]
         if planner == "secure":
-            # The paper: poor guesses stop convergence. A slower flight along the same path is a
-            # more conservative (more feasible) start; it is tried when the first one fails.
-            attempts.append((None, True))
+            # The paper: poor guesses stop convergence. Slower flights along the same path are
+            # more conservative (more feasible) starts; they are tried when the first one fails.
+            attempts += [(frac * o.guess_speed_fraction, True) for frac in RETRY_GUESS_SPEEDS]
     s = None
     build = solve_t = 0.0
     iters = 0
     for g, dual_start in attempts:
-        if g is None:
-            g = initial_guess(problem, secure=True, speed_fraction=0.5 * o.guess_speed_fraction)
+        if isinstance(g, float):
+            g = initial_guess(problem, secure=True, speed_fraction=g)
         s, b_, t_, i_ = _solve_rounds(problem, planner, g, warm, warm_time, cache, dual_start)
         build, solve_t, iters = build + b_, solve_t + t_, iters + i_
         if s.status.ok:

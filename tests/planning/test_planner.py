@@ -240,3 +240,26 @@ def test_one_sided_layout_round_trip():
 def test_one_sided_duals_option_is_validated(corner_problem):
     with pytest.raises(secure3d.errors.ConfigError, match="one_sided_duals"):
         corner_problem.with_options(one_sided_duals="yes")
+
+
+def test_failed_cold_solves_fall_back_to_slower_guesses(corner_problem, monkeypatch):
+    """A secure cold plan whose solve fails from the first guess is retried from slower ones
+    (``RETRY_GUESS_SPEEDS``), in turn, and the first that solves is kept."""
+    from secure3d.planning import solve as solve_mod
+
+    real = solve_mod._solve_rounds
+    finals = []
+
+    def failing_twice(problem, planner, guess, *args, **kwargs):
+        finals.append(guess.final_time)
+        s, build, solve_t, iters = real(problem, planner, guess, *args, **kwargs)
+        if len(finals) <= 2:
+            s = dataclasses.replace(s, status=PlanStatus.ITERATION_LIMIT)
+        return s, build, solve_t, iters
+
+    monkeypatch.setattr(solve_mod, "_solve_rounds", failing_twice)
+    result = plan_problem(corner_problem, "secure", cache=NLPCache())
+    assert len(finals) == 1 + len(solve_mod.RETRY_GUESS_SPEEDS) == 3
+    # each fallback flies the same path slower: a longer guess
+    assert finals[0] < finals[1] < finals[2]
+    assert result.ok and result.certificate.ok
