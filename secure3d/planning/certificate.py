@@ -288,8 +288,18 @@ def views_after_adding(
     judge = np.flatnonzero(sampled.times[sampled.owner] >= t_from - 1e-9)
     if np.any(views[judge] < -1):
         return None
-    added_lo = np.ascontiguousarray(np.asarray(added_lo, dtype=float).reshape(-1, 3))
-    added_hi = np.ascontiguousarray(np.asarray(added_hi, dtype=float).reshape(-1, 3))
+    added_lo = np.ascontiguousarray(np.asarray(added_lo, dtype=float))
+    added_hi = np.ascontiguousarray(np.asarray(added_hi, dtype=float))
+    if (
+        added_lo.ndim != 2
+        or added_lo.shape[1:] != (3,)
+        or added_hi.shape != added_lo.shape
+        or not (np.all(np.isfinite(added_lo)) and np.all(added_hi >= added_lo))
+    ):
+        raise PlanningError(
+            "views_after_adding: added boxes must be finite (n, 3) corners with hi >= lo, got"
+            f" lo {added_lo.shape}, hi {added_hi.shape}"
+        )
     if not len(added_lo):
         return views
     points = sampled.points[judge]

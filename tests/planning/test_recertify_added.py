@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import secure3d
+from secure3d.errors import PlanningError
 from secure3d.geometry._box_kernels import cone_box_blocked_any
 from secure3d.planning import certify, plan_problem, problem_from_scenario
 from secure3d.planning.certificate import sample_plan, views_after_adding
@@ -100,3 +101,6 @@ def test_shortcut_declines_points_it_never_judged(corner):
     # nothing added: the views stand
     empty = np.zeros((0, 3))
     assert views_after_adding(late.views, sampled, problem, empty, empty, t_from=2.0) is late.views
+    for lo, hi in ((far, far - 0.1), (far, np.zeros((2, 3))), (far[0], far[0] + 0.1)):
+        with pytest.raises(PlanningError, match="added boxes"):
+            views_after_adding(late.views, sampled, problem, lo, hi, t_from=2.0)
