@@ -227,7 +227,7 @@ def certify(
     views = np.full(len(sampled.points), -2, dtype=np.int64)
     views[kept] = np.where(bad | (vis_margin < -tol), -2, view)
     if len(margin) == 0:  # nothing left to judge (t_from past the end of the plan)
-        return Certificate(True, np.inf, np.inf, np.inf, None, 0, 0, views)
+        return Certificate(True, np.inf, np.inf, np.inf, None, 0, 0, views, sampled)
     first = None
     if bad.any():
         k = int(np.flatnonzero(bad)[np.argmin(owner[bad])])
@@ -253,6 +253,7 @@ def certify(
         n_samples=n_t,
         n_points=len(flat),
         views=views,
+        sampled=sampled,
     )
 
 

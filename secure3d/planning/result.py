@@ -58,7 +58,9 @@ class Certificate:
     views : what observed each manoeuvre point of the sampled plan (its order, see
         :class:`~secure3d.planning.certificate.SampledPlan`): the sample whose camera saw it with a
         clear sight cone, -1 the start region, -2 not judged (before ``t_from``) or failing.
-        None when the certificate was not computed from a sampled plan.
+    sampled : that sampled plan (:class:`~secure3d.planning.certificate.SampledPlan`: sample
+        times, manoeuvre points, camera poses), so the views can be re-checked later
+        (:func:`~secure3d.planning.certificate.views_after_adding`).
     """
 
     ok: bool
@@ -69,6 +71,7 @@ class Certificate:
     n_samples: int
     n_points: int
     views: np.ndarray | None = field(default=None, compare=False, repr=False)
+    sampled: object | None = field(default=None, compare=False, repr=False)
 
     def __str__(self) -> str:
         verdict = "CERTIFIED" if self.ok else "NOT CERTIFIED"

@@ -375,6 +375,7 @@ def _plan_unsafe(
     """Why the rest of ``plan`` (from ``t_rel`` on) is not safe among the obstacle boxes ``lo, hi``
     (the updated belief), and the plan time from which it is not (the first manoeuvre that fails
     the certificate; ``inf`` for the baseline, which promises no manoeuvre), or None.
+    ``plan_problem_`` is the problem the plan was planned (and certified) on.
 
     A secure plan that already passed against a prefix of these boxes (the boxes only grew, as
     :meth:`_Loop.judged_plus` grows them) is judged against the added boxes alone first
@@ -386,7 +387,14 @@ def _plan_unsafe(
         judged = dataclasses.replace(plan_problem_, boxes_lo=lo, boxes_hi=hi)
         rec = loop.rechecks.get(id(plan))
         if rec is None or rec.plan is not plan:
-            rec = _Recheck(plan, sample_plan(plan, judged))
+            cert = plan.certificate
+            if cert is not None and cert.ok and cert.sampled is not None:
+                # certified when planned, against the boxes of the problem it was planned on
+                rec = _Recheck(
+                    plan, cert.sampled, cert.views, plan_problem_.boxes_lo, plan_problem_.boxes_hi
+                )
+            else:
+                rec = _Recheck(plan, sample_plan(plan, judged))
             loop.rechecks[id(plan)] = rec
             while len(loop.rechecks) > 4:
                 loop.rechecks.popitem(last=False)

@@ -38,6 +38,7 @@ def _with(problem, lo, hi):
 def test_views_name_a_clear_witness_for_every_point(corner):
     problem, _, sampled, cert = corner
     views = cert.views
+    assert cert.sampled is sampled
     assert views.shape == (len(sampled.points),) and np.all(views >= -1)
     seen = np.flatnonzero(views >= 0)
     assert len(seen) > 0.5 * len(views)

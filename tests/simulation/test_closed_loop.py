@@ -147,10 +147,25 @@ def test_every_in_flight_verdict_is_against_all_known_obstacles(maps_dir, monkey
         return original(loop, plan, problem, t_rel, lo, hi)
 
     monkeypatch.setattr(cl, "_plan_unsafe", checked)
+    import secure3d.planning.certificate as certificate
+
+    calls = {"sample_plan": 0, "certify": 0}
+    for name in calls:
+        real = getattr(certificate, name)
+
+        def counted(*args, _real=real, _name=name, **kwargs):
+            calls[_name] += 1
+            return _real(*args, **kwargs)
+
+        monkeypatch.setattr(certificate, name, counted)
     run = simulate(secure3d.load_scenario(maps_dir / "blind_corner.yaml"), "secure")
     assert run.reached_goal and not run.collided, run.summary()
     assert len(judged) >= 3, "the crate is news on several frames"
     assert max(judged) <= 1e-9, "a voxel centre outside every judged box"
+    # each plan is sampled once, when it is certified; in flight the added boxes alone are
+    # checked against its recorded views (views_after_adding), so some verdicts need no certify
+    assert calls["sample_plan"] == len(run.plans)
+    assert calls["certify"] < len(run.plans) + len(judged)
 
 
 def test_blind_corner_baseline_meets_the_crate(maps_dir):
