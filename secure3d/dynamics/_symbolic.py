@@ -57,6 +57,8 @@ def stack(items: Sequence[Any], like_casadi: bool) -> Any:
         return ca.vertcat(*items) if items else ca.DM.zeros(0, 1)
     if not items:
         return np.zeros(0)
+    if all(np.ndim(i) == 0 for i in items):  # one state: the same values, without broadcasting
+        return np.array(items, dtype=float)
     return np.stack(np.broadcast_arrays(*[np.asarray(i, dtype=float) for i in items]), axis=-1)
 
 
@@ -64,6 +66,8 @@ def matrix(rows: Sequence[Sequence[Any]], like_casadi: bool) -> Any:
     """Assemble a matrix from nested component lists: ``(..., r, c)`` numpy or CasADi ``r x c``."""
     if like_casadi:
         return ca.vertcat(*[ca.horzcat(*row) for row in rows])
+    if all(np.ndim(e) == 0 for row in rows for e in row):  # one state: no broadcasting
+        return np.array(rows, dtype=float)
     flat = np.broadcast_arrays(*[np.asarray(e, dtype=float) for row in rows for e in row])
     r, c = len(rows), len(rows[0])
     return np.stack(flat, axis=-1).reshape(*flat[0].shape, r, c)
