@@ -13,7 +13,8 @@ import numpy as np
 from secure3d.errors import PlanningError
 
 
-def _derivatives(model: object, states: np.ndarray, controls: np.ndarray) -> np.ndarray:
+def node_derivatives(model: object, states: np.ndarray, controls: np.ndarray) -> np.ndarray:
+    """``f(x_k, u_k)`` at every node, (K, nx): what :func:`interpolate` needs besides the nodes."""
     f_batch = getattr(model, "f_batch", None)
     if f_batch is not None:
         return np.asarray(f_batch(states, controls), dtype=float)
@@ -26,7 +27,12 @@ def _derivatives(model: object, states: np.ndarray, controls: np.ndarray) -> np.
 
 
 def interpolate(
-    model: object, times: np.ndarray, states: np.ndarray, controls: np.ndarray, t: np.ndarray
+    model: object,
+    times: np.ndarray,
+    states: np.ndarray,
+    controls: np.ndarray,
+    t: np.ndarray,
+    derivatives: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """States (n, nx) and controls (n, nu) at query times ``t`` (clipped to [times[0], times[-1]]).
 
@@ -35,6 +41,8 @@ def interpolate(
     model : vehicle model providing ``f`` (and optionally ``f_batch``).
     times : (K,) increasing node times; states : (K, nx); controls : (K, nu).
     t : (n,) query times.
+    derivatives : :func:`node_derivatives` of these nodes, if the caller keeps them (a tracker
+        reading one plan at every step); computed here otherwise.
     """
     times = np.asarray(times, dtype=float)
     states = np.asarray(states, dtype=float)
@@ -47,7 +55,11 @@ def interpolate(
     k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
     h = times[k + 1] - times[k]
     tau = (t - times[k])[:, None]
-    F = _derivatives(model, states, controls)
+    F = node_derivatives(model, states, controls) if derivatives is None else derivatives
+    if F.shape != states.shape:
+        raise PlanningError(
+            f"interpolate: derivatives must have the states' shape {states.shape}, got {F.shape}"
+        )
     x = states[k] + tau * F[k] + tau**2 / (2 * h[:, None]) * (F[k + 1] - F[k])
     a = tau / h[:, None]
     u = (1 - a) * controls[k] + a * controls[k + 1]

@@ -585,7 +585,7 @@ class _RunSettings:
 
 def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
     from secure3d.planning.solve import plan_problem
-    from secure3d.planning.trajectory import interpolate
+    from secure3d.planning.trajectory import interpolate, node_derivatives
 
     scenario, model = loop.scenario, loop.model
     dt, frame_period, goal = settings.dt, settings.frame_period, settings.goal
@@ -695,6 +695,7 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
     mode = "follow" if current is not None else "hold"
     last_attempt = 0.0
     headings: list[float] = []  # look-around headings still to turn to
+    reference: tuple = (None, None)  # (plan followed, its node derivatives) for the tracker
     pending = None  # (switch time, plan, its problem): a replan in flight waiting out its latency
     deferred = None  # (due time, (why, t_bad)): a replan in flight put off (``replan_defer``)
     hfov = loop.problem.frustum.hfov
@@ -805,8 +806,15 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
             event(t, "plan takes over", f"T={current.final_time:.2f}s")
         # ---- act -----------------------------------------------------------------------------
         if mode == "follow":
+            if reference[0] is not current:
+                reference = (current, node_derivatives(model, current.states, current.controls))
             x_ref, u_ref = interpolate(
-                model, current.times, current.states, current.controls, np.array([t - plan_start])
+                model,
+                current.times,
+                current.states,
+                current.controls,
+                np.array([t - plan_start]),
+                reference[1],
             )
             u = loop.tracker.control(x, x_ref[0], u_ref[0])
         elif mode == "brake":

@@ -135,3 +135,20 @@ def test_secure_plan_warm_started_from_the_baseline(corner_problem, cold):
     assert result.certificate is not None and result.certificate.ok
     assert (result.lookback[1:] >= 0).any(), "nodes seen from earlier nodes, not all start region"
     assert result.final_time < 1.2 * cold[1].final_time
+
+
+def test_interpolate_with_kept_node_derivatives(cold, corner_problem):
+    """A tracker keeps the node derivatives of the plan it follows: the same reading, and a
+    mismatched array is refused."""
+    from secure3d.planning.trajectory import node_derivatives
+
+    plan, model = cold[1], corner_problem.model
+    t = np.linspace(-0.1, plan.final_time + 0.1, 37)
+    F = node_derivatives(model, plan.states, plan.controls)
+    assert F.shape == plan.states.shape
+    x0, u0 = interpolate(model, plan.times, plan.states, plan.controls, t)
+    x1, u1 = interpolate(model, plan.times, plan.states, plan.controls, t, F)
+    np.testing.assert_array_equal(x1, x0)
+    np.testing.assert_array_equal(u1, u0)
+    with pytest.raises(PlanningError, match="derivatives"):
+        interpolate(model, plan.times, plan.states, plan.controls, t, F[:-1])
