@@ -41,7 +41,7 @@ class KernelCall:
 
 def _kernel_derivatives(fn: ca.Function, dec: tuple[int, ...], cache: dict) -> tuple:
     """(Jacobian, Hessian-of-mu'G) Functions of kernel ``fn`` with respect to its inputs ``dec``."""
-    key = (fn.name(), id(fn), dec)
+    key = (id(fn), dec)
     if key not in cache:
         ins = [ca.SX.sym(f"in{i}", fn.sparsity_in(i)) for i in range(fn.n_in())]
         out = ca.vec(fn(*ins))

@@ -225,7 +225,7 @@ def certify(
     margin = np.minimum(vis_margin, obstacle_margin)
     bad = margin < -tol
     views = np.full(len(sampled.points), -2, dtype=np.int64)
-    views[kept] = np.where(bad | (vis_margin < -tol), -2, view)
+    views[kept] = np.where(bad, -2, view)  # bad covers every point not observed in time
     if len(margin) == 0:  # nothing left to judge (t_from past the end of the plan)
         return Certificate(True, np.inf, np.inf, np.inf, None, 0, 0, views, sampled)
     first = None
