@@ -276,6 +276,18 @@ class VehicleModel(ABC):
     ) -> np.ndarray:
         """A state at ``position`` (m) moving with ``velocity`` (m/s), heading ``yaw`` (rad)."""
 
+    def initial_states(
+        self, positions: np.ndarray, velocities: np.ndarray, yaws: np.ndarray
+    ) -> np.ndarray:
+        """:meth:`initial_state` of N rows at once: (N, 3), (N, 3), (N,) -> (N, nx) float."""
+        rows = [
+            self.initial_state(p, v, y)
+            for p, v, y in zip(
+                np.asarray(positions, float), np.asarray(velocities, float), yaws, strict=True
+            )
+        ]
+        return np.stack(rows) if rows else np.zeros((0, self.nx))
+
     def rest_state(self, position: Any, yaw: float = 0.0) -> np.ndarray:
         """A state at rest at ``position`` with heading ``yaw``: (nx,) float."""
         return self.initial_state(position, (0.0, 0.0, 0.0), yaw)

@@ -97,6 +97,23 @@ class PointMass(VehicleModel):
         p, v = vec3(position, "position"), vec3(velocity, "velocity")
         return np.concatenate([p, v, [float(yaw)]])
 
+    def initial_states(
+        self, positions: np.ndarray, velocities: np.ndarray, yaws: np.ndarray
+    ) -> np.ndarray:
+        """:meth:`initial_state` of N rows at once (the same values): (N, 3), (N, 3), (N,) ->
+        (N, 7)."""
+        p = np.asarray(positions, dtype=float).reshape(-1, 3)
+        v = np.asarray(velocities, dtype=float).reshape(-1, 3)
+        y = np.asarray(yaws, dtype=float).reshape(-1, 1)
+        if not (len(p) == len(v) == len(y)):
+            raise ConfigError(
+                f"initial_states: {len(p)} positions, {len(v)} velocities and {len(y)} yaws"
+            )
+        out = np.concatenate([p, v, y], axis=1)
+        if not np.all(np.isfinite(out[:, :6])):
+            raise ConfigError("initial_states: positions and velocities must be finite")
+        return out
+
     @property
     def braking_deceleration(self) -> float:
         """Deceleration allowed along any direction (m/s^2): ``max_accel`` for both norms."""

@@ -81,6 +81,20 @@ def min_signed_distance(points, lo, hi):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def inside_any(points, lo, hi):  # pragma: no cover - compiled
+    """Whether each point lies strictly inside some box (``min_signed_distance < 0``)."""
+    n, m = points.shape[0], lo.shape[0]
+    out = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        for j in range(m):
+            if lo[j, 0] < x < hi[j, 0] and lo[j, 1] < y < hi[j, 1] and lo[j, 2] < z < hi[j, 2]:
+                out[i] = True
+                break
+    return out
+
+
+@numba.njit(cache=True)
 def _point_box_distance(x, y, z, lo, hi) -> float:  # pragma: no cover - compiled
     dx = max(lo[0] - x, 0.0, x - hi[0])
     dy = max(lo[1] - y, 0.0, y - hi[1])

@@ -164,6 +164,21 @@ def min_box_distance(points: object, lo: object, hi: object) -> np.ndarray:
     )
 
 
+def inside_any_box(points: object, lo: object, hi: object) -> np.ndarray:
+    """Whether each point lies strictly inside some box: ``min_box_distance(...) < 0``, with an
+    early exit at the first such box.
+
+    Returns
+    -------
+    (n,) bool
+    """
+    p = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 3))
+    lo, hi = _boxes(lo, hi)
+    return _kernels().inside_any(
+        p, np.ascontiguousarray(lo.reshape(-1, 3)), np.ascontiguousarray(hi.reshape(-1, 3))
+    )
+
+
 def _segments_and_boxes(
     p0: object, p1: object, lo: object, hi: object, what: str = "segments"
 ) -> tuple:

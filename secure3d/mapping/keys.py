@@ -15,9 +15,12 @@ Voxels are identified by a 48-bit *Morton code* (bits of x, y, z interleaved, x 
 ``d`` is the code shifted right by ``3 * (16 - d)``, so sorted codes are the octree's depth-first
 order: this is what makes ``.bt`` reading, writing and pruning vectorisable.
 
-The scan kernel is a numba function over all rays at once. Per-scan de-duplication uses a chunked
-bitmap (8x8x8-voxel chunks found through a small hash directory): consecutive DDA steps usually stay
-in the same chunk, so most steps cost a bit test instead of a hash lookup.
+The scan kernel is a numba function over all rays at once. Per-scan de-duplication uses two dense
+bitmaps (free, occupied) over the key box of the scan, a DDA step being one addition to a voxel's
+index in it; large scans split their rays over threads (joined in ray order, so the result does not
+depend on the split). Scans whose key box is too big for dense bitmaps use a chunked bitmap instead
+(8x8x8-voxel chunks found through a small hash directory). ``discretize`` reproduces OctoMap's
+``computeDiscreteUpdate``: one ray per distinct end voxel.
 """
 
 from __future__ import annotations
@@ -136,6 +139,18 @@ def coords_to_keys(
     keys = np.zeros(scaled.shape, dtype=np.int64)
     keys[valid] = scaled[valid].astype(np.int64) + TREE_MAX_VAL
     return keys, valid
+
+
+def unique_sorted(values: ArrayLike) -> NDArray[np.int64]:
+    """Sorted distinct values of a 1-D integer array, as ``np.unique`` but by sorting: numpy's
+    hash-based ``unique`` takes ~15x as long on hundreds of thousands of Morton codes."""
+    v = np.sort(np.asarray(values, dtype=np.int64).ravel())
+    if v.size < 2:
+        return v
+    keep = np.empty(v.size, bool)
+    keep[0] = True
+    np.not_equal(v[1:], v[:-1], out=keep[1:])
+    return v[keep]
 
 
 def coords_to_codes(
@@ -258,9 +273,8 @@ def _dda_setup(
 @numba.njit(cache=True)
 def _clipped_ends(
     points: np.ndarray, origin: np.ndarray, resolution: float, max_range: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
-    """Per point: effective end (float32), its keys and a status; plus the key box of all rays
-    and a bound on their total number of voxels (L1 key distances + 3 each).
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per point: effective end (float32), its keys and a status; plus the key box of all rays.
 
     Status: 0 hit (ray + occupied end), 1 clipped at max range (ray only), 2 non-finite,
     3 end outside the key range (a finite value too big for float32 included). The clipped end
@@ -277,12 +291,10 @@ def _clipped_ends(
     for a in range(3):
         lo[a] = _key_of(np.float64(origin[a]), res_factor)
         hi[a] = lo[a]
-    lo_o = lo.copy()
     ox = origin[0]
     oy = origin[1]
     oz = origin[2]
     fmax = np.float32(max_range)
-    steps = 0
     for i in range(n):
         if not (
             np.isfinite(points[i, 0]) and np.isfinite(points[i, 1]) and np.isfinite(points[i, 2])
@@ -323,9 +335,7 @@ def _clipped_ends(
         hi[0] = max(hi[0], kx)
         hi[1] = max(hi[1], ky)
         hi[2] = max(hi[2], kz)
-        # the origin voxel plus at most L1 + 2 DDA steps (see the kernels' per-ray bound)
-        steps += abs(kx - lo_o[0]) + abs(ky - lo_o[1]) + abs(kz - lo_o[2]) + 3
-    return ends, keys, status, lo, hi, steps
+    return ends, keys, status, lo, hi
 
 
 #: Largest key box (voxels) the dense kernel handles: two bitmaps of 2**27 bits = 32 MB of virtual
@@ -348,7 +358,53 @@ def _idx_to_codes(idx: np.ndarray, lo: np.ndarray, dims: np.ndarray) -> np.ndarr
 
 
 @numba.njit(cache=True)
-def _scan_dense_kernel(
+def _discretize_kernel(points: np.ndarray, resolution: float) -> tuple[np.ndarray, int, int]:
+    """OctoMap's ``computeDiscreteUpdate`` front end: the centre of every distinct end voxel.
+
+    Each point is rounded to float32 and keyed (``coordToKey``); the first point of each voxel adds
+    the voxel's centre (``keyToCoord``, stored as float32, OctoMap's ``point3d``), in the order of
+    first appearance. Returns (centres (m, 3) float64, non-finite points, points whose key is out of
+    range). OctoMap does not check the key range here; such points are dropped instead.
+    """
+    n = points.shape[0]
+    res_factor = 1.0 / resolution
+    cap = 16
+    while cap < 2 * n:
+        cap *= 2
+    shift = 64 - int(np.log2(cap))
+    table = np.full(cap, _EMPTY, np.int64)
+    centres = np.empty((n, 3), np.float64)
+    m = 0
+    nonfinite = 0
+    outside = 0
+    for i in range(n):
+        if not (
+            np.isfinite(points[i, 0]) and np.isfinite(points[i, 1]) and np.isfinite(points[i, 2])
+        ):
+            nonfinite += 1
+            continue
+        kx = _key_of(np.float64(np.float32(points[i, 0])), res_factor)
+        ky = _key_of(np.float64(np.float32(points[i, 1])), res_factor)
+        kz = _key_of(np.float64(np.float32(points[i, 2])), res_factor)
+        if kx < 0 or ky < 0 or kz < 0:
+            outside += 1
+            continue
+        packed = kx | (ky << 16) | (kz << 32)
+        h = _fib_slot(packed, shift)
+        while table[h] != _EMPTY and table[h] != packed:
+            h = (h + 1) & (cap - 1)
+        if table[h] == packed:
+            continue
+        table[h] = packed
+        centres[m, 0] = np.float32((np.float64(kx - TREE_MAX_VAL) + 0.5) * resolution)
+        centres[m, 1] = np.float32((np.float64(ky - TREE_MAX_VAL) + 0.5) * resolution)
+        centres[m, 2] = np.float32((np.float64(kz - TREE_MAX_VAL) + 0.5) * resolution)
+        m += 1
+    return centres[:m], nonfinite, outside
+
+
+@numba.njit(cache=True, nogil=True)
+def _dense_trace(
     ends: np.ndarray,
     end_keys: np.ndarray,
     status: np.ndarray,
@@ -356,15 +412,15 @@ def _scan_dense_kernel(
     resolution: float,
     lo: np.ndarray,
     dims: np.ndarray,
-    max_voxels: int,
-) -> tuple[np.ndarray, np.ndarray]:
-    """OctoMap's ``computeUpdate`` over all rays, de-duplicated with dense bitmaps.
+    first: int,
+    last: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """OctoMap's ``computeUpdate`` over rays ``first:last`` into dense bitmaps of the key box.
 
     Voxel ``k`` of the box ``lo``/``dims`` has linear index
     ``(kx - lo_x) + dims_x ((ky - lo_y) + dims_y (kz - lo_z))``; a DDA step is one addition to it.
-    ``max_voxels`` bounds the number of free voxels (see :func:`_clipped_ends`), so the lists are
-    allocated once: reallocating inside the loop halves its speed.
-    Returns (free codes, occupied codes), each voxel once, occupied winning.
+    Returns (linear indices of the occupied voxels, each once in order of first appearance, the
+    free bitmap, the occupied bitmap). The GIL is released: chunks of rays can run on threads.
     """
     res_factor = 1.0 / resolution
     ox = origin[0]
@@ -378,17 +434,13 @@ def _scan_dense_kernel(
     total = nxy * dims[2]
     free_bits = np.zeros((total + 63) >> 6, np.uint64)
     occ_bits = np.zeros((total + 63) >> 6, np.uint64)
-    # Each voxel is listed once: np.empty only reserves address space, pages are committed as the
-    # lists fill.
-    free_idx = np.empty(min(total, max_voxels), np.int64)
-    nfree = 0
-    occ_idx = np.empty(min(total, ends.shape[0]), np.int64)
+    occ_idx = np.empty(min(total, last - first), np.int64)
     nocc = 0
     origin_idx = (kox - lo[0]) + nx * (koy - lo[1]) + nxy * (koz - lo[2])
     one = np.uint64(1)
     utotal = np.uint64(total)
 
-    for i in range(ends.shape[0]):
+    for i in range(first, last):
         ray_status = status[i]
         if ray_status >= 2:
             continue
@@ -406,12 +458,7 @@ def _scan_dense_kernel(
             sty = sy * nx
             stz = sz * nxy
             idx = origin_idx
-            w = idx >> 6
-            m = one << np.uint64(idx & 63)
-            if (free_bits[w] & m) == 0:
-                free_bits[w] |= m
-                free_idx[nfree] = idx
-                nfree += 1
+            free_bits[idx >> 6] |= one << np.uint64(idx & 63)
             for _ in range(bound):
                 if tmx < tmy:
                     if tmx < tmz:
@@ -431,12 +478,7 @@ def _scan_dense_kernel(
                     break
                 if np.uint64(idx) >= utotal:
                     break  # impossible inside the padded box; never write outside it
-                w = idx >> 6
-                m = one << np.uint64(idx & 63)
-                if (free_bits[w] & m) == 0:
-                    free_bits[w] |= m
-                    free_idx[nfree] = idx
-                    nfree += 1
+                free_bits[idx >> 6] |= one << np.uint64(idx & 63)
         if ray_status == 0:
             w = end_idx >> 6
             m = one << np.uint64(end_idx & 63)
@@ -444,16 +486,142 @@ def _scan_dense_kernel(
                 occ_bits[w] |= m
                 occ_idx[nocc] = end_idx
                 nocc += 1
+    return occ_idx[:nocc], free_bits, occ_bits
 
-    # Occupied wins over free within a scan.
-    keep = np.empty(nfree, np.int64)
-    nf = 0
-    for j in range(nfree):
-        v = free_idx[j]
+
+@numba.njit(cache=True, nogil=True)
+def _dense_join(
+    occ: np.ndarray,
+    free_bits: np.ndarray,
+    occ_bits: np.ndarray,
+    more_occ: np.ndarray,
+    more_free_bits: np.ndarray,
+    more_occ_bits: np.ndarray,
+) -> np.ndarray:
+    """Fold a later chunk of rays into an earlier one: the bitmaps are OR-ed in place, and the
+    occupied list grows by the later chunk's entries not already in it, in their order (the list
+    one pass over both chunks would have built)."""
+    out = np.empty(occ.shape[0] + more_occ.shape[0], np.int64)
+    out[: occ.shape[0]] = occ
+    n = occ.shape[0]
+    one = np.uint64(1)
+    for j in range(more_occ.shape[0]):
+        v = more_occ[j]
         if (occ_bits[v >> 6] & (one << np.uint64(v & 63))) == 0:
-            keep[nf] = v
-            nf += 1
-    return _idx_to_codes(keep[:nf], lo, dims), _idx_to_codes(occ_idx[:nocc], lo, dims)
+            out[n] = v
+            n += 1
+    for w in range(free_bits.shape[0]):
+        free_bits[w] |= more_free_bits[w]
+        occ_bits[w] |= more_occ_bits[w]
+    return out[:n]
+
+
+#: Bit position of a 64-bit word with one bit set, by de Bruijn multiplication.
+_DEBRUIJN = np.uint64(0x03F79D71B4CB0A89)
+_DEBRUIJN_BIT = np.zeros(64, np.int64)
+for _b in range(64):
+    _DEBRUIJN_BIT[((1 << _b) * 0x03F79D71B4CB0A89 & 0xFFFFFFFFFFFFFFFF) >> 58] = _b
+del _b
+
+
+@numba.njit(cache=True, nogil=True)
+def _dense_codes(
+    free_bits: np.ndarray,
+    occ_idx: np.ndarray,
+    occ_bits: np.ndarray,
+    lo: np.ndarray,
+    dims: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(free codes, occupied codes) of a dense scan; occupied wins over free within a scan.
+
+    The free voxels are read off the bitmaps row by row (x fastest): their codes come out in the
+    box's index order, one Morton spread of y and z per row, one of x per voxel. The occupied ones
+    keep their order of first appearance.
+    """
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    one = np.uint64(1)
+    n = 0
+    for w in range(free_bits.shape[0]):
+        v = free_bits[w] & ~occ_bits[w]
+        while v:
+            v &= v - one
+            n += 1
+    out = np.empty(n, np.int64)
+    j = 0
+    for z in range(nz):
+        mz = _spread16(lo[2] + z) << 2
+        for y in range(ny):
+            myz = mz | (_spread16(lo[1] + y) << 1)
+            base = nx * (y + ny * z)
+            x = 0
+            while x < nx:
+                i = base + x
+                w = i >> 6
+                shift = i & 63
+                span = min(64 - shift, nx - x)  # bits of this word inside the row
+                v = (free_bits[w] & ~occ_bits[w]) >> np.uint64(shift)
+                if span < 64:
+                    v &= (one << np.uint64(span)) - one
+                while v:
+                    low = v & (~v + one)
+                    b = _DEBRUIJN_BIT[(low * _DEBRUIJN) >> np.uint64(58)]
+                    out[j] = myz | _spread16(lo[0] + x + b)
+                    j += 1
+                    v ^= low
+                x += span
+    return out, _idx_to_codes(occ_idx, lo, dims)
+
+
+#: Threads a large dense scan's rays are split over (contiguous chunks, joined in ray order, so the
+#: result is the same as one pass). ``None``: every CPU, up to 4. A campaign's worker processes set
+#: it to share the CPUs between them.
+SCAN_THREADS: int | None = None
+#: Fewer rays than this per chunk are not worth a thread.
+_RAYS_PER_THREAD = 1024
+_scan_pool: object = None
+
+
+def _scan_threads(n_rays: int) -> int:
+    import os
+
+    want = SCAN_THREADS if SCAN_THREADS is not None else min(os.cpu_count() or 1, 4)
+    return max(1, min(int(want), n_rays // _RAYS_PER_THREAD))
+
+
+def _scan_dense(
+    ends: np.ndarray,
+    end_keys: np.ndarray,
+    status: np.ndarray,
+    origin: np.ndarray,
+    resolution: float,
+    lo: np.ndarray,
+    dims: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The dense scan (:func:`_dense_trace`), its rays split over threads when there are many."""
+    global _scan_pool
+    n = ends.shape[0]
+    threads = _scan_threads(n)
+    args = (ends, end_keys, status, origin, resolution, lo, dims)
+    if threads == 1:
+        return _codes_of(_dense_trace(*args, 0, n), lo, dims)
+    from concurrent.futures import ThreadPoolExecutor
+
+    if _scan_pool is None or _scan_pool._max_workers < threads:
+        _scan_pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="secure3d-scan")
+    cuts = np.linspace(0, n, threads + 1).astype(int)
+    parts = [
+        _scan_pool.submit(_dense_trace, *args, int(a), int(b))
+        for a, b in zip(cuts[:-1], cuts[1:], strict=True)
+    ]
+    occ, free_bits, occ_bits = parts[0].result()
+    for part in parts[1:]:
+        occ = _dense_join(occ, free_bits, occ_bits, *part.result())
+    return _codes_of((occ, free_bits, occ_bits), lo, dims)
+
+
+def _codes_of(traced: tuple, lo: np.ndarray, dims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    occ, free_bits, occ_bits = traced
+    return _dense_codes(free_bits, occ, occ_bits, lo, dims)
 
 
 @numba.njit(cache=True)
@@ -594,7 +762,7 @@ def _scan_chunked_kernel(
     origin: np.ndarray,
     resolution: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_scan_dense_kernel` for scans of any extent, with sparse storage.
+    """:func:`_dense_trace` for scans of any extent, with sparse storage.
 
     Voxels are de-duplicated with bits in 8x8x8 chunks (8 words free, 8 words occupied), found
     through an open-addressing hash directory of chunk ids. Rays are processed in batches between
@@ -682,6 +850,8 @@ class ScanUpdate(NamedTuple):
         Points whose (clipped) end lies outside the key range; OctoMap drops these whole.
     clipped : int
         Beams longer than the maximum range (they only clear space).
+    rays : int
+        Rays cast: ``points_used``, or the distinct end voxels of a discretised scan.
     """
 
     free: NDArray[np.int64]
@@ -690,6 +860,7 @@ class ScanUpdate(NamedTuple):
     skipped_nonfinite: int
     skipped_out_of_range: int
     clipped: int
+    rays: int
 
 
 def check_origin(origin: ArrayLike, resolution: float) -> NDArray[np.float32]:
@@ -722,7 +893,11 @@ def check_points(points: ArrayLike, what: str = "points") -> NDArray[np.float64]
 
 
 def scan_update(
-    points: ArrayLike, origin: ArrayLike, resolution: float, max_range: float | None = None
+    points: ArrayLike,
+    origin: ArrayLike,
+    resolution: float,
+    max_range: float | None = None,
+    discretize: bool = False,
 ) -> ScanUpdate:
     """Voxel updates of one scan, exactly as OctoMap's ``insertPointCloud`` computes them.
 
@@ -736,6 +911,14 @@ def scan_update(
         Voxel edge length (m).
     max_range : float or None
         Beams longer than this (Euclidean, m) only clear space up to it; None or negative: no limit.
+    discretize : bool
+        OctoMap's ``insertPointCloud(..., discretize=true)`` (``computeDiscreteUpdate``): one ray
+        per distinct end voxel, cast to the voxel's centre (see :func:`_discretize_kernel`). A depth
+        camera puts several pixels in most voxels, so this casts several times fewer rays. The
+        occupied voxels are those of the exact update except where a centre and its points fall on
+        different sides of ``max_range``; free voxels differ where a ray to the centre crosses other
+        voxels than the rays to the points. ``points_used`` then counts points in a cast voxel,
+        ``clipped`` the clipped rays, ``rays`` the rays cast.
 
     Returns
     -------
@@ -744,19 +927,28 @@ def scan_update(
     p = np.ascontiguousarray(check_points(points))
     o = check_origin(origin, resolution)
     mr = -1.0 if max_range is None or not np.isfinite(max_range) else float(max_range)
-    ends, keys, status, lo, hi, steps = _clipped_ends(p, o, float(resolution), mr)
+    if discretize:
+        centres, nonfinite, outside = _discretize_kernel(p, float(resolution))
+        upd = scan_update(centres, o.astype(np.float64), resolution, max_range)
+        return ScanUpdate(
+            upd.free,
+            upd.occupied,
+            p.shape[0] - nonfinite - outside,
+            nonfinite,
+            outside,
+            upd.clipped,
+            upd.rays,
+        )
+    ends, keys, status, lo, hi = _clipped_ends(p, o, float(resolution), mr)
     lo = lo - _BOX_PAD
     dims = hi + _BOX_PAD - lo + 1
     if float(np.prod(dims.astype(np.float64))) <= _DENSE_VOXEL_LIMIT:
-        free, occ = _scan_dense_kernel(
-            ends, keys, status, o, float(resolution), lo, dims, int(steps)
-        )
+        free, occ = _scan_dense(ends, keys, status, o, float(resolution), lo, dims)
     else:
         free, occ = _scan_chunked_kernel(ends, keys, status, o, float(resolution))
     counts = np.bincount(status, minlength=4)
-    return ScanUpdate(
-        free, occ, int(counts[0] + counts[1]), int(counts[2]), int(counts[3]), int(counts[1])
-    )
+    used = int(counts[0] + counts[1])
+    return ScanUpdate(free, occ, used, int(counts[2]), int(counts[3]), int(counts[1]), used)
 
 
 def ray_keys(origin: ArrayLike, end: ArrayLike, resolution: float) -> NDArray[np.int64]:
@@ -781,7 +973,7 @@ def ray_keys(origin: ArrayLike, end: ArrayLike, resolution: float) -> NDArray[np
 
 @numba.njit(cache=True)
 def _single_ray_kernel(end: np.ndarray, origin: np.ndarray, resolution: float) -> np.ndarray:
-    """Traversal-ordered keys of one ray (the same steps as :func:`_scan_update_kernel`)."""
+    """Traversal-ordered keys of one ray (the same steps as :func:`_dense_trace`)."""
     res_factor = 1.0 / resolution
     kx = _key_of(np.float64(origin[0]), res_factor)
     ky = _key_of(np.float64(origin[1]), res_factor)

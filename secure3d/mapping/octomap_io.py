@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from secure3d.errors import MapFormatError
-from secure3d.mapping.keys import TREE_DEPTH
+from secure3d.mapping.keys import TREE_DEPTH, unique_sorted
 
 BT_MAGIC = b"# Octomap OcTree binary file"
 OT_MAGIC = b"# Octomap OcTree file"
@@ -441,7 +441,7 @@ def prune(
 
 def _inner_nodes(starts: NDArray[np.int64], depths: NDArray[np.int8]) -> list[NDArray[np.int64]]:
     """Prefixes of the inner nodes at each depth 0..15 (sorted): all proper ancestors of leaves."""
-    return [np.unique(starts[depths > k] >> (3 * (TREE_DEPTH - k))) for k in range(TREE_DEPTH)]
+    return [unique_sorted(starts[depths > k] >> (3 * (TREE_DEPTH - k))) for k in range(TREE_DEPTH)]
 
 
 def _preorder(prefix_by_depth: list[NDArray[np.int64]]) -> NDArray[np.int64]:

@@ -218,14 +218,12 @@ def secure_speed_caps(
     model, o = problem.model, problem.options
     n = len(points)
     speeds = np.linspace(0.0, v_cap, levels)
-    X = np.stack(
-        [
-            model.initial_state(points[i], speeds[g] * tangents[i], yaws[i])
-            for i in range(n)
-            for g in range(levels)
-        ]
+    X = model.initial_states(
+        np.repeat(points, levels, axis=0),
+        (speeds[None, :, None] * tangents[:, None, :]).reshape(-1, 3),
+        np.repeat(yaws, levels),
     )
-    cams = np.stack([model.initial_state(points[i], 0.0 * tangents[i], yaws[i]) for i in range(n)])
+    cams = model.initial_states(points, 0.0 * tangents, yaws)
     from secure3d.planning.lookback import node_geometry
 
     geo_e = node_geometry(problem, X)
@@ -295,7 +293,7 @@ def profile_guess(
     pos = np.stack([np.interp(s_k, arc, pts[:, d]) for d in range(3)], axis=1)
     vel = np.stack([np.interp(s_k, arc, v * tang[:, d]) for d in range(3)], axis=1)
     yaw_k = np.interp(s_k, arc, yaw)
-    states = np.stack([model.initial_state(pos[k], vel[k], yaw_k[k]) for k in range(K)])
+    states = model.initial_states(pos, vel, yaw_k)
     states[0] = problem.x0
     controls = np.stack([model.nominal_control(states[k]) for k in range(K)])
     return Guess(times=times, states=states, controls=controls, path=path)
@@ -322,14 +320,18 @@ def centre_path(
         return c
 
     eps = 1e-3
+    steps = np.zeros((dims, 3))
+    steps[np.arange(dims), np.arange(dims)] = eps
     for _ in range(iterations):
         inner = pts[1:-1]
-        c0 = clearance(inner)
+        m = len(inner)
+        # the clearance and its central differences, in one query
+        probes = [inner] + [inner + sign * steps[d] for d in range(dims) for sign in (1.0, -1.0)]
+        c_all = clearance(np.concatenate(probes)).reshape(1 + 2 * dims, m)
+        c0 = c_all[0]
         grad = np.zeros_like(inner)
         for d in range(dims):
-            step = np.zeros(3)
-            step[d] = eps
-            grad[:, d] = (clearance(inner + step) - clearance(inner - step)) / (2 * eps)
+            grad[:, d] = (c_all[1 + 2 * d] - c_all[2 + 2 * d]) / (2 * eps)
         deficit = np.clip(r + pad - c0, 0.0, None)
         push = grad * np.minimum(deficit, 0.02)[:, None]
         smooth = 0.5 * (pts[:-2] + pts[2:]) - inner

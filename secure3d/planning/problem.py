@@ -334,6 +334,7 @@ def problem_from_scenario(
     scenario: Scenario,
     belief: OccupancyMap | None = None,
     x0: np.ndarray | None = None,
+    obstacle_boxes: tuple[np.ndarray, np.ndarray] | None = None,
     **options: object,
 ) -> PlanningProblem:
     """Build the planning problem of a scenario in the robot's belief.
@@ -343,6 +344,8 @@ def problem_from_scenario(
     scenario : the scenario (vehicle, camera, start, goal, planner settings).
     belief : the robot's map; default: the server's claim only (:func:`secure3d.world.attacks.belief_map`).
     x0 : start state; default: the scenario's start.
+    obstacle_boxes : (lo, hi) obstacle boxes; default: the belief's known obstacle boxes. A caller
+        that replaces them before planning (the closed loop) passes empty ones and saves a merge.
     **options : :class:`PlannerOptions` fields overriding the scenario's planner settings.
     """
     from dataclasses import fields
@@ -380,7 +383,10 @@ def problem_from_scenario(
         x0 = model.initial_state(np.array(s.position), np.array(s.velocity), s.yaw)
     if belief is None:
         belief = belief_map(scenario)
-    lo, hi = belief.known_obstacle_boxes(close_gaps=opts.close_gaps)
+    if obstacle_boxes is None:
+        lo, hi = belief.known_obstacle_boxes(close_gaps=opts.close_gaps)
+    else:
+        lo, hi = (np.asarray(b, dtype=float).reshape(-1, 3) for b in obstacle_boxes)
     start_lo, start_hi = start_region(model, family, x0, opts.start_region_radius)
     return PlanningProblem(
         model=model,

@@ -102,8 +102,9 @@ class DepthFrame:
 
     def hit_names(self) -> frozenset[str]:
         """Names of the obstacles at least one valid pixel of this frame saw."""
-        ids = np.unique(self.hit_ids)
-        return frozenset(self.names[i] for i in ids[ids != NO_HIT])
+        ids = self.hit_ids[self.hit_ids != NO_HIT]
+        seen = np.flatnonzero(np.bincount(ids, minlength=len(self.names)))
+        return frozenset(self.names[i] for i in seen)
 
     def hit_counts(self) -> dict[str, int]:
         """Number of valid pixels that saw each obstacle (only obstacles that were seen)."""

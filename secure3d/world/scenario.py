@@ -222,6 +222,12 @@ def _as_int(value: object, path: str) -> int:
     return value
 
 
+def _as_bool(value: object, path: str) -> bool:
+    if not isinstance(value, bool):
+        raise _FieldError(path, "expected true or false", value)
+    return value
+
+
 def _as_str(value: object, path: str) -> str:
     if not isinstance(value, str):
         raise _FieldError(path, "expected a string", value)
@@ -258,6 +264,8 @@ def _reader(hint: object) -> Callable[[object, str], object]:
         return _as_float
     if hint is str:
         return _as_str
+    if hint is bool:
+        return _as_bool
     if hint == spec.Vec3:
         return _as_vec3
     origin, args = get_origin(hint), get_args(hint)

@@ -403,6 +403,11 @@ class CameraSpec:
     mount_pitch_deg : downward pitch of the optical axis relative to the body x axis (degrees).
     mount_offset : camera position in the body frame (m).
     noise_std : depth noise standard deviation (m); dropout : fraction of pixels lost.
+    discretize : insert frames into the robot's map as OctoMap's ``insertPointCloud`` with
+        ``discretize=true``: one ray per distinct end voxel, cast to its centre. A 160x120 frame
+        of the blind corner has ~2,400 distinct end voxels for 19,200 pixels, so mapping is ~5x
+        faster; the occupied voxels (what reveals an obstacle) are the same. ``false``: one ray per
+        pixel.
     """
 
     width: int = 160
@@ -416,8 +421,13 @@ class CameraSpec:
     mount_offset: Vec3 = (0.0, 0.0, 0.0)
     noise_std: float = 0.0
     dropout: float = 0.0
+    discretize: bool = True
 
     def __post_init__(self) -> None:
+        if not isinstance(self.discretize, bool):
+            raise ScenarioError(
+                f"camera.discretize: expected true or false (got {_short(self.discretize)})"
+            )
         for name in ("width", "height"):
             _integer(getattr(self, name), f"camera.{name}", 8, 4096)
         h = _positive(self.hfov_deg, "camera.hfov_deg")

@@ -10,6 +10,7 @@ from secure3d.geometry.frustum import PinholeFrustum, frustum_halfspaces
 from secure3d.geometry.polytope import (
     box_signed_distance,
     cones_blocked,
+    inside_any_box,
     min_box_distance,
     segment_box_intersects,
     segments_blocked,
@@ -30,6 +31,15 @@ def test_min_box_distance_matches_the_numpy_matrix(rng, boxes):
         atol=1e-12,
         err_msg="compiled min distance vs numpy signed distances",
     )
+
+
+def test_inside_any_box_is_a_negative_min_distance(rng, boxes):
+    lo, hi = boxes
+    pts = np.concatenate([rng.uniform(-3, 3, (500, 3)), lo, hi, 0.5 * (lo + hi)])
+    inside = inside_any_box(pts, lo, hi)
+    np.testing.assert_array_equal(inside, min_box_distance(pts, lo, hi) < 0.0)
+    assert inside[524:].all() and inside[:500].any() and not inside[:500].all()
+    assert not inside_any_box(pts, np.empty((0, 3)), np.empty((0, 3))).any()
 
 
 def test_segments_blocked_is_any_of_the_matrix(rng, boxes):

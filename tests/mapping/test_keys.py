@@ -165,7 +165,7 @@ def test_chunked_kernel_equals_dense_kernel(scan):
     res = 0.1
     o = np.zeros(3, np.float32)
     dense = scan_update(scan, o, res)
-    ends, keys, status, _, _, _ = _clipped_ends(scan, o, res, -1.0)
+    ends, keys, status, _, _ = _clipped_ends(scan, o, res, -1.0)
     free, occ = _scan_chunked_kernel(ends, keys, status, o, res)
     np.testing.assert_array_equal(np.sort(free), np.sort(dense.free))
     np.testing.assert_array_equal(np.sort(occ), np.sort(dense.occupied))
@@ -189,3 +189,55 @@ def test_bad_origin_and_shapes_raise():
         scan_update(np.zeros((3, 3)), [1e6, 0, 0], 0.1)
     with pytest.raises(GeometryError, match=r"shape \(n, 3\)"):
         scan_update(np.zeros((3, 2)), np.zeros(3), 0.1)
+
+
+@pytest.mark.parametrize("max_range", [None, 5.0])
+def test_discretized_scan_matches_octomap(scan, rng, max_range):
+    """``discretize=True`` is OctoMap's ``insertPointCloud(..., discretize=true)`` voxel for voxel,
+    on the real scan and on a dense cloud (many points per voxel, as a depth camera gives)."""
+    res = 0.2
+    origin = np.array([0.05, -0.1, 0.2])
+    dense = origin + rng.normal(size=(20000, 3)) * [2.0, 2.0, 0.5]
+    for cloud in (scan, dense):
+        upd = scan_update(cloud, origin, res, max_range, discretize=True)
+        tree = octomap.OcTree(res)
+        tree.insertPointCloud(
+            cloud, origin, maxrange=-1.0 if max_range is None else max_range, discretize=True
+        )
+        assert np.intersect1d(upd.free, upd.occupied).size == 0
+        np.testing.assert_array_equal(tree.getLabels(codes_to_coords(upd.free, res)), 0)
+        np.testing.assert_array_equal(tree.getLabels(codes_to_coords(upd.occupied, res)), 1)
+        assert octomap_state_counts(tree) == (upd.occupied.size, upd.free.size)
+        voxels = np.unique(coords_to_keys(cloud, res)[0], axis=0)
+        assert upd.rays == len(voxels) < len(cloud), "one ray per distinct end voxel"
+        assert upd.points_used == len(cloud)
+        exact = scan_update(cloud, origin, res, max_range)
+        if max_range is None:
+            np.testing.assert_array_equal(np.sort(upd.occupied), np.sort(exact.occupied))
+
+
+def test_discretized_scan_counts_bad_points(rng):
+    res = 0.01
+    good = rng.uniform(-2, 2, size=(200, 3))
+    bad = np.array([[np.nan, 0, 0], [1.0, np.inf, 0], [1e6, 0, 0], [0, 1e300, 0]])
+    upd = scan_update(np.concatenate([good, bad]), np.zeros(3), res, discretize=True)
+    ref = scan_update(good, np.zeros(3), res, discretize=True)
+    assert (upd.points_used, upd.skipped_nonfinite, upd.skipped_out_of_range) == (200, 2, 2)
+    np.testing.assert_array_equal(upd.free, ref.free)
+    np.testing.assert_array_equal(upd.occupied, ref.occupied)
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_threaded_scan_equals_one_pass(scan, monkeypatch, threads):
+    """Rays split over threads give the same voxels in the same order as one pass."""
+    from secure3d.mapping import keys
+
+    origin = np.array([0.3, 0.1, -0.2])
+    monkeypatch.setattr(keys, "SCAN_THREADS", 1)
+    one = scan_update(scan, origin, 0.1, 6.0)
+    monkeypatch.setattr(keys, "SCAN_THREADS", threads)
+    assert keys._scan_threads(len(scan)) == threads
+    split = scan_update(scan, origin, 0.1, 6.0)
+    np.testing.assert_array_equal(split.free, one.free)
+    np.testing.assert_array_equal(split.occupied, one.occupied)
+    assert split[2:] == one[2:]

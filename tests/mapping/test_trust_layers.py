@@ -11,6 +11,7 @@ import trimesh
 
 from secure3d.errors import ConfigError, GeometryError
 from secure3d.mapping import OccupancyMap, Trust
+from secure3d.mapping.keys import coords_to_codes
 from secure3d.mapping.occupancy import BOUNDARY_TOUCH
 
 RES = 0.1
@@ -106,6 +107,13 @@ def test_known_obstacles_formula_against_brute_force(rng):
         expected, (trust == Trust.SENSED_OCCUPIED) | (trust == Trust.CLAIMED_OCCUPIED)
     )
     assert set(np.unique(trust)) == {int(t) for t in Trust} - {int(Trust.CLAIMED_FREE)}
+    # voxels with sensor evidence, by code: the same answer without the claim layer
+    codes, _ = coords_to_codes(region, RES)
+    sensed = labels >= 0
+    assert sensed.sum() > 20 and (claimed & sensed & (labels == 0)).any()
+    np.testing.assert_array_equal(m.is_known_obstacle_sensed(codes[sensed]), expected[sensed])
+    with pytest.raises(GeometryError, match="no sensor evidence"):
+        m.is_known_obstacle_sensed(codes[~sensed][:3])
 
 
 def test_every_trust_level_and_observed():

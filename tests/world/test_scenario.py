@@ -226,6 +226,7 @@ def _rename(old: str, new: str) -> Callable[[dict], None]:
 BAD_CORNER = [
     ("wrong type", _set("camera.hfov_deg", "wide"), "camera.hfov_deg", "expected a number"),
     ("float for int", _set("camera.width", 160.5), "camera.width", "integer"),
+    ("string for bool", _set("camera.discretize", "yes"), "camera.discretize", "true or false"),
     ("bool for number", _set("goal.tolerance", True), "goal.tolerance", "number"),
     ("vector of text", _set("start.position", "1, 2, 3"), "start.position", "3 numbers"),
     ("missing field", _delete("start.position"), "start.position", "missing required"),
