@@ -114,6 +114,49 @@ def merge_cells(cells: NDArray[np.integer]) -> tuple[NDArray[np.int64], NDArray[
     return np.concatenate(los), np.concatenate(his)
 
 
+def merge_grid(
+    grid: NDArray[np.bool_], origin: NDArray[np.integer]
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """:func:`merge_cells` of the cells set in a dense grid, read off the grid itself.
+
+    Parameters
+    ----------
+    grid : (X, Y, Z) bool
+        Cell ``origin + (i, j, k)`` is in the set where ``grid[i, j, k]``.
+    origin : (3,) int
+
+    Returns
+    -------
+    lo, hi : (m, 3) int64
+        The same boxes in the same order as ``merge_cells(np.argwhere(grid) + origin)``: the grid
+        is cut at the same block boundaries and each block merged in the same cell order, without
+        listing, sorting and re-gridding the cells.
+    """
+    origin = np.asarray(origin, dtype=np.int64).reshape(3)
+    grid = np.asarray(grid, dtype=bool)
+    if grid.ndim != 3:
+        raise GeometryError(f"merge_grid: expected a 3D grid, got shape {grid.shape}")
+    end = origin + np.array(grid.shape)
+    first, last = origin // BLOCK_EDGE, (end - 1) // BLOCK_EDGE
+    los, his = [], []
+    for bz in range(first[2], last[2] + 1):
+        for by in range(first[1], last[1] + 1):
+            for bx in range(first[0], last[0] + 1):
+                b = np.array([bx, by, bz])
+                a0 = np.maximum(b * BLOCK_EDGE, origin) - origin
+                a1 = np.minimum((b + 1) * BLOCK_EDGE, end) - origin
+                block = grid[a0[0] : a1[0], a0[1] : a1[1], a0[2] : a1[2]]
+                if not block.any():
+                    continue
+                zyx = np.ascontiguousarray(block.transpose(2, 1, 0)).view(np.uint8)
+                boxes = _greedy_boxes(zyx.copy())
+                los.append(boxes[:, :3] + origin + a0)
+                his.append(boxes[:, 3:] + origin + a0)
+    if not los:
+        return np.empty((0, 3), np.int64), np.empty((0, 3), np.int64)
+    return np.concatenate(los), np.concatenate(his)
+
+
 def merge_cells_budget(
     cells: NDArray[np.integer], max_boxes: int | None = None
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:

@@ -26,6 +26,48 @@ def node_derivatives(model: object, states: np.ndarray, controls: np.ndarray) ->
     )
 
 
+class Interpolant:
+    """A trajectory read at any time: the nodes validated and their derivatives computed once (a
+    tracker reads the plan it follows at every simulation step). See :func:`interpolate`."""
+
+    def __init__(
+        self,
+        model: object,
+        times: np.ndarray,
+        states: np.ndarray,
+        controls: np.ndarray,
+        derivatives: np.ndarray | None = None,
+    ) -> None:
+        times = np.asarray(times, dtype=float)
+        states = np.asarray(states, dtype=float)
+        controls = np.asarray(controls, dtype=float)
+        if times.ndim != 1 or len(times) < 2 or np.any(np.diff(times) <= 0):
+            raise PlanningError(
+                f"interpolate: node times must be increasing with >= 2 entries, got {times}"
+            )
+        F = node_derivatives(model, states, controls) if derivatives is None else derivatives
+        if F.shape != states.shape:
+            raise PlanningError(
+                f"interpolate: derivatives must have the states' shape {states.shape}, got {F.shape}"
+            )
+        self.times, self.states, self.controls, self.derivatives = times, states, controls, F
+        self._project = getattr(model, "project_state", None)
+
+    def __call__(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """States (n, nx) and controls (n, nu) at times ``t`` (clipped to the first/last node)."""
+        times, states, controls, F = self.times, self.states, self.controls, self.derivatives
+        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), times[0], times[-1])
+        k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+        h = times[k + 1] - times[k]
+        tau = (t - times[k])[:, None]
+        x = states[k] + tau * F[k] + tau**2 / (2 * h[:, None]) * (F[k + 1] - F[k])
+        a = tau / h[:, None]
+        u = (1 - a) * controls[k] + a * controls[k + 1]
+        if self._project is not None:
+            x = np.asarray(self._project(x), dtype=float)
+        return x, u
+
+
 def interpolate(
     model: object,
     times: np.ndarray,
@@ -41,32 +83,10 @@ def interpolate(
     model : vehicle model providing ``f`` (and optionally ``f_batch``).
     times : (K,) increasing node times; states : (K, nx); controls : (K, nu).
     t : (n,) query times.
-    derivatives : :func:`node_derivatives` of these nodes, if the caller keeps them (a tracker
-        reading one plan at every step); computed here otherwise.
+    derivatives : :func:`node_derivatives` of these nodes, if the caller keeps them; computed here
+        otherwise (:class:`Interpolant` keeps everything for repeated reads).
     """
-    times = np.asarray(times, dtype=float)
-    states = np.asarray(states, dtype=float)
-    controls = np.asarray(controls, dtype=float)
-    if times.ndim != 1 or len(times) < 2 or np.any(np.diff(times) <= 0):
-        raise PlanningError(
-            f"interpolate: node times must be increasing with >= 2 entries, got {times}"
-        )
-    t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), times[0], times[-1])
-    k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
-    h = times[k + 1] - times[k]
-    tau = (t - times[k])[:, None]
-    F = node_derivatives(model, states, controls) if derivatives is None else derivatives
-    if F.shape != states.shape:
-        raise PlanningError(
-            f"interpolate: derivatives must have the states' shape {states.shape}, got {F.shape}"
-        )
-    x = states[k] + tau * F[k] + tau**2 / (2 * h[:, None]) * (F[k + 1] - F[k])
-    a = tau / h[:, None]
-    u = (1 - a) * controls[k] + a * controls[k + 1]
-    project = getattr(model, "project_state", None)
-    if project is not None:
-        x = np.asarray(project(x), dtype=float)
-    return x, u
+    return Interpolant(model, times, states, controls, derivatives)(t)
 
 
 def resample(

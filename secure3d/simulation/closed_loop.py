@@ -590,7 +590,7 @@ class _RunSettings:
 
 def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
     from secure3d.planning.solve import plan_problem
-    from secure3d.planning.trajectory import interpolate, node_derivatives
+    from secure3d.planning.trajectory import Interpolant, interpolate
 
     scenario, model = loop.scenario, loop.model
     dt, frame_period, goal = settings.dt, settings.frame_period, settings.goal
@@ -701,7 +701,7 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
     mode = "follow" if current is not None else "hold"
     last_attempt = 0.0
     headings: list[float] = []  # look-around headings still to turn to
-    reference: tuple = (None, None)  # (plan followed, its node derivatives) for the tracker
+    reference: tuple = (None, None)  # (plan followed, its Interpolant) for the tracker
     pending = None  # (switch time, plan, its problem): a replan in flight waiting out its latency
     deferred = None  # (due time, (why, t_bad)): a replan in flight put off (``replan_defer``)
     hfov = loop.problem.frustum.hfov
@@ -713,7 +713,7 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
     collision_names: tuple[str, ...] = ()
     reached = False
     time_to_goal = None
-    min_clear = float(loop.collision.clearance(model.position(x), r))
+    min_clear = clear = float(loop.collision.clearance(model.position(x), r))
     T_log: list[float] = [t]
     X_log: list[np.ndarray] = [x.copy()]
 
@@ -813,15 +813,11 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
         # ---- act -----------------------------------------------------------------------------
         if mode == "follow":
             if reference[0] is not current:
-                reference = (current, node_derivatives(model, current.states, current.controls))
-            x_ref, u_ref = interpolate(
-                model,
-                current.times,
-                current.states,
-                current.controls,
-                np.array([t - plan_start]),
-                reference[1],
-            )
+                reference = (
+                    current,
+                    Interpolant(model, current.times, current.states, current.controls),
+                )
+            x_ref, u_ref = reference[1](np.array([t - plan_start]))
             u = loop.tracker.control(x, x_ref[0], u_ref[0])
         elif mode == "brake":
             u = loop.brake.control(x)
@@ -861,7 +857,7 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
         p_new = np.asarray(model.position(x), float).ravel()
         T_log.append(t)
         X_log.append(x.copy())
-        if loop.collision.swept_collides(p_prev, p_new, r):
+        if loop.collision.swept_collides(p_prev, p_new, r, clearance0=clear):
             collided, collision_time = True, t
             collision_names = loop.collision.contact_obstacles(p_prev, p_new, r)
             event(t, "collision", ", ".join(collision_names), "ERROR")

@@ -108,3 +108,18 @@ def test_boxes_near_a_corridor():
     assert lo.shape[0] > 1, "with a larger radius the side walls of the bounds appear"
     with pytest.raises(GeometryError, match="radius"):
         m.boxes_near(corridor, -1.0)
+
+
+def test_merge_grid_equals_merge_cells_across_blocks(rng):
+    """Boxes read off a dense grid are merge_cells' boxes, in its order, also where the grid
+    straddles the merge's block boundaries."""
+    from secure3d.mapping.boxes import BLOCK_EDGE, merge_grid
+
+    for trial in range(40):
+        shape = tuple(int(v) for v in rng.integers(1, 40, 3))
+        origin = rng.integers(BLOCK_EDGE - 30, BLOCK_EDGE + 5, 3) + (trial % 3) * 128 * BLOCK_EDGE
+        grid = rng.random(shape) < rng.uniform(0.0, 0.9)
+        lo, hi = merge_grid(grid, origin)
+        ref_lo, ref_hi = merge_cells(np.argwhere(grid) + origin)
+        np.testing.assert_array_equal(lo, ref_lo)
+        np.testing.assert_array_equal(hi, ref_hi)

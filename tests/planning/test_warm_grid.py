@@ -152,3 +152,13 @@ def test_interpolate_with_kept_node_derivatives(cold, corner_problem):
     np.testing.assert_array_equal(u1, u0)
     with pytest.raises(PlanningError, match="derivatives"):
         interpolate(model, plan.times, plan.states, plan.controls, t, F[:-1])
+    # an Interpolant read one time at a time, as the tracker does: the same values
+    from secure3d.planning.trajectory import Interpolant
+
+    reader = Interpolant(model, plan.times, plan.states, plan.controls)
+    for i, ti in enumerate(t):
+        xi, ui = reader(np.array([ti]))
+        np.testing.assert_array_equal(xi[0], x0[i])
+        np.testing.assert_array_equal(ui[0], u0[i])
+    with pytest.raises(PlanningError, match="increasing"):
+        Interpolant(model, plan.times[::-1], plan.states, plan.controls)

@@ -76,6 +76,13 @@ def test_swept_collides_matches_dense_sampling_of_the_segment(rng):
             continue
         checked += 1
         assert world.swept_collides(p0, p1, r) == (gap < 0), (p0, p1, gap)
+        # with the start's clearance known, the same answer (short steps skip the capsule query)
+        c0 = world.clearance(p0, r)
+        assert world.swept_collides(p0, p1, r, clearance0=c0) == (gap < 0), (p0, p1, gap)
+        short = p0 + 0.01 * (p1 - p0) / np.linalg.norm(p1 - p0)
+        hit = box_sdf(p0 + s[:, None] * (short - p0), lo, hi).min() - r < 0
+        if abs(box_sdf(p0 + s[:, None] * (short - p0), lo, hi).min() - r) > 1e-6:
+            assert world.swept_collides(p0, short, r, clearance0=c0) == hit
     assert checked > 150
 
 
