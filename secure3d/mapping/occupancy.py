@@ -24,7 +24,6 @@ Each voxel reports one :class:`Trust` level. Coordinates are metres in the world
 
 from __future__ import annotations
 
-import functools
 import math
 import os
 import tempfile
@@ -32,6 +31,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from pathlib import Path
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -42,6 +42,7 @@ from secure3d.mapping.keys import (
     KEY_LIMIT,
     TREE_DEPTH,
     TREE_MAX_VAL,
+    box_codes,
     check_points,
     codes_to_coords,
     coords_to_codes,
@@ -679,7 +680,8 @@ class OccupancyMap:
             last = np.floor(b).astype(np.int64) - 1
         keys_lo = np.clip(first + TREE_MAX_VAL, 0, KEY_LIMIT - 1)
         keys_hi = np.clip(last + TREE_MAX_VAL, -1, KEY_LIMIT - 1)
-        codes = unique_sorted(morton_encode(_box_cells(keys_lo, keys_hi)))
+        _check_claim_size(keys_lo, keys_hi)
+        codes = unique_sorted(box_codes(keys_lo, keys_hi))
         self._merge_claims(codes, np.full(len(codes), bool(occupied)))
 
     def set_claim_mesh(self, vertices: ArrayLike, faces: ArrayLike, occupied: bool = True) -> None:
@@ -948,18 +950,6 @@ class OccupancyMap:
         _write_atomic(Path(path), self.to_bytes("ot"))
 
 
-@functools.lru_cache(maxsize=8)
-def _pixel_rays(h: int, w: int, fx: float, fy: float, cx: float, cy: float) -> NDArray[np.float64]:
-    """(H, W, 3) unit-z ray of each pixel in the camera frame (read-only; a camera's frames share
-    it)."""
-    ray_cam = np.empty((h, w, 3))
-    ray_cam[..., 0] = ((np.arange(w) + 0.5 - cx) / fx)[None, :]
-    ray_cam[..., 1] = ((np.arange(h) + 0.5 - cy) / fy)[:, None]
-    ray_cam[..., 2] = 1.0
-    ray_cam.flags.writeable = False
-    return ray_cam
-
-
 def depth_image_points(
     depth: ArrayLike,
     intrinsics: ArrayLike,
@@ -1013,26 +1003,62 @@ def depth_image_points(
     o = np.asarray(origin, dtype=np.float64)
     if o.shape != (3,):
         raise GeometryError(f"origin: expected 3 numbers, got shape {o.shape}")
-    ray_cam = _pixel_rays(d.shape[0], d.shape[1], float(fx), float(fy), float(cx), float(cy))
-    scale = d.copy()
-    no_return = np.isposinf(d)
-    invalid = np.isnan(d) | (d <= 0.0) | (no_return & (max_range is None))
-    if max_range is not None:
-        # Any point beyond max_range on the ray: OctoMap then clears exactly up to max_range.
-        scale[no_return] = 2.0 * max_range + 1.0
-    scale[invalid] = np.nan
-    return o + (ray_cam * scale[..., None]).reshape(-1, 3) @ rot.T
+    # Any point beyond max_range on the ray stands for "no return": OctoMap then clears exactly up
+    # to max_range (-1: no max_range, such pixels are skipped).
+    far = -1.0 if max_range is None else 2.0 * max_range + 1.0
+    return _depth_points_kernel(
+        np.ascontiguousarray(d), float(fx), float(fy), float(cx), float(cy), rot, o, far
+    )
 
 
-def _box_cells(keys_lo: NDArray[np.int64], keys_hi: NDArray[np.int64]) -> NDArray[np.int64]:
-    """All integer cells of inclusive boxes, ``(N, 3) int64`` (empty boxes contribute nothing)."""
-    ext = np.maximum(keys_hi - keys_lo + 1, 0)
-    counts = np.prod(ext, axis=1)
-    total = int(counts.sum())
+@numba.njit(cache=True)
+def _depth_points_kernel(
+    d: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    rot: np.ndarray,
+    o: np.ndarray,
+    far: float,
+) -> np.ndarray:
+    """World points of a depth image, one pass over the pixels (see :func:`depth_image_points`)."""
+    h, w = d.shape
+    out = np.empty((h * w, 3))
+    for v in range(h):
+        ry = (v + 0.5 - cy) / fy
+        for u in range(w):
+            i = v * w + u
+            s = d[v, u]
+            if np.isposinf(s) and far > 0.0:
+                s = far
+            if not (s > 0.0 and np.isfinite(s)):
+                out[i, 0] = np.nan
+                out[i, 1] = np.nan
+                out[i, 2] = np.nan
+                continue
+            rx = (u + 0.5 - cx) / fx
+            px, py, pz = rx * s, ry * s, s
+            out[i, 0] = o[0] + (rot[0, 0] * px + rot[0, 1] * py + rot[0, 2] * pz)
+            out[i, 1] = o[1] + (rot[1, 0] * px + rot[1, 1] * py + rot[1, 2] * pz)
+            out[i, 2] = o[2] + (rot[2, 0] * px + rot[2, 1] * py + rot[2, 2] * pz)
+    return out
+
+
+def _check_claim_size(keys_lo: NDArray[np.int64], keys_hi: NDArray[np.int64]) -> None:
+    total = int(np.prod(np.maximum(keys_hi - keys_lo + 1, 0), axis=1).sum())
     if total > MAX_CLAIM_VOXELS:
         raise GeometryError(
             f"boxes cover {total} voxels (limit {MAX_CLAIM_VOXELS}); check units and resolution"
         )
+
+
+def _box_cells(keys_lo: NDArray[np.int64], keys_hi: NDArray[np.int64]) -> NDArray[np.int64]:
+    """All integer cells of inclusive boxes, ``(N, 3) int64`` (empty boxes contribute nothing)."""
+    _check_claim_size(keys_lo, keys_hi)
+    ext = np.maximum(keys_hi - keys_lo + 1, 0)
+    counts = np.prod(ext, axis=1)
+    total = int(counts.sum())
     owner = np.repeat(np.arange(counts.size), counts)
     local = np.arange(total, dtype=np.int64) - np.repeat(np.cumsum(counts) - counts, counts)
     e = ext[owner]

@@ -117,6 +117,7 @@ def _graph_path(problem: PlanningProblem, resolution: float, clearance_pad: floa
     for c in (s_cell, g_cell):
         flat_free[c] = True
     idx = np.arange(flat_free.size).reshape(shape)
+    strides = np.array([shape[1] * shape[2], shape[2], 1])  # linear index steps per axis
     rows, cols, weights = [], [], []
     offsets = [np.array(o) for o in np.ndindex(3, 3, 3) if o != (1, 1, 1)]
     for off in offsets:
@@ -128,7 +129,7 @@ def _graph_path(problem: PlanningProblem, resolution: float, clearance_pad: floa
             max(0, -o[1]) : shape[1] - max(0, o[1]),
             max(0, -o[2]) : shape[2] - max(0, o[2]),
         ].ravel()
-        dst = np.ravel_multi_index(tuple((np.array(np.unravel_index(src, shape)).T + o).T), shape)
+        dst = src + int(o @ strides)  # the neighbour's cell: the slices keep it inside the grid
         ok = flat_free[src] & flat_free[dst]
         length = res * float(np.linalg.norm(o))
         near = np.minimum(flat_clear[src[ok]], flat_clear[dst[ok]])
@@ -333,6 +334,8 @@ def centre_path(
         for d in range(dims):
             grad[:, d] = (c_all[1 + 2 * d] - c_all[2 + 2 * d]) / (2 * eps)
         deficit = np.clip(r + pad - c0, 0.0, None)
+        if not np.any(deficit > 0.0):
+            break  # every point has its clearance: nothing moves from here on
         push = grad * np.minimum(deficit, 0.02)[:, None]
         smooth = 0.5 * (pts[:-2] + pts[2:]) - inner
         moved = inner + push + 0.3 * smooth * (deficit > 0)[:, None]

@@ -241,3 +241,15 @@ def test_threaded_scan_equals_one_pass(scan, monkeypatch, threads):
     np.testing.assert_array_equal(split.free, one.free)
     np.testing.assert_array_equal(split.occupied, one.occupied)
     assert split[2:] == one[2:]
+
+
+def test_box_codes_are_the_codes_of_every_box_cell(rng):
+    from secure3d.mapping.keys import box_codes
+    from secure3d.mapping.occupancy import _box_cells
+
+    lo = rng.integers(32700, 32800, (30, 3))
+    hi = lo + rng.integers(-2, 12, (30, 3))  # some boxes empty along an axis
+    np.testing.assert_array_equal(box_codes(lo, hi), morton_encode(_box_cells(lo, hi)))
+    assert box_codes(np.empty((0, 3)), np.empty((0, 3))).size == 0
+    with pytest.raises(GeometryError, match="keys must lie"):
+        box_codes([[0, 0, -1]], [[1, 1, 1]])
