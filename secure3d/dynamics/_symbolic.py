@@ -45,10 +45,14 @@ def split(x: Any, n: int, what: str = "x") -> list[Any]:
                 f"{what}: expected {n} entries, got a CasADi object of shape {x.shape}"
             )
         return [x[i] for i in range(n)]
-    arr = np.asarray(x, dtype=float)
-    if arr.ndim == 0 or arr.shape[-1] != n:
-        raise ValueError(f"{what}: expected shape (..., {n}), got {arr.shape}")
-    return [arr[..., i] for i in range(n)]
+    return split_numbers(np.asarray(x, dtype=float), n, what)
+
+
+def split_numbers(x: np.ndarray, n: int, what: str = "x") -> list[np.ndarray]:
+    """:func:`split` of a numpy array (no CasADi check): its ``n`` components along the last axis."""
+    if x.ndim == 0 or x.shape[-1] != n:
+        raise ValueError(f"{what}: expected shape (..., {n}), got {x.shape}")
+    return [x[..., i] for i in range(n)]
 
 
 def stack(items: Sequence[Any], like_casadi: bool) -> Any:
@@ -57,7 +61,7 @@ def stack(items: Sequence[Any], like_casadi: bool) -> Any:
         return ca.vertcat(*items) if items else ca.DM.zeros(0, 1)
     if not items:
         return np.zeros(0)
-    if all(np.ndim(i) == 0 for i in items):  # one state: the same values, without broadcasting
+    if all(getattr(i, "ndim", 0) == 0 for i in items):  # one state: the same values, unbroadcast
         return np.array(items, dtype=float)
     return np.stack(np.broadcast_arrays(*[np.asarray(i, dtype=float) for i in items]), axis=-1)
 

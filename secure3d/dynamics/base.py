@@ -187,6 +187,10 @@ class VehicleModel(ABC):
         -------
         xdot : same layout as ``x``.
         """
+        if type(x) is np.ndarray and type(u) is np.ndarray and x.dtype == u.dtype == np.float64:
+            # numbers (every simulation step): the same values without the CasADi dispatch
+            xs, us = sym.split_numbers(x, self.nx, "x"), sym.split_numbers(u, self.nu, "u")
+            return sym.stack(self._f(xs, us, np), False)
         cas = sym.is_casadi(x, u)
         m = sym.math_of(x, u)
         return sym.stack(self._f(sym.split(x, self.nx, "x"), sym.split(u, self.nu, "u"), m), cas)

@@ -17,8 +17,7 @@ order: this is what makes ``.bt`` reading, writing and pruning vectorisable.
 
 The scan kernel is a numba function over all rays at once. Per-scan de-duplication uses two dense
 bitmaps (free, occupied) over the key box of the scan, a DDA step being one addition to a voxel's
-index in it; large scans split their rays over threads (joined in ray order, so the result does not
-depend on the split). Scans whose key box is too big for dense bitmaps use a chunked bitmap instead
+index in it. Scans whose key box is too big for dense bitmaps use a chunked bitmap instead
 (8x8x8-voxel chunks found through a small hash directory). ``discretize`` reproduces OctoMap's
 ``computeDiscreteUpdate``: one ray per distinct end voxel.
 """
@@ -440,7 +439,7 @@ def _discretize_kernel(points: np.ndarray, resolution: float) -> tuple[np.ndarra
     return centres[:m], nonfinite, outside
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)
 def _dense_trace(
     ends: np.ndarray,
     end_keys: np.ndarray,
@@ -449,15 +448,13 @@ def _dense_trace(
     resolution: float,
     lo: np.ndarray,
     dims: np.ndarray,
-    first: int,
-    last: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """OctoMap's ``computeUpdate`` over rays ``first:last`` into dense bitmaps of the key box.
+    """OctoMap's ``computeUpdate`` over all rays into dense bitmaps of the key box.
 
     Voxel ``k`` of the box ``lo``/``dims`` has linear index
     ``(kx - lo_x) + dims_x ((ky - lo_y) + dims_y (kz - lo_z))``; a DDA step is one addition to it.
     Returns (linear indices of the occupied voxels, each once in order of first appearance, the
-    free bitmap, the occupied bitmap). The GIL is released: chunks of rays can run on threads.
+    free bitmap, the occupied bitmap).
     """
     res_factor = 1.0 / resolution
     ox = origin[0]
@@ -471,13 +468,13 @@ def _dense_trace(
     total = nxy * dims[2]
     free_bits = np.zeros((total + 63) >> 6, np.uint64)
     occ_bits = np.zeros((total + 63) >> 6, np.uint64)
-    occ_idx = np.empty(min(total, last - first), np.int64)
+    occ_idx = np.empty(min(total, ends.shape[0]), np.int64)
     nocc = 0
     origin_idx = (kox - lo[0]) + nx * (koy - lo[1]) + nxy * (koz - lo[2])
     one = np.uint64(1)
     utotal = np.uint64(total)
 
-    for i in range(first, last):
+    for i in range(ends.shape[0]):
         ray_status = status[i]
         if ray_status >= 2:
             continue
@@ -526,33 +523,6 @@ def _dense_trace(
     return occ_idx[:nocc], free_bits, occ_bits
 
 
-@numba.njit(cache=True, nogil=True)
-def _dense_join(
-    occ: np.ndarray,
-    free_bits: np.ndarray,
-    occ_bits: np.ndarray,
-    more_occ: np.ndarray,
-    more_free_bits: np.ndarray,
-    more_occ_bits: np.ndarray,
-) -> np.ndarray:
-    """Fold a later chunk of rays into an earlier one: the bitmaps are OR-ed in place, and the
-    occupied list grows by the later chunk's entries not already in it, in their order (the list
-    one pass over both chunks would have built)."""
-    out = np.empty(occ.shape[0] + more_occ.shape[0], np.int64)
-    out[: occ.shape[0]] = occ
-    n = occ.shape[0]
-    one = np.uint64(1)
-    for j in range(more_occ.shape[0]):
-        v = more_occ[j]
-        if (occ_bits[v >> 6] & (one << np.uint64(v & 63))) == 0:
-            out[n] = v
-            n += 1
-    for w in range(free_bits.shape[0]):
-        free_bits[w] |= more_free_bits[w]
-        occ_bits[w] |= more_occ_bits[w]
-    return out[:n]
-
-
 #: Bit position of a 64-bit word with one bit set, by de Bruijn multiplication.
 _DEBRUIJN = np.uint64(0x03F79D71B4CB0A89)
 _DEBRUIJN_BIT = np.zeros(64, np.int64)
@@ -561,7 +531,7 @@ for _b in range(64):
 del _b
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)
 def _dense_codes(
     free_bits: np.ndarray,
     occ_idx: np.ndarray,
@@ -609,22 +579,6 @@ def _dense_codes(
     return out, _idx_to_codes(occ_idx, lo, dims)
 
 
-#: Threads a large dense scan's rays are split over (contiguous chunks, joined in ray order, so the
-#: result is the same as one pass). ``None``: every CPU, up to 4. A campaign's worker processes set
-#: it to share the CPUs between them.
-SCAN_THREADS: int | None = None
-#: Fewer rays than this per chunk are not worth a thread.
-_RAYS_PER_THREAD = 1024
-_scan_pool: object = None
-
-
-def _scan_threads(n_rays: int) -> int:
-    import os
-
-    want = SCAN_THREADS if SCAN_THREADS is not None else min(os.cpu_count() or 1, 4)
-    return max(1, min(int(want), n_rays // _RAYS_PER_THREAD))
-
-
 def _scan_dense(
     ends: np.ndarray,
     end_keys: np.ndarray,
@@ -634,30 +588,8 @@ def _scan_dense(
     lo: np.ndarray,
     dims: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The dense scan (:func:`_dense_trace`), its rays split over threads when there are many."""
-    global _scan_pool
-    n = ends.shape[0]
-    threads = _scan_threads(n)
-    args = (ends, end_keys, status, origin, resolution, lo, dims)
-    if threads == 1:
-        return _codes_of(_dense_trace(*args, 0, n), lo, dims)
-    from concurrent.futures import ThreadPoolExecutor
-
-    if _scan_pool is None or _scan_pool._max_workers < threads:
-        _scan_pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="secure3d-scan")
-    cuts = np.linspace(0, n, threads + 1).astype(int)
-    parts = [
-        _scan_pool.submit(_dense_trace, *args, int(a), int(b))
-        for a, b in zip(cuts[:-1], cuts[1:], strict=True)
-    ]
-    occ, free_bits, occ_bits = parts[0].result()
-    for part in parts[1:]:
-        occ = _dense_join(occ, free_bits, occ_bits, *part.result())
-    return _codes_of((occ, free_bits, occ_bits), lo, dims)
-
-
-def _codes_of(traced: tuple, lo: np.ndarray, dims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    occ, free_bits, occ_bits = traced
+    """(free codes, occupied codes) of a scan whose key box fits dense bitmaps."""
+    occ, free_bits, occ_bits = _dense_trace(ends, end_keys, status, origin, resolution, lo, dims)
     return _dense_codes(free_bits, occ, occ_bits, lo, dims)
 
 

@@ -393,21 +393,18 @@ def _fly(job: _Job) -> RunRecord:
     return RunRecord.from_result(job.variant, result)
 
 
-def _init_worker(workers: int) -> None:
+def _init_worker() -> None:
     """Worker initialiser: Ctrl-C is the parent's to handle (it stops the workers itself), and the
     BLAS under IPOPT's linear solver runs on the worker's own thread (unless the user chose
     otherwise): the workers already fill the cores. CasADi loads its OpenBLAS with the IPOPT plugin,
     after this runs. Measured: 12 blind-corner variants on 2 workers, 51.5 s -> 45.7 s wall and
     13.7 s -> 1.3 s of system time (BLAS threads spinning); one process flying 8 variants, the same
-    wall time either way. The map's scan threads share the CPUs between the workers likewise."""
+    wall time either way."""
     import os
     import signal
 
-    from secure3d.mapping import keys
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    keys.SCAN_THREADS = max(1, (os.cpu_count() or 1) // max(workers, 1))
 
 
 def _completed(jobs: Sequence[_Job], workers: int) -> Iterator[tuple[int, RunRecord]]:
@@ -420,9 +417,7 @@ def _completed(jobs: Sequence[_Job], workers: int) -> Iterator[tuple[int, RunRec
     # child: start clean interpreters instead.
     context = multiprocessing.get_context("spawn")
     before = set(multiprocessing.active_children())
-    pool = ProcessPoolExecutor(
-        max_workers=workers, mp_context=context, initializer=_init_worker, initargs=(workers,)
-    )
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker)
     try:
         futures = {pool.submit(_fly, job): i for i, job in enumerate(jobs)}
         for future in as_completed(futures):

@@ -227,22 +227,6 @@ def test_discretized_scan_counts_bad_points(rng):
     np.testing.assert_array_equal(upd.occupied, ref.occupied)
 
 
-@pytest.mark.parametrize("threads", [2, 3])
-def test_threaded_scan_equals_one_pass(scan, monkeypatch, threads):
-    """Rays split over threads give the same voxels in the same order as one pass."""
-    from secure3d.mapping import keys
-
-    origin = np.array([0.3, 0.1, -0.2])
-    monkeypatch.setattr(keys, "SCAN_THREADS", 1)
-    one = scan_update(scan, origin, 0.1, 6.0)
-    monkeypatch.setattr(keys, "SCAN_THREADS", threads)
-    assert keys._scan_threads(len(scan)) == threads
-    split = scan_update(scan, origin, 0.1, 6.0)
-    np.testing.assert_array_equal(split.free, one.free)
-    np.testing.assert_array_equal(split.occupied, one.occupied)
-    assert split[2:] == one[2:]
-
-
 def test_box_codes_are_the_codes_of_every_box_cell(rng):
     from secure3d.mapping.keys import box_codes
     from secure3d.mapping.occupancy import _box_cells
