@@ -8,7 +8,8 @@ Everything here reproduces OctoMap 1.9/1.10 bit for bit (DESIGN.md section 5):
   is included, the end voxel excluded, with the same float/double mix (so ties break the same way);
 - a scan (``computeUpdate``) marks every ray voxel free and every endpoint occupied, each voxel once
   per scan, occupied winning over free; a beam longer than ``max_range`` only clears space up to
-  ``max_range`` along its direction and marks nothing occupied.
+  ``max_range`` along its direction and marks nothing occupied (``clear_range`` may shorten that,
+  for sensors whose range limit is not a sphere).
 
 Voxels are identified by a 48-bit *Morton code* (bits of x, y, z interleaved, x lowest), stored as
 ``int64``. In Morton order the 8 children of an octree node are consecutive and a node at depth
@@ -308,14 +309,19 @@ def _dda_setup(
 
 @numba.njit(cache=True)
 def _clipped_ends(
-    points: np.ndarray, origin: np.ndarray, resolution: float, max_range: float
+    points: np.ndarray,
+    origin: np.ndarray,
+    resolution: float,
+    max_range: float,
+    clear_range: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per point: effective end (float32), its keys and a status; plus the key box of all rays.
 
-    Status: 0 hit (ray + occupied end), 1 clipped at max range (ray only), 2 non-finite,
+    Status: 0 hit (ray + occupied end), 1 beyond ``max_range`` (ray only), 2 non-finite,
     3 end outside the key range (a finite value too big for float32 included). The clipped end
-    follows OctoMap: ``origin + (p - origin).normalized() * (float) maxrange``. The key box
-    (lo, hi) spans the origin and every used end key; every DDA step changes one key by one.
+    follows OctoMap: ``origin + (p - origin).normalized() * (float) clear_range`` (OctoMap's
+    ``clear_range`` is ``maxrange``). The key box (lo, hi) spans the origin and every used end key;
+    every DDA step changes one key by one.
     """
     n = points.shape[0]
     res_factor = 1.0 / resolution
@@ -330,7 +336,7 @@ def _clipped_ends(
     ox = origin[0]
     oy = origin[1]
     oz = origin[2]
-    fmax = np.float32(max_range)
+    fmax = np.float32(clear_range)
     for i in range(n):
         if not (
             np.isfinite(points[i, 0]) and np.isfinite(points[i, 1]) and np.isfinite(points[i, 2])
@@ -867,6 +873,7 @@ def scan_update(
     resolution: float,
     max_range: float | None = None,
     discretize: bool = False,
+    clear_range: float | None = None,
 ) -> ScanUpdate:
     """Voxel updates of one scan, exactly as OctoMap's ``insertPointCloud`` computes them.
 
@@ -888,6 +895,11 @@ def scan_update(
         different sides of ``max_range``; free voxels differ where a ray to the centre crosses other
         voxels than the rays to the points. ``points_used`` then counts points in a cast voxel,
         ``clipped`` the clipped rays, ``rays`` the rays cast.
+    clear_range : float or None
+        How far a beam longer than ``max_range`` clears space (m); None: ``max_range``, as OctoMap.
+        A sensor whose range limit is not a sphere (a z-depth limit) records every hit inside its
+        limit with ``max_range`` beyond its farthest hit and clears no-return beams only as far as
+        it surely saw, ``clear_range`` (see :meth:`OccupancyMap.insert_depth_image`).
 
     Returns
     -------
@@ -896,9 +908,12 @@ def scan_update(
     p = np.ascontiguousarray(check_points(points))
     o = check_origin(origin, resolution)
     mr = -1.0 if max_range is None or not np.isfinite(max_range) else float(max_range)
+    cr = mr if clear_range is None else float(clear_range)
+    if mr >= 0.0 and not 0.0 <= cr <= mr:
+        raise GeometryError(f"clear_range: must be in [0, max_range = {mr}], got {clear_range!r}")
     if discretize:
         centres, nonfinite, outside = _discretize_kernel(p, float(resolution))
-        upd = scan_update(centres, o.astype(np.float64), resolution, max_range)
+        upd = scan_update(centres, o.astype(np.float64), resolution, max_range, False, clear_range)
         return ScanUpdate(
             upd.free,
             upd.occupied,
@@ -908,7 +923,7 @@ def scan_update(
             upd.clipped,
             upd.rays,
         )
-    ends, keys, status, lo, hi = _clipped_ends(p, o, float(resolution), mr)
+    ends, keys, status, lo, hi = _clipped_ends(p, o, float(resolution), mr, cr)
     lo = lo - _BOX_PAD
     dims = hi + _BOX_PAD - lo + 1
     if float(np.prod(dims.astype(np.float64))) <= _DENSE_VOXEL_LIMIT:

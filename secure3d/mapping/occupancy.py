@@ -306,6 +306,7 @@ class OccupancyMap:
         origin: ArrayLike,
         max_range: float | None = None,
         discretize: bool = False,
+        clear_range: float | None = None,
     ) -> InsertStats:
         """Insert one scan, exactly as OctoMap's ``insertPointCloud``.
 
@@ -321,6 +322,9 @@ class OccupancyMap:
         discretize : bool
             OctoMap's ``discretize`` flag: one ray per distinct end voxel, to its centre (see
             :func:`secure3d.mapping.keys.scan_update`). Several times faster for depth images.
+        clear_range : float or None
+            How far beams longer than ``max_range`` clear space (m), at most ``max_range``; None:
+            ``max_range`` (OctoMap).
 
         Returns
         -------
@@ -334,7 +338,10 @@ class OccupancyMap:
             ``max_range`` is negative or NaN.
         """
         mr = self._check_max_range(max_range)
-        upd = scan_update(points, origin, self._resolution, mr, discretize=bool(discretize))
+        cr = self._check_max_range(clear_range, "clear_range")
+        upd = scan_update(
+            points, origin, self._resolution, mr, discretize=bool(discretize), clear_range=cr
+        )
         p = self._params
         self._sensor.add_logodds(upd.free, p.miss_log, p.clamp_min_log, p.clamp_max_log)
         self._sensor.add_logodds(upd.occupied, p.hit_log, p.clamp_min_log, p.clamp_max_log)
@@ -351,16 +358,16 @@ class OccupancyMap:
         )
 
     @staticmethod
-    def _check_max_range(max_range: float | None) -> float | None:
+    def _check_max_range(max_range: float | None, what: str = "max_range") -> float | None:
         if max_range is None:
             return None
         if isinstance(max_range, bool) or not isinstance(
             max_range, (int, float, np.integer, np.floating)
         ):
-            raise ConfigError(f"max_range: expected a number or None, got {max_range!r}")
+            raise ConfigError(f"{what}: expected a number or None, got {max_range!r}")
         mr = float(max_range)
         if math.isnan(mr) or mr < 0.0:
-            raise ConfigError(f"max_range: must be >= 0 (or None), got {max_range!r}")
+            raise ConfigError(f"{what}: must be >= 0 (or None), got {max_range!r}")
         return None if math.isinf(mr) else mr
 
     def insert_depth_image(
@@ -371,12 +378,21 @@ class OccupancyMap:
         origin: ArrayLike,
         max_range: float | None,
         discretize: bool = False,
+        far_kind: str = "range",
     ) -> InsertStats:
         """Insert a z-depth image from a pinhole camera (see :func:`depth_image_points`).
 
-        Finite depths are hits (with OctoMap's max-range rule on their Euclidean range), ``inf``
-        pixels are "no return" and clear space up to ``max_range`` only, NaN or non-positive
-        pixels are skipped (counted as non-finite).
+        Finite depths are hits, ``inf`` pixels are "no return" and only clear space, NaN or
+        non-positive pixels are skipped (counted as non-finite). With ``far_kind="range"`` the
+        sensor sees up to ``max_range`` in every direction: OctoMap's rule as it is (hits farther
+        than ``max_range`` only clear space, and no returns clear up to ``max_range``). With
+        ``far_kind="depth"`` it sees up to the z-depth ``max_range``, which lies farther than
+        ``max_range`` off the axis: every hit up to that plane is inserted as a hit (OctoMap's
+        ``maxrange`` set beyond its farthest corner, :func:`far_plane_reach`), depths beyond it
+        count as no returns, and no returns clear space only up to the range ``max_range`` (the
+        largest ball the sensor surely saw empty; ``clear_range`` of :meth:`insert_point_cloud`).
+        Inserting a z-depth image with the Euclidean rule would drop the hits near the far corners
+        of the field of view that a planner counts as seen.
 
         Parameters
         ----------
@@ -393,14 +409,20 @@ class OccupancyMap:
         discretize : bool
             One ray per distinct end voxel (OctoMap's ``discretize``; see
             :meth:`insert_point_cloud`).
+        far_kind : ``"range"`` or ``"depth"``
+            What ``max_range`` limits (the scenario's ``camera.far_kind``).
 
         Returns
         -------
         InsertStats
         """
         mr = self._check_max_range(max_range)
-        points = depth_image_points(depth, intrinsics, cam2world, origin, mr)
-        return self.insert_point_cloud(points, origin, mr, discretize=discretize)
+        points = depth_image_points(depth, intrinsics, cam2world, origin, mr, far_kind)
+        if far_kind != "depth" or mr is None:
+            return self.insert_point_cloud(points, origin, mr, discretize=discretize)
+        # a discretised hit moves to its voxel's centre, up to half a diagonal farther
+        reach = far_plane_reach(np.shape(depth), intrinsics, mr) + self._resolution
+        return self.insert_point_cloud(points, origin, reach, discretize=discretize, clear_range=mr)
 
     # ------------------------------------------------------------------ point queries
 
@@ -956,6 +978,7 @@ def depth_image_points(
     cam2world: ArrayLike,
     origin: ArrayLike,
     max_range: float | None,
+    far_kind: str = "range",
 ) -> NDArray[np.float64]:
     """World points of a z-depth image, ready for :meth:`OccupancyMap.insert_point_cloud`.
 
@@ -966,9 +989,10 @@ def depth_image_points(
     Parameters
     ----------
     depth : (H, W) float
-        z-depth (m). Finite ``d > 0``: a hit at ``d`` times the pixel's ray. ``inf``: no return,
-        mapped to a point beyond ``max_range`` on the ray (so OctoMap's rule clears exactly up to
-        ``max_range``). NaN, ``d <= 0``, or ``inf`` without ``max_range``: NaN (skipped).
+        z-depth (m). Finite ``d > 0``: a hit at ``d`` times the pixel's ray. ``inf`` (and, for
+        ``far_kind="depth"``, ``d > max_range``): no return, mapped to a point on the ray beyond
+        every hit the sensor can report (see ``far_kind``), so that OctoMap's rule only clears
+        space along it. NaN, ``d <= 0``, or no return without ``max_range``: NaN (skipped).
     intrinsics : (3, 3) float or (4,) float
         Camera matrix K, or ``(fx, fy, cx, cy)`` in pixels.
     cam2world : (3, 3) float
@@ -977,6 +1001,10 @@ def depth_image_points(
         Camera centre in the world (m).
     max_range : float or None
         Maximum sensing range (m).
+    far_kind : ``"range"`` or ``"depth"``
+        Whether ``max_range`` limits the Euclidean range (no returns placed at ``2 max_range + 1``)
+        or the z-depth (placed at ``2 R + 1``, ``R`` the farthest point of the image's far plane,
+        :func:`far_plane_reach`).
 
     Returns
     -------
@@ -986,6 +1014,29 @@ def depth_image_points(
     d = np.asarray(depth, dtype=np.float64)
     if d.ndim != 2:
         raise GeometryError(f"depth: expected an (H, W) image, got shape {d.shape}")
+    fx, fy, cx, cy = _intrinsics(intrinsics)
+    if far_kind not in ("range", "depth"):
+        raise ConfigError(f"far_kind: must be 'range' or 'depth', got {far_kind!r}")
+    rot = np.asarray(cam2world, dtype=np.float64)
+    if rot.shape != (3, 3) or not np.all(np.isfinite(rot)):
+        raise GeometryError(f"cam2world: expected a finite (3, 3) rotation, got shape {rot.shape}")
+    if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
+        raise GeometryError("cam2world: not a rotation matrix (R^T R != I or det < 0)")
+    o = np.asarray(origin, dtype=np.float64)
+    if o.shape != (3,):
+        raise GeometryError(f"origin: expected 3 numbers, got shape {o.shape}")
+    # A no-return pixel becomes a point beyond every possible hit (-1: no max_range, skipped).
+    far, depth_limit = -1.0, np.inf
+    if max_range is not None:
+        if far_kind == "depth":
+            depth_limit = float(max_range)
+            far = 2.0 * far_plane_reach(d.shape, (fx, fy, cx, cy), max_range) + 1.0
+        else:
+            far = 2.0 * max_range + 1.0
+    return _depth_points_kernel(np.ascontiguousarray(d), fx, fy, cx, cy, rot, o, far, depth_limit)
+
+
+def _intrinsics(intrinsics: ArrayLike) -> tuple[float, float, float, float]:
     k = np.asarray(intrinsics, dtype=np.float64)
     if k.shape == (3, 3):
         fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
@@ -995,20 +1046,17 @@ def depth_image_points(
         raise GeometryError(f"intrinsics: expected K (3, 3) or (fx, fy, cx, cy), got {k.shape}")
     if not (np.isfinite([fx, fy, cx, cy]).all() and fx > 0 and fy > 0):
         raise GeometryError(f"intrinsics: need finite fx, fy > 0, got {k.tolist()}")
-    rot = np.asarray(cam2world, dtype=np.float64)
-    if rot.shape != (3, 3) or not np.all(np.isfinite(rot)):
-        raise GeometryError(f"cam2world: expected a finite (3, 3) rotation, got shape {rot.shape}")
-    if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
-        raise GeometryError("cam2world: not a rotation matrix (R^T R != I or det < 0)")
-    o = np.asarray(origin, dtype=np.float64)
-    if o.shape != (3,):
-        raise GeometryError(f"origin: expected 3 numbers, got shape {o.shape}")
-    # Any point beyond max_range on the ray stands for "no return": OctoMap then clears exactly up
-    # to max_range (-1: no max_range, such pixels are skipped).
-    far = -1.0 if max_range is None else 2.0 * max_range + 1.0
-    return _depth_points_kernel(
-        np.ascontiguousarray(d), float(fx), float(fy), float(cx), float(cy), rot, o, far
-    )
+    return float(fx), float(fy), float(cx), float(cy)
+
+
+def far_plane_reach(shape: tuple[int, int], intrinsics: ArrayLike, max_depth: float) -> float:
+    """Largest Euclidean range (m) of a pixel ray of an (H, W) image at z-depth ``max_depth``: its
+    farthest corner pixel. A z-depth-limited camera can report hits this far away."""
+    fx, fy, cx, cy = _intrinsics(intrinsics)
+    h, w = shape
+    tx = max(abs(0.5 - cx), abs(w - 0.5 - cx)) / fx
+    ty = max(abs(0.5 - cy), abs(h - 0.5 - cy)) / fy
+    return float(max_depth) * math.sqrt(1.0 + tx * tx + ty * ty)
 
 
 @numba.njit(cache=True)
@@ -1021,8 +1069,10 @@ def _depth_points_kernel(
     rot: np.ndarray,
     o: np.ndarray,
     far: float,
+    depth_limit: float,
 ) -> np.ndarray:
-    """World points of a depth image, one pass over the pixels (see :func:`depth_image_points`)."""
+    """World points of a depth image, one pass over the pixels (see :func:`depth_image_points`):
+    no returns (``inf``, or beyond ``depth_limit``) at scale ``far`` if ``far > 0``."""
     h, w = d.shape
     out = np.empty((h * w, 3))
     for v in range(h):
@@ -1030,7 +1080,7 @@ def _depth_points_kernel(
         for u in range(w):
             i = v * w + u
             s = d[v, u]
-            if np.isposinf(s) and far > 0.0:
+            if (np.isposinf(s) or (np.isfinite(s) and s > depth_limit)) and far > 0.0:
                 s = far
             if not (s > 0.0 and np.isfinite(s)):
                 out[i, 0] = np.nan

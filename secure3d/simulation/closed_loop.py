@@ -625,6 +625,7 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
             o,
             scenario.camera.max_range,
             discretize=scenario.camera.discretize,
+            far_kind=scenario.camera.far_kind,
         )
         new = _new_obstacle_voxels(loop, stats.occupied_codes)
         if rec is not None and frame_no % frame_log_every == 0:

@@ -165,7 +165,7 @@ def test_chunked_kernel_equals_dense_kernel(scan):
     res = 0.1
     o = np.zeros(3, np.float32)
     dense = scan_update(scan, o, res)
-    ends, keys, status, _, _ = _clipped_ends(scan, o, res, -1.0)
+    ends, keys, status, _, _ = _clipped_ends(scan, o, res, -1.0, -1.0)
     free, occ = _scan_chunked_kernel(ends, keys, status, o, res)
     np.testing.assert_array_equal(np.sort(free), np.sort(dense.free))
     np.testing.assert_array_equal(np.sort(occ), np.sort(dense.occupied))
@@ -237,3 +237,17 @@ def test_box_codes_are_the_codes_of_every_box_cell(rng):
     assert box_codes(np.empty((0, 3)), np.empty((0, 3))).size == 0
     with pytest.raises(GeometryError, match="keys must lie"):
         box_codes([[0, 0, -1]], [[1, 1, 1]])
+
+
+def test_clear_range_shortens_what_long_beams_clear(scan):
+    origin = np.zeros(3)
+    full = scan_update(scan, origin, 0.2, 5.0)
+    short = scan_update(scan, origin, 0.2, 5.0, clear_range=3.0)
+    np.testing.assert_array_equal(np.sort(short.occupied), np.sort(full.occupied))
+    assert short.clipped == full.clipped > 0
+    reach = np.linalg.norm(codes_to_coords(short.free, 0.2), axis=1)
+    hits = np.linalg.norm(codes_to_coords(full.occupied, 0.2), axis=1)
+    assert np.isin(short.free, full.free).all() and short.free.size < full.free.size
+    assert reach.max() <= max(hits.max(), 3.0) + 0.2 * np.sqrt(3)
+    with pytest.raises(GeometryError, match="clear_range"):
+        scan_update(scan, origin, 0.2, 5.0, clear_range=6.0)

@@ -194,6 +194,42 @@ def test_depth_image_hits_and_no_returns():
         m.insert_depth_image(depth, (0.0, 40.0, 20.0, 15.0), cam2world, origin, 5.0)
 
 
+@pytest.mark.parametrize("discretize", [False, True])
+def test_z_depth_camera_records_every_hit_it_reports(discretize):
+    """A camera whose far limit is a z-depth plane sees hits off its axis farther than that depth.
+    With far_kind="depth" every such hit becomes occupied (OctoMap's Euclidean rule would drop
+    them, though a planner counts that space as seen), and no returns clear space only within the
+    range ``max_range`` (what the sensor surely saw empty)."""
+    from secure3d.mapping.occupancy import far_plane_reach
+
+    k = (40.0, 40.0, 20.0, 15.0)
+    cam2world = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    origin = np.zeros(3)
+    depth = np.full((30, 40), np.inf)
+    depth[15, 38] = 5.5  # far right: ray (0.4625, 0.0125, 1), range 6.06 > 5.9
+    depth[15, 30] = 6.5  # beyond the z-depth limit: a no return
+    hit = cam2world @ (np.array([(38 + 0.5 - 20.0) / 40.0, (15 + 0.5 - 15.0) / 40.0, 1.0]) * 5.5)
+    assert np.linalg.norm(hit) > 5.9
+    euclid = OccupancyMap(0.1)
+    euclid.insert_depth_image(depth, k, cam2world, origin, 5.9, discretize=discretize)
+    assert euclid.classify(hit[None])[0] == -1, "OctoMap's rule drops it"
+    m = OccupancyMap(0.1)
+    stats = m.insert_depth_image(
+        depth, k, cam2world, origin, 5.9, discretize=discretize, far_kind="depth"
+    )
+    assert m.classify(hit[None])[0] == 1 and stats.voxels_occupied == 1
+    assert stats.clipped == stats.rays - 1, "every other pixel, 6.5 m included, is a no return"
+    free = m.free_voxels()
+    along_hit = np.linalg.norm(np.cross(free, hit / np.linalg.norm(hit)), axis=1) < 0.1
+    reach = np.linalg.norm(free[~along_hit], axis=1)
+    assert reach.max() <= 5.9 + np.sqrt(3) * 0.1 and reach.max() > 5.5
+    assert np.linalg.norm(free[along_hit], axis=1).max() > 5.9, "the hit's ray clears up to it"
+    corner = np.array([(0.5 - 20.0) / 40.0, (29.5 - 15.0) / 40.0, 1.0]) * 5.9
+    assert far_plane_reach((30, 40), k, 5.9) == pytest.approx(np.linalg.norm(corner))
+    with pytest.raises(ConfigError, match="far_kind"):
+        m.insert_depth_image(depth, k, cam2world, origin, 5.9, far_kind="sphere")
+
+
 def test_copy_is_independent(scan):
     m = OccupancyMap(0.2)
     m.insert_point_cloud(scan[::10], np.zeros(3), 4.0)
