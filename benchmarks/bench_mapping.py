@@ -5,7 +5,9 @@ an ``octomap.OcTree`` and the table reports points/s for both, the speed ratio, 
 of voxels whose state (unknown/free/occupied) agrees over the union of both maps' voxels (queried
 with octomap's own ``getLabels`` and our ``classify``). Cases: the real scan (scan.dat.bz2, 88,206
 points, sensor at the origin) at 0.05, 0.1 and 0.2 m with and without a 5 m maximum range, and a
-synthetic 320x240 depth frame. Then random point queries and box extraction are timed.
+synthetic 320x240 depth frame; the frame and the scan at 0.1 m also discretised (OctoMap's
+``insertPointCloud(..., discretize=true)``, as the simulator inserts frames). Then random point
+queries and box extraction are timed.
 
 Times are CPU seconds (``time.process_time``, best of ``--repeat``): both libraries are single
 threaded and the benchmark machine is shared. Run::
@@ -104,15 +106,18 @@ def insertion_case(
     resolution: float,
     max_range: float | None,
     repeat: int,
+    discretize: bool = False,
 ) -> dict:
     def ours_insert() -> OccupancyMap:
         m = OccupancyMap(resolution)
-        m.insert_point_cloud(points, origin, max_range)
+        m.insert_point_cloud(points, origin, max_range, discretize=discretize)
         return m
 
     def ref_insert() -> octomap.OcTree:
         t = octomap.OcTree(resolution)
-        t.insertPointCloud(points, origin, maxrange=-1.0 if max_range is None else max_range)
+        t.insertPointCloud(
+            points, origin, maxrange=-1.0 if max_range is None else max_range, discretize=discretize
+        )
         return t
 
     t_ours = best_cpu(ours_insert, repeat)
@@ -151,10 +156,20 @@ def main() -> None:
     depth, k, cam2world, cam_origin, max_range = synthetic_depth_frame()
     frame = depth_image_points(depth, k, cam2world, cam_origin, max_range)
     frame = frame[np.all(np.isfinite(frame), axis=1)]
-    rows.append(
-        insertion_case(
-            "depth 320x240 0.05 m, max 6 m", frame, cam_origin, 0.05, max_range, args.repeat
+    for disc in (False, True):
+        rows.append(
+            insertion_case(
+                "depth 320x240 0.05 m, max 6 m" + (", discretised" if disc else ""),
+                frame,
+                cam_origin,
+                0.05,
+                max_range,
+                args.repeat,
+                disc,
+            )
         )
+    rows.append(
+        insertion_case("scan.dat 0.10 m, discretised", scan, origin, 0.1, None, args.repeat, True)
     )
 
     print(f"\nInsertion (CPU time, best of {args.repeat}; target >= {TARGET_RATIO:g}x, "
