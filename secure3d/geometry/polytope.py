@@ -150,6 +150,18 @@ def box_signed_distance(points: object, lo: object, hi: object) -> np.ndarray:
     return outside + inside
 
 
+def _points_and_boxes(
+    points: object, lo: object, hi: object
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points (n, 3) and box corners (m, 3), checked and contiguous, for the compiled kernels."""
+    lo, hi = _boxes(lo, hi)
+    return (
+        np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 3)),
+        np.ascontiguousarray(lo.reshape(-1, 3)),
+        np.ascontiguousarray(hi.reshape(-1, 3)),
+    )
+
+
 def min_box_distance(points: object, lo: object, hi: object) -> np.ndarray:
     """Smallest signed distance from each point to any box (``+inf`` without boxes).
 
@@ -157,11 +169,7 @@ def min_box_distance(points: object, lo: object, hi: object) -> np.ndarray:
     -------
     (n,) float
     """
-    p = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 3))
-    lo, hi = _boxes(lo, hi)
-    return _kernels().min_signed_distance(
-        p, np.ascontiguousarray(lo.reshape(-1, 3)), np.ascontiguousarray(hi.reshape(-1, 3))
-    )
+    return _kernels().min_signed_distance(*_points_and_boxes(points, lo, hi))
 
 
 def inside_any_box(points: object, lo: object, hi: object) -> np.ndarray:
@@ -172,11 +180,7 @@ def inside_any_box(points: object, lo: object, hi: object) -> np.ndarray:
     -------
     (n,) bool
     """
-    p = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 3))
-    lo, hi = _boxes(lo, hi)
-    return _kernels().inside_any(
-        p, np.ascontiguousarray(lo.reshape(-1, 3)), np.ascontiguousarray(hi.reshape(-1, 3))
-    )
+    return _kernels().inside_any(*_points_and_boxes(points, lo, hi))
 
 
 def _segments_and_boxes(

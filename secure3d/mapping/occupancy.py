@@ -1136,33 +1136,29 @@ def _binary_closing_cube(grid: NDArray[np.bool_], iterations: int) -> NDArray[np
     """``scipy.ndimage.binary_closing(grid, np.ones((3, 3, 3)), iterations)``, the same cells
     (cells outside the grid count as empty, scipy's ``border_value=0``). The 3x3x3 cube is the
     Minkowski sum of three 3-cell segments, so each dilation and each erosion is three passes of
-    shifted ORs / ANDs: ~20x faster than scipy's generic structuring element."""
+    shifted ORs / ANDs: ~13x faster than scipy's generic structuring element."""
+
+    def segment(g: NDArray[np.bool_], axis: int, erode: bool) -> NDArray[np.bool_]:
+        """Dilate (OR) or erode (AND) ``g`` by the 3-cell segment along ``axis``."""
+        out = g.copy()
+        head, tail = [slice(None)] * 3, [slice(None)] * 3
+        head[axis], tail[axis] = slice(1, None), slice(None, -1)
+        op = np.logical_and if erode else np.logical_or
+        op(out[tuple(head)], g[tuple(tail)], out=out[tuple(head)])
+        op(out[tuple(tail)], g[tuple(head)], out=out[tuple(tail)])
+        if erode:  # a neighbour outside the grid is empty
+            out[(slice(None),) * axis + (0,)] = False
+            out[(slice(None),) * axis + (-1,)] = False
+        return out
 
     def dilate(g: NDArray[np.bool_]) -> NDArray[np.bool_]:
         for axis in range(3):
-            out = g.copy()
-            fwd = [slice(None)] * 3
-            back = [slice(None)] * 3
-            fwd[axis], back[axis] = slice(1, None), slice(None, -1)
-            out[tuple(fwd)] |= g[tuple(back)]
-            out[tuple(back)] |= g[tuple(fwd)]
-            g = out
+            g = segment(g, axis, erode=False)
         return g
 
     def erode(g: NDArray[np.bool_]) -> NDArray[np.bool_]:
         for axis in range(3):
-            out = g.copy()
-            fwd = [slice(None)] * 3
-            back = [slice(None)] * 3
-            fwd[axis], back[axis] = slice(1, None), slice(None, -1)
-            out[tuple(fwd)] &= g[tuple(back)]
-            out[tuple(back)] &= g[tuple(fwd)]
-            first = [slice(None)] * 3
-            last = [slice(None)] * 3
-            first[axis], last[axis] = 0, -1
-            out[tuple(first)] = False  # a neighbour outside the grid is empty
-            out[tuple(last)] = False
-            g = out
+            g = segment(g, axis, erode=True)
         return g
 
     g = grid
