@@ -132,7 +132,10 @@ def merge_grid(
         is cut at the same block boundaries and each block merged in the same cell order, without
         listing, sorting and re-gridding the cells.
     """
-    origin = np.asarray(origin, dtype=np.int64).reshape(3)
+    origin = np.asarray(origin)
+    if origin.shape != (3,) or not np.issubdtype(origin.dtype, np.integer):
+        raise GeometryError(f"merge_grid: origin must be 3 integers, got {origin!r}")
+    origin = origin.astype(np.int64)
     grid = np.asarray(grid, dtype=bool)
     if grid.ndim != 3:
         raise GeometryError(f"merge_grid: expected a 3D grid, got shape {grid.shape}")

@@ -1053,6 +1053,10 @@ def far_plane_reach(shape: tuple[int, int], intrinsics: ArrayLike, max_depth: fl
     """Largest Euclidean range (m) of a pixel ray of an (H, W) image at z-depth ``max_depth``: its
     farthest corner pixel. A z-depth-limited camera can report hits this far away."""
     fx, fy, cx, cy = _intrinsics(intrinsics)
+    if len(shape) != 2 or min(shape) < 1:
+        raise GeometryError(f"far_plane_reach: shape must be (H, W) >= 1, got {tuple(shape)}")
+    if not (math.isfinite(max_depth) and max_depth > 0):
+        raise ConfigError(f"far_plane_reach: max_depth must be finite and > 0, got {max_depth!r}")
     h, w = shape
     tx = max(abs(0.5 - cx), abs(w - 0.5 - cx)) / fx
     ty = max(abs(0.5 - cy), abs(h - 0.5 - cy)) / fy

@@ -14,7 +14,7 @@ from secure3d.errors import PlanningError
 
 
 def node_derivatives(model: object, states: np.ndarray, controls: np.ndarray) -> np.ndarray:
-    """``f(x_k, u_k)`` at every node, (K, nx): what :func:`interpolate` needs besides the nodes."""
+    """``f(x_k, u_k)`` at every node, (K, nx): what :class:`Interpolant` needs besides the nodes."""
     f_batch = getattr(model, "f_batch", None)
     if f_batch is not None:
         return np.asarray(f_batch(states, controls), dtype=float)
@@ -74,7 +74,6 @@ def interpolate(
     states: np.ndarray,
     controls: np.ndarray,
     t: np.ndarray,
-    derivatives: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """States (n, nx) and controls (n, nu) at query times ``t`` (clipped to [times[0], times[-1]]).
 
@@ -83,10 +82,10 @@ def interpolate(
     model : vehicle model providing ``f`` (and optionally ``f_batch``).
     times : (K,) increasing node times; states : (K, nx); controls : (K, nu).
     t : (n,) query times.
-    derivatives : :func:`node_derivatives` of these nodes, if the caller keeps them; computed here
-        otherwise (:class:`Interpolant` keeps everything for repeated reads).
+
+    One reading; :class:`Interpolant` keeps the validated nodes and their derivatives for many.
     """
-    return Interpolant(model, times, states, controls, derivatives)(t)
+    return Interpolant(model, times, states, controls)(t)
 
 
 def resample(

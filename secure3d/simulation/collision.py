@@ -218,6 +218,8 @@ class CollisionWorld:
         q0, q1 = _check_point(p0, "p0"), _check_point(p1, "p1")
         rad = _check_radius(r)
         if clearance0 is not None:
+            if isinstance(clearance0, bool) or not isinstance(clearance0, (int, float, np.number)):
+                raise GeometryError(f"clearance0: expected a number or None, got {clearance0!r}")
             step = math.sqrt((q1[0] - q0[0]) ** 2 + (q1[1] - q0[1]) ** 2 + (q1[2] - q0[2]) ** 2)
             if float(clearance0) > step + SWEEP_SKIP_MARGIN:
                 return False

@@ -123,3 +123,5 @@ def test_merge_grid_equals_merge_cells_across_blocks(rng):
         ref_lo, ref_hi = merge_cells(np.argwhere(grid) + origin)
         np.testing.assert_array_equal(lo, ref_lo)
         np.testing.assert_array_equal(hi, ref_hi)
+    with pytest.raises(GeometryError, match="origin"):
+        merge_grid(np.ones((2, 2, 2), bool), [0.5, 0, 0])

@@ -226,6 +226,8 @@ def test_z_depth_camera_records_every_hit_it_reports(discretize):
     assert np.linalg.norm(free[along_hit], axis=1).max() > 5.9, "the hit's ray clears up to it"
     corner = np.array([(0.5 - 20.0) / 40.0, (29.5 - 15.0) / 40.0, 1.0]) * 5.9
     assert far_plane_reach((30, 40), k, 5.9) == pytest.approx(np.linalg.norm(corner))
+    with pytest.raises(ConfigError, match="max_depth"):
+        far_plane_reach((30, 40), k, -1.0)
     with pytest.raises(ConfigError, match="far_kind"):
         m.insert_depth_image(depth, k, cam2world, origin, 5.9, far_kind="sphere")
 

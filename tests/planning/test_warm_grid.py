@@ -147,14 +147,14 @@ def test_interpolate_with_kept_node_derivatives(cold, corner_problem):
     F = node_derivatives(model, plan.states, plan.controls)
     assert F.shape == plan.states.shape
     x0, u0 = interpolate(model, plan.times, plan.states, plan.controls, t)
-    x1, u1 = interpolate(model, plan.times, plan.states, plan.controls, t, F)
+    from secure3d.planning.trajectory import Interpolant
+
+    x1, u1 = Interpolant(model, plan.times, plan.states, plan.controls, F)(t)
     np.testing.assert_array_equal(x1, x0)
     np.testing.assert_array_equal(u1, u0)
     with pytest.raises(PlanningError, match="derivatives"):
-        interpolate(model, plan.times, plan.states, plan.controls, t, F[:-1])
+        Interpolant(model, plan.times, plan.states, plan.controls, F[:-1])
     # an Interpolant read one time at a time, as the tracker does: the same values
-    from secure3d.planning.trajectory import Interpolant
-
     reader = Interpolant(model, plan.times, plan.states, plan.controls)
     for i, ti in enumerate(t):
         xi, ui = reader(np.array([ti]))

@@ -84,6 +84,8 @@ def test_swept_collides_matches_dense_sampling_of_the_segment(rng):
         if abs(box_sdf(p0 + s[:, None] * (short - p0), lo, hi).min() - r) > 1e-6:
             assert world.swept_collides(p0, short, r, clearance0=c0) == hit
     assert checked > 150
+    with pytest.raises(GeometryError, match="clearance0"):
+        world.swept_collides(p0, p1, r, clearance0="far")
 
 
 def test_swept_capsule_catches_a_thin_wall_between_free_samples():
