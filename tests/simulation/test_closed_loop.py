@@ -8,6 +8,7 @@ import pytest
 import secure3d
 from secure3d.errors import SimulationError
 from secure3d.mapping import OccupancyMap
+from secure3d.planning.collocation import NLPCache
 from secure3d.simulation.closed_loop import observed_box, replan_defer_for, simulate
 
 
@@ -47,7 +48,18 @@ def test_blind_corner_secure_flight_sees_the_crate_and_arrives_without_collision
     maps_dir, tmp_path
 ):
     scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
-    run = simulate(scenario, "secure", rrd=tmp_path / "secure.rrd", png=tmp_path / "secure.png")
+    run = simulate(
+        scenario,
+        "secure",
+        rrd=tmp_path / "secure.rrd",
+        png=tmp_path / "secure.png",
+        cache=NLPCache(),
+    )
+    # the NLP is compiled in the set-up, before take-off: the first plan finds it built
+    assert run.plans[0][0] == 0.0 and run.plans[0][1].build_time == 0.0
+    assert 0.0 < run.setup_time < run.wall_time
+    assert run.flight_time == pytest.approx(run.wall_time - run.setup_time)
+    assert run.real_time_factor == pytest.approx(run.sim_time / run.flight_time)
     assert not run.collided, run.summary()
     assert run.reached_goal, run.summary()
     assert run.detection_time is not None, "the hidden crate must be seen"
