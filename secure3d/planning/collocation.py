@@ -715,19 +715,16 @@ class NLPCache:
             self._items.popitem(last=False)
         return built, False
 
-    def prepare(self, problem: PlanningProblem, planner: str, *, warm: bool = False) -> bool:
-        """Compile ahead the NLP ``planner`` will solve for ``problem``'s structure, and with
-        ``warm`` its warm-start solver, so that the first plan (and first warm replan) does not pay
-        for them. Possible only when the structure does not depend on the look-back assignment (the
-        baseline, or look-backs passed as parameters to IPOPT); returns whether the NLP is cached.
-        """
+    def prepare(self, problem: PlanningProblem, planner: str) -> bool:
+        """Compile ahead the NLP ``planner`` will solve for ``problem``'s structure, so that the
+        first plan does not pay for it. Possible only when the structure does not depend on the
+        look-back assignment (the baseline, or look-backs passed as parameters to IPOPT); returns
+        whether the NLP is cached."""
         K = problem.options.nodes
         start_only, first_node = (-1,) * K, (0,) * K
         if nlp_key(problem, planner, start_only) != nlp_key(problem, planner, first_node):
             return False  # one NLP per assignment: which one is known only at plan time
-        nlp, _ = self.get(problem, planner, start_only)
-        if warm and nlp.solver_name == "ipopt":
-            nlp.get_warm_solver()
+        self.get(problem, planner, start_only)
         return True
 
     def __len__(self) -> int:

@@ -188,6 +188,18 @@ def test_blind_corner_baseline_meets_the_crate(maps_dir):
     assert run.detection_time is not None and run.detection_time < run.collision_time
 
 
+@pytest.mark.slow
+def test_a_structural_lookback_is_compiled_in_flight(maps_dir):
+    """With the look-back assignment compiled into the structure the set-up cannot know which NLP
+    the first plan needs: it compiles none, and the first plan compiles its own (in flight)."""
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    cache = NLPCache()
+    run = simulate(scenario, "secure", cache=cache, lookback_encoding="structure")
+    assert run.reached_goal and not run.collided, run.summary()
+    assert run.plans[0][1].build_time > 0.0
+    assert cache.misses >= 1
+
+
 def test_look_around_turns_the_camera_at_rest(maps_dir):
     from secure3d.planning.problem import problem_from_scenario
     from secure3d.reactive.controllers import BrakingController
