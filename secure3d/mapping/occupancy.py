@@ -549,15 +549,34 @@ class OccupancyMap:
         corner = codes_to_coords(starts, self._resolution) - 0.5 * self._resolution
         return corner + 0.5 * sizes[:, None], sizes, vals
 
-    def _known_obstacle_codes(self) -> NDArray[np.int64]:
+    def _known_obstacle_runs(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """Morton codes of the claimed occupied voxels with no sensor evidence, and of the sensed
+        occupied voxels: two disjoint sorted runs of unique codes."""
         codes, vals = self._sensor_voxels()
-        sensed_occ = codes[vals >= self._params.threshold_log]
+        sensed_occ = unique_sorted(codes[vals >= self._params.threshold_log])
         claimed = self._claim_codes[self._claim_occ]
-        unsensed = np.isnan(self._sensor_values(claimed))
-        # Claim codes are sorted and unique, and sensed occupied codes are never unsensed claims:
-        # the union is a merge of two sorted runs (timsort does that in linear time).
-        both = np.concatenate([claimed[unsensed], unique_sorted(sensed_occ)])
-        return np.sort(both, kind="stable")
+        return claimed[np.isnan(self._sensor_values(claimed))], sensed_occ
+
+    def _known_obstacle_codes(self) -> NDArray[np.int64]:
+        # The union of two sorted runs: timsort merges them in linear time.
+        return np.sort(np.concatenate(self._known_obstacle_runs()), kind="stable")
+
+    def known_obstacles(self) -> tuple[NDArray[np.float64], NDArray[np.uint8]]:
+        """The known obstacle voxels with their :class:`Trust`, as ``(known_obstacle_voxels(),
+        trust(...))`` would give them but without looking the trust up again: claimed ones
+        (``CLAIMED_OCCUPIED``) first, then sensed ones (``SENSED_OCCUPIED``), each in Morton order.
+
+        Returns
+        -------
+        centres : (n, 3) float64
+        trust : (n,) uint8
+        """
+        claimed, sensed = self._known_obstacle_runs()
+        trust = np.repeat(
+            np.array([Trust.CLAIMED_OCCUPIED, Trust.SENSED_OCCUPIED], dtype=np.uint8),
+            [len(claimed), len(sensed)],
+        )
+        return codes_to_coords(np.concatenate([claimed, sensed]), self._resolution), trust
 
     def known_obstacle_voxels(self) -> NDArray[np.float64]:
         """Centres of known obstacle voxels: sensed occupied u (claimed occupied \\ sensed free).

@@ -71,3 +71,35 @@ def boundary_mesh(cells: NDArray[np.integer]) -> tuple[NDArray[np.int64], NDArra
     q = inverse.reshape(-1, 4)
     faces = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
     return corners, faces
+
+
+#: Largest bounding grid (cells) :func:`surface_mask` allocates; a larger set counts as all surface.
+MAX_SURFACE_GRID = 1 << 26
+
+
+def surface_mask(cells: NDArray[np.integer]) -> NDArray[np.bool_]:
+    """Which of the integer ``cells`` (n, 3) have a face neighbour outside the set: the voxels a
+    solid rendering of the set can show (the others are enclosed by them).
+
+    Computed on a dense grid over the set's bounding box (a few ms for 10^5 cells); all True when
+    that grid would exceed :data:`MAX_SURFACE_GRID` cells.
+    """
+    cols = np.ascontiguousarray(np.asarray(cells, dtype=np.int64).reshape(-1, 3).T)
+    if not cols.shape[1]:
+        return np.zeros(0, dtype=bool)
+    lo = cols.min(axis=1) - 1  # a free layer around the set: every neighbour is in the grid
+    dims = tuple(int(d) for d in cols.max(axis=1) - lo + 2)
+    if dims[0] * dims[1] * dims[2] > MAX_SURFACE_GRID:
+        return np.ones(cols.shape[1], dtype=bool)
+    flat = np.ravel_multi_index(tuple(cols - lo[:, None]), dims)
+    grid = np.zeros(dims, dtype=bool)
+    grid.ravel()[flat] = True
+    inner = np.zeros(dims, dtype=bool)
+    mid = (slice(1, -1),) * 3
+    inner[mid] = grid[mid]
+    for axis in range(3):
+        for step in (slice(2, None), slice(None, -2)):
+            shifted = list(mid)
+            shifted[axis] = step
+            inner[mid] &= grid[tuple(shifted)]
+    return ~inner.ravel()[flat]

@@ -650,9 +650,9 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
                 t, R, o, cam.fx, cam.fy, scenario.camera.width, scenario.camera.height, frame.depth
             )
         if rec is not None and frame_no % belief_log_every == 0:
-            occ = loop.belief.known_obstacle_voxels()
+            occ, trust = loop.belief.known_obstacles()
             if len(occ):
-                rec.log_belief(t, occ, loop.belief.trust(occ), loop.belief.resolution)
+                rec.log_belief(t, occ, trust, loop.belief.resolution)
         return new, set(frame.hit_names()) & loop.hidden
 
     failures = [0]  # failed plan calls in a row

@@ -9,8 +9,8 @@ import pytest
 import trimesh
 
 from secure3d.errors import ConfigError
-from secure3d.mapping import OccupancyMap
-from secure3d.mapping.surface import boundary_mesh
+from secure3d.mapping import OccupancyMap, surface
+from secure3d.mapping.surface import boundary_mesh, surface_mask
 
 
 def exposed_faces(cells: np.ndarray) -> int:
@@ -66,3 +66,21 @@ def test_map_surface_mesh_in_metres(rng):
     assert f_known.shape[0] > f_sensed.shape[0] > 0
     with pytest.raises(ConfigError, match="which"):
         m.surface_mesh("free")
+
+
+def test_surface_mask_keeps_the_cells_with_a_face_outside(rng, monkeypatch):
+    steps = [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)]
+    for _ in range(20):
+        cells = np.argwhere(rng.random((8, 9, 7)) < rng.uniform(0.3, 0.95))
+        cells = cells + rng.integers(-1000, 1000, 3)
+        s = {tuple(c) for c in cells.tolist()}
+        want = [any((c[0] + d[0], c[1] + d[1], c[2] + d[2]) not in s for d in steps) for c in s]
+        got = surface_mask(np.array(sorted(s)))
+        np.testing.assert_array_equal(got, [w for _, w in sorted(zip(s, want, strict=True))])
+    # a solid 5^3 block: its 98 outer cells; no cells, no surface
+    block = np.argwhere(np.ones((5, 5, 5), bool))
+    assert surface_mask(block).sum() == 5**3 - 3**3
+    assert surface_mask(np.zeros((0, 3), int)).shape == (0,)
+    # beyond the grid budget every cell counts as surface (drawn, never wrongly hidden)
+    monkeypatch.setattr(surface, "MAX_SURFACE_GRID", 100)
+    assert surface_mask(block).all()

@@ -114,6 +114,11 @@ def test_known_obstacles_formula_against_brute_force(rng):
     np.testing.assert_array_equal(m.is_known_obstacle_sensed(codes[sensed]), expected[sensed])
     with pytest.raises(GeometryError, match="no sensor evidence"):
         m.is_known_obstacle_sensed(codes[~sensed][:3])
+    # the known obstacles with their trust, as known_obstacle_voxels and trust give them
+    centres, kinds = m.known_obstacles()
+    assert sorted(map(tuple, np.round(centres, 6))) == sorted(map(tuple, np.round(known, 6)))
+    np.testing.assert_array_equal(kinds, m.trust(centres))
+    assert set(np.unique(kinds)) == {int(Trust.SENSED_OCCUPIED), int(Trust.CLAIMED_OCCUPIED)}
 
 
 def test_every_trust_level_and_observed():

@@ -206,6 +206,23 @@ def test_output_is_atomic_and_interrupted_runs_leave_nothing(tmp_path):
         assert path.read_bytes() == before, "an aborted run must not touch the previous file"
 
 
+def test_belief_draws_only_voxels_that_can_show(tmp_path):
+    """A solid 6^3 block of voxels is logged as its 152 outer boxes, sharing one half size; an
+    outer voxel that is unknown is not drawn, and the inner one behind it is."""
+    path = tmp_path / "block.rrd"
+    cells = np.argwhere(np.ones((6, 6, 6), bool))
+    trust = np.full(len(cells), 2, dtype=np.uint8)
+    trust[np.all(cells == (0, 2, 2), axis=1)] = 0
+    with RerunRecorder(path) as rec:
+        rec.log_belief(0.0, (cells + 0.5) * 0.1, trust, 0.1)
+    row = [r for r in read_rows(path)["/world/belief"] if "Boxes3D:centers" in r][0]
+    drawn = np.floor(np.array(row["Boxes3D:centers"]) / 0.1).astype(int)
+    assert len(drawn) == len(row["Boxes3D:class_ids"]) == 6**3 - 4**3
+    np.testing.assert_allclose(row["Boxes3D:half_sizes"], [[0.05, 0.05, 0.05]])
+    inner = drawn[np.all((drawn >= 1) & (drawn <= 4), axis=1)]
+    assert inner.tolist() == [[1, 2, 2]], "the inner voxel behind the unknown one, only"
+
+
 def test_closed_recorder_and_bad_input(tmp_path):
     rec = RerunRecorder(tmp_path / "x.rrd")
     with pytest.raises(ConfigError, match="level"):
