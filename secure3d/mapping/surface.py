@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from secure3d.errors import GeometryError
+
 # Corner offsets of the face of a unit cube with outward normal along +/- each axis, ordered
 # counter-clockwise seen from outside.
 _FACE_CORNERS = {
@@ -84,7 +86,16 @@ def surface_mask(cells: NDArray[np.integer]) -> NDArray[np.bool_]:
     Computed on a dense grid over the set's bounding box (a few ms for 10^5 cells); all True when
     that grid would exceed :data:`MAX_SURFACE_GRID` cells.
     """
-    cols = np.ascontiguousarray(np.asarray(cells, dtype=np.int64).reshape(-1, 3).T)
+    arr = np.asarray(cells)
+    if (
+        arr.ndim != 2
+        or arr.shape[1] != 3
+        or not (arr.size == 0 or np.issubdtype(arr.dtype, np.integer))
+    ):
+        raise GeometryError(
+            f"cells: expected an (n, 3) array of integers, got shape {arr.shape} of {arr.dtype}"
+        )
+    cols = np.ascontiguousarray(arr.astype(np.int64).T)
     if not cols.shape[1]:
         return np.zeros(0, dtype=bool)
     lo = cols.min(axis=1) - 1  # a free layer around the set: every neighbour is in the grid

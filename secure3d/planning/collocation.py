@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from secure3d.errors import ConfigError
 from secure3d.planning import constraints as cons
 from secure3d.planning.assembled_derivatives import KernelCall, assembled_derivatives
 from secure3d.planning.problem import PlanningProblem
@@ -720,6 +721,8 @@ class NLPCache:
         first plan does not pay for it. Possible only when the structure does not depend on the
         look-back assignment (the baseline, or look-backs passed as parameters to IPOPT); returns
         whether the NLP is cached."""
+        if planner not in ("secure", "baseline"):
+            raise ConfigError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
         K = problem.options.nodes
         start_only, first_node = (-1,) * K, (0,) * K
         if nlp_key(problem, planner, start_only) != nlp_key(problem, planner, first_node):

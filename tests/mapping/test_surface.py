@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from secure3d.errors import ConfigError
+from secure3d.errors import ConfigError, GeometryError
 from secure3d.mapping import OccupancyMap, surface
 from secure3d.mapping.surface import boundary_mesh, surface_mask
 
@@ -84,3 +84,6 @@ def test_surface_mask_keeps_the_cells_with_a_face_outside(rng, monkeypatch):
     # beyond the grid budget every cell counts as surface (drawn, never wrongly hidden)
     monkeypatch.setattr(surface, "MAX_SURFACE_GRID", 100)
     assert surface_mask(block).all()
+    for bad in (np.zeros((4, 2), int), np.zeros(3, int), block + 0.5):
+        with pytest.raises(GeometryError, match="cells"):
+            surface_mask(bad)

@@ -9,6 +9,7 @@ import pytest
 
 import secure3d
 import secure3d.errors
+from secure3d.errors import ConfigError
 from secure3d.planning import PlanStatus, certify, plan, plan_problem, problem_from_scenario
 from secure3d.planning.collocation import NLPCache
 from secure3d.world.spec import Box, GoalSpec, StartSpec
@@ -153,6 +154,8 @@ def test_an_nlp_is_compiled_ahead_when_the_assignment_is_not_structure(corner_pr
     parametric = corner_problem.with_options(lookback_encoding="parameter")
     assert cache.prepare(parametric, "secure") and cache.misses == 1
     assert cache.prepare(corner_problem, "baseline") and cache.misses == 2
+    with pytest.raises(secure3d.errors.ConfigError, match="planner"):
+        cache.prepare(corner_problem, "fastest")
     for problem, planner in ((parametric, "secure"), (corner_problem, "baseline")):
         r = plan_problem(problem, planner, cache=cache)
         assert r.ok, r.message
