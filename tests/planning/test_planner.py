@@ -9,7 +9,6 @@ import pytest
 
 import secure3d
 import secure3d.errors
-from secure3d.errors import ConfigError
 from secure3d.planning import PlanStatus, certify, plan, plan_problem, problem_from_scenario
 from secure3d.planning.collocation import NLPCache
 from secure3d.world.spec import Box, GoalSpec, StartSpec
