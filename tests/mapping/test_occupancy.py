@@ -274,3 +274,25 @@ def test_cube_closing_equals_scipy(rng):
         for iterations in (1, 2, 3):
             expected = ndimage.binary_closing(grid, structure=cube, iterations=iterations)
             np.testing.assert_array_equal(_binary_closing_cube(grid, iterations), expected)
+
+
+def test_voxel_table_grows_by_the_entries_it_adds(rng):
+    """add_logodds grows when the load factor would pass 1/2 by entries actually added (possibly
+    several times within one call), and updates every code exactly once, as a dict would."""
+    from secure3d.mapping.store import VoxelTable
+
+    table, ref = VoxelTable(capacity=16), {}
+    for _ in range(6):
+        codes = rng.choice(5000, size=rng.integers(1, 3000), replace=False).astype(np.int64)
+        delta = float(rng.uniform(-0.5, 0.9))
+        table.add_logodds(codes, delta, -2.0, 3.5)
+        for c in codes.tolist():
+            ref[c] = float(np.clip(np.float32(ref.get(c, 0.0)) + np.float32(delta), -2.0, 3.5))
+        assert table.count == len(ref) <= table.keys.shape[0] // 2
+    got_codes, got_vals = table.items()
+    assert got_codes.tolist() == sorted(ref)
+    np.testing.assert_allclose(got_vals, [ref[c] for c in sorted(ref)], rtol=1e-6)
+    # codes already present take no room: the capacity stays
+    cap = table.keys.shape[0]
+    table.add_logodds(got_codes, -0.1, -2.0, 3.5)
+    assert table.keys.shape[0] == cap and table.count == len(ref)
