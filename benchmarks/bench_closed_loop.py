@@ -1,9 +1,9 @@
 """How fast the closed loop (the paper's Algorithm 1) runs, and where its wall time goes (issue #6).
 
-A run is a set-up (the true world, the ray-casting camera, the collision world, the belief map and
-the NLP compilation, as a robot compiles its planner before take-off) and a flight (every camera
-frame, map update, plan and replan -- the first plan's solve included -- re-certification, tracking
-step and collision check). ``SimResult.real_time_factor`` is simulated time / flight wall time.
+A run is a set-up (the true world, the ray-casting camera, the collision world, the belief map, the
+NLP compilation, as a robot compiles its planner before take-off, and opening any recording) and a
+flight (every camera frame, map update, plan and replan -- the first plan's solve included --
+re-certification, tracking step and collision check). ``SimResult.real_time_factor`` is simulated time / flight wall time.
 
 For each scenario and planner, ``--reps`` runs (same seed: same outcome, timing varies) with a new
 NLP cache each, so every run compiles its NLPs; ``--reps`` more with the compiled NLPs cached (after

@@ -76,7 +76,8 @@ class SimResult:
     frames, takeovers, replans : counts. solve_times : wall time of every plan call (s).
     wall_time : the whole run's wall time (s), set-up included.
     setup_time : the part of it spent before take-off: building the true world, the camera, the
-        collision world and the belief map, and compiling the NLP (unless already cached).
+        collision world and the belief map, compiling the NLP (unless already cached), and opening
+        the recording (``rrd``).
     flight_time : the rest: every frame, map update, plan (the first one included), re-certification,
         tracking step and collision check. real_time_factor = simulated time / flight_time.
     """
@@ -533,7 +534,6 @@ def simulate(
     replan_defer = replan_defer_for(replan_defer, replan_latency)
     wall0 = time.perf_counter()
     loop = _Loop(scenario, planner, seed, dict(options), cache)
-    setup_time = time.perf_counter() - wall0
     settings = _RunSettings(
         dt=scenario.simulation.dt,
         frame_period=1.0 / scenario.camera.rate_hz,
@@ -555,6 +555,7 @@ def simulate(
         from secure3d.viz.rerun_log import RerunRecorder, recording_id
 
         recorder = RerunRecorder(rrd, recording_id=recording_id(f"{scenario.name}-{planner}", seed))
+    setup_time = time.perf_counter() - wall0  # take-off: the recording is open, the NLP compiled
     try:
         result = _run(loop, recorder, settings)
     except BaseException:
