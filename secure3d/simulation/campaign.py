@@ -373,7 +373,6 @@ class _Job:
 
 
 @functools.cache
-@functools.cache
 def _process_cache() -> NLPCache:
     """One NLP cache per process, shared by the runs that process flies."""
     from secure3d.planning.collocation import NLPCache

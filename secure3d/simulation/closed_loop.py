@@ -42,6 +42,11 @@ REPLAN_RETRY = 0.5
 #: Cruise-speed fractions of the initial guess for successive failed replans at rest: the map and
 #: the state are unchanged between retries, so the same guess would fail the same way.
 RETRY_SPEEDS = (0.8, 0.4, 1.0, 0.2)
+#: Failed replans in a row at rest after which the robot, having tried every retry start, turns
+#: to look around once (new views can change the problem; the same problem fails the same way),
+#: and twice that many after which it stops replanning and holds still. (A hidden-obstacle
+#: variant cycled through the same four failures 25 times, 80 s of wall time, before.)
+STUCK_RETRIES = len(RETRY_SPEEDS)
 #: Fraction of the model's yaw-rate limit used to look around at rest, and the yaw error (rad) at
 #: which a look-around heading counts as reached.
 SCAN_RATE_FRACTION = 0.8
@@ -506,7 +511,9 @@ def simulate(
     png : write the top-down figure of the run there (atomically).
     cache : an :class:`~secure3d.planning.collocation.NLPCache` for the compiled NLPs (default: the
         planner's module-wide cache, so runs in one process build each NLP shape once).
-    max_replans : give up (robot holds still) after this many failed or successful replans.
+    max_replans : give up (robot holds still) after this many failed or successful replans. It
+        also gives up after ``2 * STUCK_RETRIES`` failed replans in a row at rest, having looked
+        around once after ``STUCK_RETRIES`` of them (the same problem fails the same way).
     replan_in_flight : when new evidence breaks the rest of the plan, first try to replan from the
         moving state (the solve takes no simulated time); brake only if that fails.
     replan_latency : simulated seconds a replan in flight takes (default 0: instantaneous). With
@@ -519,8 +526,8 @@ def simulate(
         to that manoeuvre) and replan this long before it, or sooner if later frames bring it
         closer. A hidden obstacle revealed a few voxels per frame then costs one replan, made with
         more of it seen, instead of one per frame. Not combined with ``replan_latency``.
-    look_around : after a take-over (and after a failed replan), turn the camera half a field of
-        view to either side at rest before replanning (see :func:`scan_headings`).
+    look_around : after a take-over (and after every failed replan), turn the camera half a field
+        of view to either side at rest before replanning (see :func:`scan_headings`).
     frame_log_every, belief_log_every : decimation of camera frames and belief voxels in the recording.
     **options : planner options (see :class:`~secure3d.planning.problem.PlannerOptions`).
     """
@@ -725,6 +732,7 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
     deferred = None  # (due time, (why, t_bad)): a replan in flight put off (``replan_defer``)
     hfov = loop.problem.frustum.hfov
     replans = takeovers = 0
+    held_failures = 0  # failed replans in a row at rest (see STUCK_RETRIES)
     detection_time = None
     detection_point = None
     collided = False
@@ -858,17 +866,38 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
                 mode = "hold"
         if mode == "hold":
             u = loop.brake.control(x)
-            if replans < max_replans and t - last_attempt >= REPLAN_RETRY:
+            if (
+                replans < max_replans
+                and held_failures < 2 * STUCK_RETRIES
+                and t - last_attempt >= REPLAN_RETRY
+            ):
                 last_attempt = t
                 replans += 1
                 new_plan = make_plan(t, x)
                 if new_plan is not None:
                     current, plan_start, mode = new_plan, t, "follow"
+                    held_failures = 0
                     deferred = None
                     plan_problem_snapshot = loop.start_problem
                     loop.judged_against_current()
-                elif look_around and replans < max_replans:
-                    mode, headings = "scan", scan_headings(float(model.yaw(x)), hfov)
+                else:
+                    held_failures += 1
+                    if held_failures == 2 * STUCK_RETRIES:
+                        event(
+                            t,
+                            "holding",
+                            f"{held_failures} replans at rest failed: no more replans",
+                            "WARN",
+                        )
+                    elif replans < max_replans and (look_around or held_failures == STUCK_RETRIES):
+                        mode, headings = "scan", scan_headings(float(model.yaw(x)), hfov)
+                        if not look_around:
+                            event(
+                                t,
+                                "look around",
+                                f"{held_failures} replans at rest failed: turning"
+                                f" {np.degrees(0.5 * hfov):.0f} deg either way for new views",
+                            )
         # ---- integrate and check against the truth ---------------------------------------------
         p_prev = np.asarray(model.position(x), float).ravel()
         x = np.asarray(model.step(x, u, dt), dtype=float)

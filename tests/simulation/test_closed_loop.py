@@ -278,3 +278,28 @@ def test_deferred_replans_wait_for_more_of_the_obstacle_and_stay_safe(maps_dir):
     # the default gives way to a latency (the two do not combine)
     assert replan_defer_for(None, 0.1) == 0.0 and replan_defer_for(None, 0.0) == 0.5
     assert replan_defer_for(0.0, 0.1) == 0.0 and replan_defer_for(0.3, 0.0) == 0.3
+
+
+def test_a_robot_stuck_at_rest_looks_around_once_then_holds(maps_dir, monkeypatch):
+    """Replans at rest that keep failing: after every retry start failed (STUCK_RETRIES) the robot
+    turns to look around once, and after as many more it stops replanning and holds still."""
+    import secure3d.planning.solve as solve_module
+    from secure3d.planning.result import PlanStatus
+    from secure3d.simulation.closed_loop import STUCK_RETRIES
+
+    def no_plan(problem, planner, **_):
+        return solve_module._failed(problem, planner, PlanStatus.INFEASIBLE, "test: no plan")
+
+    monkeypatch.setattr(solve_module, "plan_problem", no_plan)
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    run = simulate(scenario, "secure", cache=NLPCache())
+    kinds = [e.kind for e in run.events]
+    assert kinds.count("look around") == 1 and kinds.count("holding") == 1, kinds
+    failed_before = kinds[: kinds.index("look around")].count("plan failed")
+    assert failed_before == 1 + STUCK_RETRIES  # the plan at take-off, then the retries at rest
+    assert kinds.index("holding") == len(kinds) - 2 and kinds[-1] == "time limit"
+    assert len(run.solve_times) == 1 + 2 * STUCK_RETRIES and run.replans == 2 * STUCK_RETRIES
+    assert not run.collided and np.ptp(run.positions, axis=0).max() < 0.05, "it never left"
+    # with fewer replans allowed, the budget ends it first
+    run = simulate(scenario, "secure", cache=NLPCache(), max_replans=3)
+    assert "holding" not in [e.kind for e in run.events] and len(run.solve_times) == 4
