@@ -28,6 +28,8 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_mapping.py
+	$(PY) benchmarks/bench_planner.py --reps 2 --solvers ipopt
+	$(PY) benchmarks/bench_closed_loop.py --reps 3
 	$(PY) benchmarks/bench_planner.py
 	$(PY) benchmarks/bench_closed_loop.py
 

@@ -391,8 +391,9 @@ def _campaign(args: argparse.Namespace) -> int:
 def _bench_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "target",
-        choices=("mapping", "planner", "campaign"),
+        choices=("mapping", "planner", "closed_loop", "campaign"),
         help="mapping: benchmarks/bench_mapping.py; planner: benchmarks/bench_planner.py;"
+        " closed_loop: benchmarks/bench_closed_loop.py (set-up, flight and real-time factors);"
         " campaign: a 20-variant campaign on maps/blind_corner.yaml",
     )
     parser.add_argument(
@@ -512,7 +513,12 @@ COMMANDS: tuple[Command, ...] = (
         _campaign_arguments,
         _campaign,
     ),
-    Command("bench", "run a benchmark (mapping, planner or campaign)", _bench_arguments, _bench),
+    Command(
+        "bench",
+        "run a benchmark (mapping, planner, closed_loop or campaign)",
+        _bench_arguments,
+        _bench,
+    ),
     Command(
         "reactive",
         "reactive-set tools ('fit' refits the shipped families)",

@@ -255,6 +255,7 @@ sys.exit(3)
     [
         (["bench", "mapping", "--repeat", "1"], "bench_mapping.py"),
         (["bench", "planner", "--quick"], "bench_planner.py"),
+        (["bench", "closed_loop", "--reps", "1"], "bench_closed_loop.py"),
         (["reactive", "fit", "--family", "point_mass/braking"], "fit_reactive_sets.py"),
     ],
 )
