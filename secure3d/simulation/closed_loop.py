@@ -207,9 +207,9 @@ class _Loop:
         self.tracker = make_tracker(self.model)
         # the planner's module-wide cache by default: runs in one process share compiled NLPs
         self.cache = cache if cache is not None else DEFAULT_CACHE
-        # Compile the NLP before take-off, as a robot would: the set-up ends here. (A look-back
-        # assignment compiled into the structure is known only at plan time: then the first plan
-        # compiles it, in flight.)
+        # Compile the NLP before take-off, as a robot would (part of the set-up; see simulate). A
+        # look-back assignment compiled into the structure is known only at plan time: then the
+        # first plan compiles it, in flight.
         self.cache.prepare(self.problem, planner)
         self.hidden = set(scenario.hidden_obstacles)
         self.start_problem = self.problem
