@@ -353,7 +353,7 @@ def problem_from_scenario(
     from secure3d.dynamics import model_from_spec
     from secure3d.geometry.frustum import PinholeFrustum
     from secure3d.reactive.controllers import BrakingController
-    from secure3d.reactive.reactive_set import family_for
+    from secure3d.reactive.family_store import family_for
     from secure3d.world.attacks import belief_map
 
     spec = scenario.planner

@@ -22,6 +22,7 @@ import numpy as np
 
 from secure3d.errors import ConfigError
 from secure3d.planning import lookback as lb
+from secure3d.planning.blas import pin_blas_threads
 from secure3d.planning.collocation import T_MAX, T_MIN, NLPCache, TranscribedNLP
 from secure3d.planning.fatrop_transcription import fatrop_status
 from secure3d.planning.guess import Guess, NoPathError, initial_guess, profile_guess
@@ -483,6 +484,7 @@ def plan_problem(
     if planner not in ("secure", "baseline"):
         raise ConfigError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
     cache = DEFAULT_CACHE if cache is None else cache
+    pin_blas_threads()  # the same iterates whatever the machine's cores (planning/blas.py)
     o = problem.options
     reason = _precheck(problem)
     if reason is not None:

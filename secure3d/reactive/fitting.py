@@ -21,6 +21,7 @@ Containment on fresh manoeuvres is then *checked*, not assumed (:func:`check_con
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -168,6 +169,7 @@ def fit_family(
     points_per_manoeuvre: int = 16,
     feature_map: str | None = None,
     seed: int | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> FittedFamily:
     """Fit a reactive-set family of ``controller``'s manoeuvres (see module docstring).
 
@@ -184,6 +186,7 @@ def fit_family(
         step uses all of them).
     feature_map : feature map name (default per model).
     seed : recorded in the family's metadata (the seed that made ``rng``).
+    progress : called with a stage name after each of the fit's six stages (a progress bar).
 
     Returns
     -------
@@ -193,14 +196,17 @@ def fit_family(
         raise ConfigError("fit_family: the controller must be built on the same model")
     if n_samples < 100:
         raise ConfigError(f"fit_family: n_samples must be >= 100, got {n_samples}")
+    step = progress if progress is not None else (lambda stage: None)
     t0 = time.perf_counter()
     name = feature_map or feat.DEFAULT_FEATURES[model.name]
     r = model.body_radius
 
     X = sample_states(model, n_samples, rng)
     pts, off = _simulate(controller, X, rng, dt)
+    step("simulate")
     clouds = _ball_clouds(pts, off, r, points_per_manoeuvre)
     c_t, M_t = mvee(clouds)
+    step("ellipsoids")
 
     cen, scal, dirs = _feature_arrays(name, model, X)
     p = model.position(X)
@@ -208,6 +214,7 @@ def fit_family(
         cen.transpose(0, 2, 1).reshape(-1, cen.shape[1]), (c_t - p).reshape(-1), rcond=None
     )
     beta, gamma = _fit_shape(scal, dirs, M_t, beta_min=0.5 * r)
+    step("shapes")
 
     zeros = np.zeros(scal.shape[1])
     base = FittedFamily(model, controller.name, controller.latency, name, a, beta, gamma, zeros)
@@ -218,6 +225,7 @@ def fit_family(
     weight = ev[:, 0] * ev[:, 1] + ev[:, 0] * ev[:, 2] + ev[:, 1] * ev[:, 2]
     floor = -beta[0] + 0.25 * r
     eta = _envelope(scal, need + margin, weight, floor)
+    step("inflation")
 
     n_val = n_samples if n_validation is None else int(n_validation)
     Xv = sample_states(model, n_val, rng)
@@ -226,6 +234,7 @@ def fit_family(
     Cv, Mv = base.ellipsoid_batch(Xv)
     need_v = _clearance.required_inflation(pv, ov, Cv, Mv, r)
     shortfall = float((need_v - scal_v @ eta).max())
+    step("validation")
     extra = 0.0
     if shortfall > 0:
         # psi_0 = 1, so raising e_0 raises eta everywhere: by twice what the validation lacked.
@@ -255,4 +264,5 @@ def fit_family(
             "volume_ratio": float(vol / vol_cf),
         }
     )
+    step("volumes")
     return fam

@@ -11,8 +11,9 @@ Two kinds:
 - ``"closed_form"``: derived from the limits (:func:`closed_form_family`). The point mass and the
   diff drive are proofs; the quadrotor's is a two-phase bound (see :class:`CapsuleClosedForm`).
 - ``"fitted"``: tighter families fitted to simulated manoeuvres over sampled states
-  (:func:`fit_family`, script ``benchmarks/fit_reactive_sets.py``) and shipped as JSON in
-  ``secure3d/reactive/data``; :func:`load_family` reads them, refusing data fitted for other limits.
+  (:func:`secure3d.reactive.fitting.fit_family`). :mod:`secure3d.reactive.family_store` finds the
+  one for a vehicle: shipped JSON in ``secure3d/reactive/data``, the user's cache, or a fit made on
+  demand and checked for containment before it is used.
 
 :func:`check_containment` rolls out the controller from fresh random states and reports the fraction
 of manoeuvre points whose body ball lies inside the ellipsoid of the initial state, the worst excess
@@ -22,13 +23,10 @@ and the volume ratio against the closed form.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
-import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from types import ModuleType
 from typing import Any
 
@@ -44,7 +42,6 @@ from secure3d.reactive import _clearance
 from secure3d.reactive import features as feat
 from secure3d.reactive.sampling import sample_hold_controls, sample_obstacles, sample_states
 
-DATA_DIR = Path(__file__).resolve().parent / "data"
 FAMILY_KINDS = ("closed_form", "fitted")
 CONTROLLERS = ("braking", "mpc")
 FORMAT_VERSION = 1
@@ -424,160 +421,6 @@ def _coef(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
         )
     arr.flags.writeable = False
     return arr
-
-
-def fit_family(
-    model: VehicleModel, controller: Any, n_samples: int, rng: np.random.Generator, **options: Any
-) -> FittedFamily:
-    """Fit a family to simulated manoeuvres; see :func:`secure3d.reactive.fitting.fit_family`."""
-    from secure3d.reactive.fitting import fit_family as _fit
-
-    return _fit(model, controller, n_samples, rng, **options)
-
-
-def save_family(family: FittedFamily, path: str | Path) -> Path:
-    """Write a fitted family as JSON (coefficients, limits, body radius, fitting settings)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(family.to_dict(), indent=1, sort_keys=True) + "\n")
-    return path
-
-
-def _mismatch(
-    data: dict[str, Any], model: VehicleModel, controller: str, latency: float
-) -> str | None:
-    """Why the stored family does not apply to ``model`` (None if it does)."""
-    if data.get("model") != model.name:
-        return f"model: stored {data.get('model')!r}, wanted {model.name!r}"
-    if data.get("controller") != controller:
-        return f"controller: stored {data.get('controller')!r}, wanted {controller!r}"
-    stored = data.get("limits", {})
-    mine = dataclasses.asdict(model.limits)
-    for key in sorted(set(stored) | set(mine)):
-        a, b = stored.get(key), mine.get(key)
-        same = (
-            a == b
-            if isinstance(a, str) or isinstance(b, str)
-            else a is not None and b is not None and math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12)
-        )
-        if not same:
-            return f"limits.{key}: stored {a!r}, model has {b!r}"
-    # A family that contains a bigger body ball also contains a smaller one.
-    if model.body_radius > float(data.get("body_radius", -1.0)) + 1e-12:
-        return f"body_radius: stored {data.get('body_radius')!r} m < model's {model.body_radius} m"
-    if not math.isclose(float(data.get("latency", -1.0)), latency, abs_tol=1e-12):
-        return f"latency: stored {data.get('latency')!r} s, wanted {latency} s"
-    # Gains and MPC weights shape the manoeuvres: a family fitted for others does not apply.
-    wanted = json.loads(json.dumps(default_controller(model, controller, latency).config()))
-    stored_cfg = data.get("meta", {}).get("controller_config")
-    if stored_cfg != wanted:
-        return f"controller settings: stored {stored_cfg!r}, default controller has {wanted!r}"
-    return None
-
-
-def default_controller(
-    model: VehicleModel, controller: str = "braking", latency: float = 0.0
-) -> Any:
-    """The reactive controller the planner pairs with a shipped family (default settings)."""
-    from secure3d.reactive.controllers import BrakingController, MPCReactiveController
-
-    if controller == "braking":
-        return BrakingController(model, latency)
-    if controller == "mpc":
-        return MPCReactiveController(model, latency=latency)
-    raise ConfigError(f"controller: must be one of {CONTROLLERS}, got {controller!r}")
-
-
-def load_family_file(
-    path: str | Path, model: VehicleModel, controller: str = "braking", latency: float = 0.0
-) -> FittedFamily:
-    """Read one fitted-family JSON for ``model``.
-
-    Raises
-    ------
-    ConfigError
-        The file is not a fitted family, or it was fitted for another model, controller, limits,
-        latency or a smaller body radius (the message names the field and both values).
-    """
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ConfigError(f"reactive family file {path}: unreadable ({exc})") from None
-    if (
-        not isinstance(data, dict)
-        or data.get("format") != FORMAT_VERSION
-        or data.get("kind") != "fitted"
-    ):
-        raise ConfigError(
-            f"reactive family file {path}: not a fitted family of format {FORMAT_VERSION}"
-        )
-    why = _mismatch(data, model, controller, latency)
-    if why is not None:
-        raise ConfigError(f"reactive family file {path.name}: fitted for different settings: {why}")
-    co = data["coefficients"]
-    return FittedFamily(
-        model,
-        controller,
-        float(data["latency"]),
-        data["feature_map"],
-        co["centre"],
-        co["beta"],
-        co["gamma"],
-        co["eta"],
-        meta={
-            **data.get("meta", {}),
-            "source": path.name,
-            "fitted_body_radius": data["body_radius"],
-        },
-    )
-
-
-def load_family(
-    model: VehicleModel, controller: str = "braking", kind: str = "fitted", latency: float = 0.0
-) -> ReactiveSetFamily:
-    """The shipped family for ``model`` and ``controller``.
-
-    ``kind="closed_form"`` returns :func:`closed_form_family`. ``kind="fitted"`` looks through
-    ``secure3d/reactive/data/<model>_<controller>*.json`` for a family fitted with the model's
-    limits and controller settings, a body radius at least the model's and the same latency; if
-    none fits it warns and FALLS BACK to the closed form (braking only: the MPC has no closed form,
-    so that raises ConfigError).
-    """
-    if kind not in FAMILY_KINDS:
-        raise ConfigError(f"reactive_family: must be one of {FAMILY_KINDS}, got {kind!r}")
-    if controller not in CONTROLLERS:
-        raise ConfigError(f"controller: must be one of {CONTROLLERS}, got {controller!r}")
-    if kind == "closed_form":
-        if controller != "braking":
-            raise ConfigError(
-                "reactive_family 'closed_form' exists for the braking controller only, "
-                f"not {controller!r}"
-            )
-        return closed_form_family(model, latency)
-    reasons = []
-    for path in sorted(DATA_DIR.glob(f"{model.name}_{controller}*.json")):
-        try:
-            return load_family_file(path, model, controller, latency)
-        except ConfigError as exc:
-            reasons.append(str(exc))
-    detail = "; ".join(reasons) if reasons else "no data file"
-    if controller != "braking":
-        raise ConfigError(
-            f"no fitted {controller!r} reactive family for this {model.name} ({detail})"
-        )
-    warnings.warn(
-        f"no fitted reactive family for this {model.name} ({detail}); using the closed form",
-        stacklevel=2,
-    )
-    return closed_form_family(model, latency)
-
-
-def family_for(
-    model: VehicleModel, controller: str = "braking", kind: str = "fitted", latency: float = 0.0
-) -> ReactiveSetFamily:
-    """The reactive-set family the planner should use (see :func:`load_family`)."""
-    return load_family(model, controller, kind, latency)
 
 
 # ---- containment check -------------------------------------------------------------------------

@@ -11,7 +11,8 @@ import pytest
 
 from secure3d.dynamics import make_model
 from secure3d.reactive.controllers import BrakingController
-from secure3d.reactive.reactive_set import check_containment, closed_form_family, family_for
+from secure3d.reactive.family_store import family_for
+from secure3d.reactive.reactive_set import check_containment, closed_form_family
 
 N = 10_000
 

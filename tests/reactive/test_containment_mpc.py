@@ -7,7 +7,8 @@ import pytest
 
 from secure3d.dynamics import make_model
 from secure3d.reactive.controllers import MPCReactiveController
-from secure3d.reactive.reactive_set import check_containment, family_for
+from secure3d.reactive.family_store import family_for
+from secure3d.reactive.reactive_set import check_containment
 
 
 def _check(n, seed):

@@ -14,16 +14,17 @@ from secure3d.dynamics import make_model
 from secure3d.errors import ConfigError
 from secure3d.reactive._clearance import clearance
 from secure3d.reactive.controllers import BrakingController
-from secure3d.reactive.reactive_set import (
+from secure3d.reactive.family_store import (
     DATA_DIR,
-    FittedFamily,
-    closed_form_family,
+    FitSettings,
+    cache_dir,
     family_for,
-    fit_family,
     load_family,
     load_family_file,
     save_family,
 )
+from secure3d.reactive.fitting import fit_family
+from secure3d.reactive.reactive_set import FittedFamily, closed_form_family
 from secure3d.reactive.sampling import sample_states
 
 SHIPPED = [
@@ -126,14 +127,11 @@ def test_fitted_is_tighter_than_closed_form_on_average(rng):
         assert fitted < closed, (name, fitted, closed)
 
 
-def test_load_rejects_or_falls_back_on_mismatch(tmp_path):
+def test_load_rejects_a_family_fitted_for_other_settings(tmp_path):
     path = DATA_DIR / "point_mass_braking.json"
-    other = make_model("point_mass", max_accel=3.0)
-    with pytest.raises(ConfigError, match=r"limits.max_accel: stored 4.0.*3.0"):
+    other = make_model("point_mass", max_accel=3.5)
+    with pytest.raises(ConfigError, match=r"limits.max_accel: stored 4.0.*3.5"):
         load_family_file(path, other)
-    with pytest.warns(UserWarning, match="closed form"):
-        fam = load_family(other)
-    assert fam.kind == "closed_form"
     bigger = make_model("point_mass", body_radius=0.3)
     with pytest.raises(ConfigError, match="body_radius"):
         load_family_file(path, bigger)
@@ -143,8 +141,6 @@ def test_load_rejects_or_falls_back_on_mismatch(tmp_path):
         load_family_file(path, make_model("point_mass"), latency=0.2)
     with pytest.raises(ConfigError, match="model"):
         load_family_file(path, make_model("diff_drive"))
-    with pytest.raises(ConfigError, match="mpc"):
-        load_family(make_model("point_mass", max_accel=3.0), "mpc")
     with pytest.raises(ConfigError, match="braking controller only"):
         load_family(make_model("point_mass"), "mpc", "closed_form")
     with pytest.raises(ConfigError, match="reactive_family"):
@@ -177,3 +173,86 @@ def test_fit_save_load_roundtrip(tmp_path, rng):
         np.testing.assert_array_equal(a, b)
     assert back.meta["seed"] == 5 and back.meta["n_samples"] == 200
     assert math.isclose(back.meta["mean_volume"], fam.meta["mean_volume"])
+
+
+SMALL_FIT = FitSettings(n_samples=400, n_check=2000)
+
+
+def test_limits_without_a_shipped_family_get_a_fitted_one_checked_and_cached(tmp_path, monkeypatch):
+    """No fallback to the closed form: a family is fitted for the new limits, passes the
+    containment check on fresh manoeuvres, is cached, and the next call reads the cache."""
+    monkeypatch.setenv("SECURE3D_CACHE_DIR", str(tmp_path))
+    model = make_model("point_mass", max_accel=2.5, max_speed=3.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fam = load_family(model, settings=SMALL_FIT, progress=False)
+    assert isinstance(fam, FittedFamily)
+    check = fam.meta["containment_check"]
+    assert check["n_manoeuvres"] == SMALL_FIT.n_check and check["worst_excess"] < 0
+    cached = list(cache_dir().glob("point_mass_braking_*.json"))
+    assert cache_dir().parent == tmp_path and len(cached) == 1
+    again = load_family(model, settings=SMALL_FIT, progress=False)
+    assert again.meta["source"] == cached[0].name
+    X = sample_states(model, 100, np.random.default_rng(3))
+    for a, b in zip(fam.ellipsoid_batch(X), again.ellipsoid_batch(X), strict=True):
+        np.testing.assert_array_equal(a, b)
+    # Tighter than the closed form for the same limits, like the shipped families.
+    assert fam.volume_batch(X).mean() < closed_form_family(model).volume_batch(X).mean()
+
+
+def _shrunk_fit(model, controller, n, rng, **options):
+    """A real fit whose inflation is then taken away: some manoeuvres leave its ellipsoids."""
+    fam = fit_family(model, controller, n, rng, **options)
+    eta = np.zeros_like(fam.eta_coef)
+    eta[0] = 0.05 * model.body_radius - fam.beta_coef[0] * 0.5
+    return FittedFamily(
+        model,
+        fam.controller_name,
+        fam.latency,
+        fam.feature_map,
+        fam.centre_coef,
+        fam.beta_coef,
+        fam.gamma_coef,
+        eta,
+        fam.meta,
+    )
+
+
+def test_a_fit_that_fails_its_containment_check_is_never_used_nor_cached(tmp_path, monkeypatch):
+    monkeypatch.setenv("SECURE3D_CACHE_DIR", str(tmp_path))
+    model = make_model("point_mass", max_accel=2.5, max_speed=3.5)
+    settings = FitSettings(n_samples=200, n_check=500, max_attempts=2)
+    with pytest.raises(ConfigError, match="2 fits failed the containment check"):
+        load_family(model, settings=settings, progress=False, fit=_shrunk_fit)
+    assert not list(tmp_path.rglob("*.json"))
+
+
+def test_fit_settings_are_validated():
+    with pytest.raises(ConfigError, match="n_samples"):
+        FitSettings(n_samples=10)
+    with pytest.raises(ConfigError, match="margin"):
+        FitSettings(margin=float("nan"))
+    with pytest.raises(ConfigError, match="max_attempts"):
+        FitSettings(max_attempts=True)
+
+
+def test_every_shipped_scenario_flies_a_shipped_family(maps_dir, tmp_path, monkeypatch):
+    """No scenario in maps/ falls back to the closed form or pays an on-demand fit."""
+    from secure3d.dynamics import model_from_spec
+    from secure3d.world.scenario import load_scenario
+
+    monkeypatch.setenv("SECURE3D_CACHE_DIR", str(tmp_path))
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a shipped scenario needed an on-demand fit")
+
+    for path in sorted(maps_dir.glob("*.yaml")):
+        scenario = load_scenario(path)
+        if scenario.planner.reactive_family != "fitted":
+            continue
+        model = model_from_spec(scenario.vehicle, scenario.camera)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            fam = load_family(model, scenario.planner.controller, fit=refuse)
+        assert isinstance(fam, FittedFamily), path.name
+        assert (DATA_DIR / fam.meta["source"]).is_file(), path.name
