@@ -186,6 +186,8 @@ def test_blind_corner_baseline_meets_the_crate(maps_dir):
     assert run.collided, run.summary()
     assert "crate" in run.collision_obstacles
     assert run.detection_time is not None and run.detection_time < run.collision_time
+    # the colliding step counts: the run never reports positive clearance for a collision
+    assert run.min_clearance <= 0.0, run.min_clearance
 
 
 @pytest.mark.slow
