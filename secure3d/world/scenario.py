@@ -68,6 +68,10 @@ __all__ = [
 #: Largest scenario file we parse (bytes). Real scenarios are a few kB; anything near 1 MB is a
 #: mistake (or an attempt to make the YAML parser work hard).
 MAX_SCENARIO_BYTES = 1_000_000
+#: Most values a scenario may hold once its YAML aliases are expanded. Aliases share one object,
+#: so a few hundred bytes can stand for billions of values (an "alias bomb"), which any later
+#: walk over them (validation, an error message, a copy) would expand.
+MAX_EXPANDED_VALUES = 100_000
 
 _TOP_KEYS = (
     "name",
@@ -147,7 +151,7 @@ def _read_yaml(path: Path, label: str) -> object:
     except UnicodeDecodeError as exc:
         raise ScenarioError(f"{label}: not UTF-8 text (bad byte at offset {exc.start})") from None
     try:
-        return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+        data = yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
@@ -156,6 +160,40 @@ def _read_yaml(path: Path, label: str) -> object:
     except (yaml.YAMLError, RecursionError, ValueError) as exc:  # ValueError: int() limits
         detail = " ".join(str(exc).split())[:120] or type(exc).__name__
         raise ScenarioError(f"{label}: YAML error: {detail}") from None
+    why = _expansion_problem(data, MAX_EXPANDED_VALUES)
+    if why is not None:
+        raise ScenarioError(f"{label}: {why}")
+    return data
+
+
+def _expansion_problem(data: object, limit: int) -> str | None:
+    """Why ``data`` is unsafe to walk: more than ``limit`` values once aliases are expanded, or
+    an alias that contains itself. Counts each shared object once (memo by id), so the check
+    costs the size of the file, not of the expansion."""
+    sizes: dict[int, int] = {}
+    stack: list[tuple[object, bool]] = [(data, False)]
+    open_: set[int] = set()
+    while stack:
+        node, done = stack.pop()
+        if not isinstance(node, (dict, list)):
+            continue
+        key = id(node)
+        children = list(node.keys()) + list(node.values()) if isinstance(node, dict) else node
+        if done:
+            open_.discard(key)
+            total = 1 + sum(sizes.get(id(c), 1) for c in children)
+            sizes[key] = total
+            if total > limit:
+                return f"too many values once YAML aliases are expanded (over {limit})"
+            continue
+        if key in sizes:
+            continue
+        if key in open_:
+            return "a YAML alias refers to a value that contains it"
+        open_.add(key)
+        stack.append((node, True))
+        stack.extend((c, False) for c in children if isinstance(c, (dict, list)))
+    return None
 
 
 # --------------------------------------------------------------------------------------------

@@ -17,6 +17,8 @@ Every validation error is a :class:`~secure3d.errors.ScenarioError` whose messag
 from __future__ import annotations
 
 import math
+import re
+import reprlib
 import textwrap
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -45,9 +47,16 @@ VEHICLE_MODELS = ("point_mass", "quadrotor", "diff_drive")
 ATTACK_KINDS = ("hide", "phantom", "shift", "stale")
 
 
+#: A bounded ``repr``: nested containers are shown 3 levels and 4 items deep, so the text (and the
+#: time to make it) is bounded even for a YAML alias structure that expands to billions of items.
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxstring, _REPR.maxother = 3, 80, 80
+_REPR.maxlist = _REPR.maxtuple = _REPR.maxdict = _REPR.maxset = _REPR.maxfrozenset = 4
+
+
 def _short(value: object, limit: int = 60) -> str:
-    """``repr(value)`` cut to one short line, for error messages."""
-    text = repr(value)
+    """A bounded ``repr(value)`` cut to one short line, for error messages."""
+    text = " ".join(_REPR.repr(value).split())
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
@@ -100,6 +109,22 @@ def _name(value: object, what: str) -> str:
     if not isinstance(value, str) or not value.strip():
         raise ScenarioError(f"{what}: must be a non-empty string (got {_short(value)})")
     return value
+
+
+#: A scenario's name becomes part of output file names (``<name>_secure.rrd``): letters, digits,
+#: ``_``, ``-`` and ``.``, not starting with ``.`` (no path separators, no ``..``, no hidden files).
+_FILE_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]{0,119}")
+
+
+def _file_name(value: object, what: str) -> str:
+    """``_name`` that is also safe as a file-name stem (see :data:`_FILE_NAME`)."""
+    name = _name(value, what)
+    if _FILE_NAME.fullmatch(name) is None:
+        raise ScenarioError(
+            f"{what}: must be 1-120 letters, digits, '_', '-' or '.', not starting with '.'"
+            f" (it names output files; got {_short(value)})"
+        )
+    return name
 
 
 def _fmt(v: object) -> str:
@@ -564,7 +589,7 @@ class Scenario:
     source: Path | None = None
 
     def __post_init__(self) -> None:
-        _name(self.name, "name")
+        _file_name(self.name, "name")
         if not isinstance(self.description, str):
             raise ScenarioError(f"description: must be a string (got {_short(self.description)})")
         if self.source is not None:
