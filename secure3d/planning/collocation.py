@@ -31,6 +31,7 @@ import numpy as np
 from secure3d.errors import ConfigError
 from secure3d.planning import constraints as cons
 from secure3d.planning.assembled_derivatives import KernelCall, assembled_derivatives
+from secure3d.planning.interrupt import stop_callback
 from secure3d.planning.problem import PlanningProblem
 
 #: Symbol type of the transcription. Measured on blind_corner (K=40): MX builds in ~0.2 s but its
@@ -163,6 +164,8 @@ class TranscribedNLP:
     start_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     row_node: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     warm_solver: ca.Function | None = None
+    #: IPOPT's iteration callback (Ctrl-C); CasADi does not own Python callbacks, so the record does
+    stop_callback: ca.Callback | None = None
     nlp: dict | None = None
     solver_name: str = "ipopt"
     solver_options: dict = field(default_factory=dict)
@@ -588,6 +591,10 @@ def build_nlp(
         derivatives = assembled_derivatives(w, p, J, g_all, parts, kern.derivatives)
         if derivatives is not None:
             opts["jac_g"], opts["hess_lag"] = derivatives
+    stop = None
+    if solver_name == "ipopt":
+        stop = stop_callback(w.numel(), g_all.numel(), p.numel())
+        opts["iteration_callback"] = stop  # Ctrl-C stops the solve (planning/interrupt.py)
     solver = ca.nlpsol(f"secure3d_{planner}", solver_name, nlp, opts)
     g_fun = solver.get_function("nlp_g")  # the rows as the solver evaluates them (no new graph)
     key = nlp_key(problem, planner, assignment)
@@ -607,6 +614,7 @@ def build_nlp(
         view_rows=np.isin(names_a, ["visibility", "occlusion"]),
         start_rows=names_a == "start_region",
         row_node=np.array(row_node, dtype=int),
+        stop_callback=stop,
     )
 
 

@@ -26,6 +26,7 @@ from secure3d.planning.blas import pin_blas_threads
 from secure3d.planning.collocation import T_MAX, T_MIN, NLPCache, TranscribedNLP
 from secure3d.planning.fatrop_transcription import fatrop_status
 from secure3d.planning.guess import Guess, NoPathError, initial_guess, profile_guess
+from secure3d.planning.interrupt import interruptible
 from secure3d.planning.problem import PlanningProblem, problem_from_scenario
 from secure3d.planning.result import PlanResult, PlanStatus
 from secure3d.planning.trajectory import remainder_keeping_nodes, resample
@@ -183,7 +184,8 @@ def _solve_once(
         warm_build = time.perf_counter() - t_build
     t0 = time.perf_counter()
     try:
-        sol = solver(**args)
+        with interruptible():
+            sol = solver(**args)
     except RuntimeError as exc:  # CasADi raises on evaluation errors (NaN in a function, ...)
         return _Solve(
             PlanStatus.SOLVER_ERROR,
@@ -212,6 +214,10 @@ def _solve_once(
     viol = _violations(nlp, w, p, lbg, ubg)
     worst = max(viol.values(), default=0.0)
     rs = str(stats.get("return_status", "unknown"))
+    if rs == "User_Requested_Stop":
+        # CasADi turned Ctrl-C into IPOPT's user stop: the user asked to stop, not to try the
+        # next start (the retry loop would swallow it).
+        raise KeyboardInterrupt("solve interrupted")
     status = _IPOPT_STATUS.get(
         rs, PlanStatus.SUCCESS if stats.get("success") else PlanStatus.SOLVER_ERROR
     )

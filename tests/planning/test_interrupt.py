@@ -1,0 +1,43 @@
+"""Ctrl-C during an IPOPT solve stops the plan at once (it used to start the next retry)."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+
+_CHILD = """
+import secure3d
+from secure3d.world.scenario import load_scenario
+s = load_scenario("maps/forest.yaml")
+for i in range(4):
+    r = secure3d.plan(s, "secure", nodes=60)
+    print("plan done", r.status.name, flush=True)
+"""
+
+
+def test_ctrl_c_during_a_solve_raises_keyboard_interrupt_within_a_second_or_two():
+    child = subprocess.Popen(
+        [sys.executable, "-c", _CHILD],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        first = child.stdout.readline()
+        assert first.startswith("plan done"), first + child.stderr.read()
+        time.sleep(1.0)  # the second plan: NLP cached, so this is IPOPT's time
+        child.send_signal(signal.SIGINT)
+        t0 = time.perf_counter()
+        out, err = child.communicate(timeout=60)
+        waited = time.perf_counter() - t0
+    finally:
+        child.kill()
+    assert "KeyboardInterrupt" in err, err[-800:]
+    assert out.count("plan done") == 0, f"a plan finished after Ctrl-C: {out!r}"
+    assert waited < 5.0, f"{waited:.1f} s from Ctrl-C to exit"
