@@ -114,3 +114,22 @@ def test_show_does_not_import_heavy_modules() -> None:
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip().splitlines()[-1] == "[]", "show must stay light"
+
+
+def test_a_reader_that_closes_the_pipe_gets_no_traceback(maps_dir):
+    """`secure3d show ... | head` used to end in a BrokenPipeError traceback."""
+    import subprocess
+    import sys
+
+    child = subprocess.Popen(
+        [sys.executable, "-m", "secure3d", "show", str(maps_dir / "blind_corner.yaml")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    child.stdout.close()  # the reader is gone before the first line
+    err = child.stderr.read()
+    child.wait(timeout=120)
+    assert "Traceback" not in err, err
+    assert err.strip().count("\n") == 0 and "broken pipe" in err, err
+    assert child.returncode == 1
