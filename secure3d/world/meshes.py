@@ -128,10 +128,15 @@ def load_mesh(
     except OSError as exc:
         raise ScenarioError(f"{what}: cannot read {path}: {exc.strerror or exc}") from None
     try:
-        mesh = trimesh.load(io.BytesIO(data), file_type=suffix[1:], force="mesh", resolver=None)
+        raw = trimesh.load(
+            io.BytesIO(data), file_type=suffix[1:], force="mesh", resolver=None, process=False
+        )
     except Exception as exc:  # noqa: BLE001 - any parser failure means a broken file
         detail = " ".join(str(exc).split())[:120] or type(exc).__name__
         raise ScenarioError(f"{what}: cannot parse {path}: {detail}") from None
+    # Before trimesh's processing, which drops NaN vertices and so made them "not watertight".
+    _check_finite(getattr(raw, "vertices", np.zeros((0, 3))), f"{what}: {path}")
+    mesh = trimesh.Trimesh(raw.vertices, raw.faces, process=True) if len(raw.faces) else raw
     vertices, faces = _checked(mesh, f"{what}: {path}")
     vertices = vertices * scale + np.asarray(translate, dtype=float)
     return MeshObstacle(name, vertices, faces, path, translate, scale)
@@ -173,9 +178,20 @@ def mesh_from_arrays(
         raise ScenarioError(f"{what}.faces: must be integer indices into the {len(v)} vertices")
     if len(f) > MAX_MESH_FACES:
         raise ScenarioError(f"{what}: more than {MAX_MESH_FACES} triangles (got {len(f)})")
+    _check_finite(v, what)
     mesh = trimesh.Trimesh(v, f, process=True)
     v, f = _checked(mesh, what)
     return MeshObstacle(name, v, f)
+
+
+def _check_finite(vertices: object, what: str) -> None:
+    v = np.asarray(vertices, dtype=float)
+    bad = ~np.all(np.isfinite(v), axis=1) if v.ndim == 2 else np.zeros(0, bool)
+    if bad.any():
+        raise ScenarioError(
+            f"{what}: {int(bad.sum())} vertices with NaN or infinite coordinates"
+            f" (first: vertex {int(np.argmax(bad))})"
+        )
 
 
 def _checked(mesh: object, what: str) -> tuple[np.ndarray, np.ndarray]:

@@ -37,6 +37,7 @@ from secure3d.errors import ConfigError, ScenarioError
 from secure3d.world import spec
 from secure3d.world.attacks import octomap_voxel_boxes
 from secure3d.world.meshes import load_mesh, mesh_from_arrays, resolve_inside
+from secure3d.world.placement import check_start_goal_clear
 from secure3d.world.spec import (
     ATTACK_KINDS,
     MAX_OBSTACLES,
@@ -591,6 +592,9 @@ def _build(data: object, folder: Path, source: Path | None) -> Scenario:
         source=source,
     )
     _check_vehicle_model(scenario)
+    octomap = scenario.world.octomap
+    voxels = None if octomap is None else octomap_voxel_boxes(octomap, "world.octomap")
+    check_start_goal_clear(scenario, voxels)
     return scenario
 
 

@@ -24,7 +24,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from numbers import Real
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -552,16 +552,31 @@ class PlannerSpec:
 
 @dataclass(frozen=True)
 class SimulationSpec:
-    """Closed-loop settings: integration step (s) and the longest flight allowed (s)."""
+    """Closed-loop settings: integration step (s) and the longest flight allowed (s).
+
+    ``dt`` lies in [:data:`MIN_DT`, 0.1] s and a flight has at most :data:`MAX_STEPS` steps
+    (``time_limit / dt``): every step ray-casts, maps and checks collisions, so a tiny step would
+    run for hours without saying why.
+    """
 
     dt: float = 0.01
     time_limit: float = 30.0
 
+    #: Smallest integration step (s): 0.1 ms, 10x finer than any controller here needs.
+    MIN_DT: ClassVar[float] = 1e-4
+    #: Most integration steps one flight may take (33 minutes of flight at the default 0.01 s).
+    MAX_STEPS: ClassVar[int] = 200_000
+
     def __post_init__(self) -> None:
         dt = _positive(self.dt, "simulation.dt")
-        if dt > 0.1:
-            raise ScenarioError(f"simulation.dt: must be <= 0.1 s (got {dt})")
-        _positive(self.time_limit, "simulation.time_limit")
+        if not self.MIN_DT <= dt <= 0.1:
+            raise ScenarioError(f"simulation.dt: must be in [{self.MIN_DT:g}, 0.1] s (got {dt:g})")
+        limit = _positive(self.time_limit, "simulation.time_limit")
+        if limit / dt > self.MAX_STEPS:
+            raise ScenarioError(
+                f"simulation.time_limit: {limit:g} s at dt {dt:g} s is {limit / dt:.3g} steps;"
+                f" at most {self.MAX_STEPS} steps per flight (raise dt or lower time_limit)"
+            )
 
 
 @dataclass(frozen=True)
