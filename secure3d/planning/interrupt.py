@@ -1,4 +1,4 @@
-"""Ctrl-C during an IPOPT solve stops the plan within one iteration.
+"""Stopping IPOPT mid-solve: on Ctrl-C, and when a plan call's wall-time budget is spent.
 
 CasADi polls Python's signals during a solve, but on Ctrl-C it only logs
 ``WARNING("KeyboardInterruptException")`` and lets IPOPT run on to the end (measured: a 6.6 s
@@ -7,24 +7,52 @@ retry loop would even start the next attempt. So while a solve runs, :func:`inte
 replaces the SIGINT handler by one that only records the request, and every IPOPT solver carries
 an iteration callback (:func:`stop_callback`) that answers "stop" once a request is recorded; IPOPT
 then returns ``User_Requested_Stop`` and :func:`interruptible` raises :class:`KeyboardInterrupt`.
+
+The same callback enforces a plan call's budget: inside :func:`deadline`, it also answers "stop"
+once the wall clock passes the deadline, and :func:`budget_spent` tells the planner's retry loops
+to stop starting solves. (IPOPT's own ``max_wall_time`` is fixed when a solver is compiled, and
+compiled solvers are cached across calls, so it cannot carry a per-call budget.)
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 import signal
 import threading
+import time
 from collections.abc import Iterator
 
 import casadi as ca
 
-__all__ = ["interruptible", "stop_callback"]
+__all__ = ["budget_spent", "deadline", "interruptible", "stop_callback"]
 
 _requested = threading.Event()
+_budget = threading.local()
+
+
+def _deadline_now() -> float:
+    return getattr(_budget, "deadline", math.inf)
+
+
+def budget_spent() -> bool:
+    """True once the innermost :func:`deadline` of this thread has passed."""
+    return time.monotonic() >= _deadline_now()
+
+
+@contextlib.contextmanager
+def deadline(seconds: float) -> Iterator[None]:
+    """Give the solves inside a wall-time budget of ``seconds`` (nested budgets keep the earlier)."""
+    outer = _deadline_now()
+    _budget.deadline = min(outer, time.monotonic() + float(seconds))
+    try:
+        yield
+    finally:
+        _budget.deadline = outer
 
 
 class _StopCallback(ca.Callback):
-    """IPOPT iteration callback: returns 1 (stop) once Ctrl-C was recorded, else 0."""
+    """IPOPT iteration callback: returns 1 (stop) once Ctrl-C was recorded or the budget is spent."""
 
     def __init__(self, name: str, sizes: dict[str, ca.Sparsity]):
         ca.Callback.__init__(self)
@@ -47,7 +75,7 @@ class _StopCallback(ca.Callback):
         return self._sizes[ca.nlpsol_out(i)]
 
     def eval(self, args: list) -> list:
-        return [1.0 if _requested.is_set() else 0.0]
+        return [1.0 if _requested.is_set() or budget_spent() else 0.0]
 
 
 def stop_callback(n_x: int, n_g: int, n_p: int) -> ca.Callback:

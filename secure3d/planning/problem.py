@@ -80,6 +80,9 @@ class PlannerOptions:
     effort_weight : weight of the normalised control effort added to the final time (regularises
         the bang-bang minimum-time solution; small).
     max_iter : solver iteration limit per solve; time_limit : wall-clock limit per solve (s).
+    plan_budget : wall-clock budget of one plan call (s): its solves, retries, extra starts and
+        certificate re-solves together. An IPOPT solve running when it is spent stops at its next
+        iteration, and no further solve starts (status ``TIME_BUDGET``).
     certify : run :func:`secure3d.certify` on secure plans and report NOT_CERTIFIED on failure.
     close_gaps : voxels of morphological closing applied to the belief's obstacles before they are
         merged into boxes (:meth:`~secure3d.mapping.occupancy.OccupancyMap.known_obstacle_boxes`):
@@ -108,6 +111,7 @@ class PlannerOptions:
     effort_weight: float = 1e-3
     max_iter: int = 500
     time_limit: float = 60.0
+    plan_budget: float = 60.0
     certify: bool = True
     close_gaps: int = 1
     grid_resolution: float = 0.2
@@ -180,6 +184,7 @@ class PlannerOptions:
                 f"planner option max_iter: must be a positive integer, got {self.max_iter!r}"
             )
         _check_positive("time_limit", self.time_limit)
+        _check_positive("plan_budget", self.plan_budget)
         if (
             isinstance(self.close_gaps, bool)
             or not isinstance(self.close_gaps, int)

@@ -24,6 +24,8 @@ class PlanStatus(enum.Enum):
     SOLVER_ERROR = "solver_error"
     INVALID_INPUT = "invalid_input"
     NOT_CERTIFIED = "not_certified"
+    #: the plan call's wall-time budget (``PlannerOptions.plan_budget``) ran out
+    TIME_BUDGET = "time_budget"
 
     @property
     def ok(self) -> bool:

@@ -26,7 +26,7 @@ from secure3d.planning.blas import pin_blas_threads
 from secure3d.planning.collocation import T_MAX, T_MIN, NLPCache, TranscribedNLP
 from secure3d.planning.fatrop_transcription import fatrop_status
 from secure3d.planning.guess import Guess, NoPathError, initial_guess, profile_guess
-from secure3d.planning.interrupt import interruptible
+from secure3d.planning.interrupt import budget_spent, deadline, interruptible
 from secure3d.planning.problem import PlanningProblem, problem_from_scenario
 from secure3d.planning.result import PlanResult, PlanStatus
 from secure3d.planning.trajectory import remainder_keeping_nodes, resample
@@ -214,13 +214,14 @@ def _solve_once(
     viol = _violations(nlp, w, p, lbg, ubg)
     worst = max(viol.values(), default=0.0)
     rs = str(stats.get("return_status", "unknown"))
-    if rs == "User_Requested_Stop":
-        # CasADi turned Ctrl-C into IPOPT's user stop: the user asked to stop, not to try the
-        # next start (the retry loop would swallow it).
+    if rs == "User_Requested_Stop" and not budget_spent():
+        # Ctrl-C (planning/interrupt.py): the user asked to stop, not to try the next start.
         raise KeyboardInterrupt("solve interrupted")
     status = _IPOPT_STATUS.get(
         rs, PlanStatus.SUCCESS if stats.get("success") else PlanStatus.SOLVER_ERROR
     )
+    if rs == "User_Requested_Stop":
+        status = PlanStatus.TIME_BUDGET
     if nlp.solver_name == "fatrop":
         status, rs = fatrop_status(stats)
     if status is PlanStatus.SUCCESS and worst > FEASIBILITY_TOL:
@@ -429,7 +430,11 @@ def _solve_rounds(
             # comes within the margin of is feasible, hence (locally) optimal, for it too. (A slack
             # of 0.05 m cost a second solve on blind_corner: cold 0.47 s / 51 iterations -> 0.31 s /
             # 33 without; 8 hidden-obstacle flights: 0.63x -> 0.68x real time, same outcomes.)
-            if not s.status.ok or not lb.slots_missing(problem, planner, s.X, assignment, s.slots):
+            if (
+                not s.status.ok
+                or budget_spent()
+                or not lb.slots_missing(problem, planner, s.X, assignment, s.slots)
+            ):
                 break
             nxt = _solve_once(
                 problem,
@@ -449,7 +454,7 @@ def _solve_rounds(
             s = nxt
         if best is None or (s.status.ok and (not best.status.ok or s.T < best.T)):
             best = s
-        if not s.status.ok or rounds == 1:
+        if not s.status.ok or rounds == 1 or budget_spent():
             break
         new_assignment = lb.refine_assignment(problem, s.X, assignment)
         if new_assignment == assignment:
@@ -479,6 +484,9 @@ def plan_problem(
 ) -> PlanResult:
     """Solve a :class:`PlanningProblem` (see :func:`plan` for the scenario-level entry point).
 
+    The whole call, every retry included, runs within ``problem.options.plan_budget`` seconds of
+    wall time (status ``TIME_BUDGET`` when it ran out).
+
     Parameters
     ----------
     problem : the problem in the robot's belief.
@@ -491,6 +499,17 @@ def plan_problem(
         raise ConfigError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
     cache = DEFAULT_CACHE if cache is None else cache
     pin_blas_threads()  # the same iterates whatever the machine's cores (planning/blas.py)
+    with deadline(problem.options.plan_budget):
+        return _plan_within_budget(problem, planner, warm, warm_time, cache)
+
+
+def _plan_within_budget(
+    problem: PlanningProblem,
+    planner: str,
+    warm: PlanResult | None,
+    warm_time: float,
+    cache: NLPCache,
+) -> PlanResult:
     o = problem.options
     reason = _precheck(problem)
     if reason is not None:
@@ -537,6 +556,8 @@ def plan_problem(
     build = solve_t = 0.0
     iters = 0
     for g, dual_start in attempts:
+        if s is not None and budget_spent():
+            break
         if isinstance(g, float):
             g = initial_guess(problem, secure=True, speed_fraction=g)
         s, b_, t_, i_ = _solve_rounds(problem, planner, g, warm, warm_time, cache, dual_start)
@@ -548,6 +569,8 @@ def plan_problem(
         # Minimum-time NLPs have many local optima (the paper: "poor guesses stop convergence");
         # further starts at other cruise speeds, keeping the fastest plan that passes.
         for frac in o.extra_starts:
+            if budget_spent():
+                break
             g = initial_guess(problem, secure=planner == "secure", speed_fraction=frac)
             s2, b_, t_, i_ = _solve_rounds(problem, planner, g, None, 0.0, cache)
             build, solve_t, iters = build + b_, solve_t + t_, iters + i_
@@ -581,7 +604,7 @@ def _judged(
 
     cert = certify(result, problem)
     for extra in CERTIFY_TIGHTENING:
-        if cert.ok:
+        if cert.ok or budget_spent():
             break
         # Tighten and re-solve warm from the rejected solution: never loosen anything.
         t_ = _solve_once(

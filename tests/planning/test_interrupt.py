@@ -41,3 +41,23 @@ def test_ctrl_c_during_a_solve_raises_keyboard_interrupt_within_a_second_or_two(
     assert "KeyboardInterrupt" in err, err[-800:]
     assert out.count("plan done") == 0, f"a plan finished after Ctrl-C: {out!r}"
     assert waited < 5.0, f"{waited:.1f} s from Ctrl-C to exit"
+
+
+def test_a_plan_call_stops_when_its_wall_time_budget_is_spent(maps_dir):
+    """Every solve, retry and re-solve of one call shares plan_budget; a solve running when it
+    is spent stops at its next iteration and no further solve starts."""
+    import secure3d
+    from secure3d.planning.result import PlanStatus
+
+    scenario = secure3d.load_scenario(maps_dir / "forest.yaml")
+    full = secure3d.plan(scenario, "secure")
+    assert full.status is PlanStatus.SUCCESS and full.iterations > 10
+    per_iteration = full.solve_time / full.iterations
+    budget = 3 * per_iteration + 0.5 * full.solve_time / full.iterations
+    t0 = time.perf_counter()
+    cut = secure3d.plan(scenario, "secure", plan_budget=budget)
+    wall = time.perf_counter() - t0
+    assert cut.status is PlanStatus.TIME_BUDGET, cut.status
+    assert cut.iterations < full.iterations
+    # the guess and the look-back assignment are not solves: allow for them, not for a retry
+    assert wall < budget + 3.0, wall
