@@ -14,7 +14,11 @@ The public entry points are re-exported here lazily, so ``import secure3d`` stay
 from __future__ import annotations
 
 import importlib
+import logging
 from typing import TYPE_CHECKING, Any
+
+# A library logs; the application decides where it goes (the CLI prints INFO to stderr).
+logging.getLogger("secure3d").addHandler(logging.NullHandler())
 
 __version__ = "0.1.0"
 

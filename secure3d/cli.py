@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -547,6 +548,18 @@ def _fail(message: str) -> None:
     print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr)
 
 
+def _log_to_stderr() -> None:
+    """The library's INFO lines (a long flight's heartbeat, an on-demand reactive-set fit) on
+    stderr, once per process."""
+    logger = logging.getLogger("secure3d")
+    if not any(getattr(h, "_secure3d_cli", False) for h in logger.handlers):
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter(f"{PROG}: %(message)s"))
+        handler._secure3d_cli = True  # type: ignore[attr-defined]
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with one subparser per entry of :data:`COMMANDS`."""
     parser = _Parser(
@@ -575,6 +588,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version and usage errors
         return exc.code if isinstance(exc.code, int) else EXIT_USAGE
+    _log_to_stderr()
     try:
         status = args.run(args)
         sys.stdout.flush()  # a closed pipe shows here, not as a traceback at interpreter exit

@@ -17,6 +17,7 @@ A solver failure is never a reason to continue on an uncertified plan: the robot
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -37,6 +38,12 @@ SURFACE_BIAS = 1e-4
 STOP_SPEED = 0.05
 #: Goal reached: within the goal tolerance and slower than this (m/s).
 ARRIVAL_SPEED = 0.25
+#: Wall-clock seconds between the INFO lines ``simulate`` logs while it flies (logger
+#: ``secure3d.simulation``), so a long run always says where it is.
+HEARTBEAT_SECONDS = 10.0
+#: Events go out at DEBUG, the heartbeat at INFO.
+log = logging.getLogger("secure3d.simulation")
+
 #: Points sampled along a colliding step for the clearance it reached (a 0.01 s step at 5 m/s is
 #: 5 cm long: 11 points sample it every 5 mm).
 CONTACT_SAMPLES = 11
@@ -628,12 +635,14 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
     latency, defer = settings.replan_latency, settings.replan_defer
     frame_log_every, belief_log_every = settings.frame_log_every, settings.belief_log_every
     time_limit, r = settings.time_limit, model.body_radius
+    name = scenario.name
     events: list[SimEvent] = []
     plans: list[tuple[float, PlanResult]] = []
     solve_times: list[float] = []
 
     def event(t: float, kind: str, detail: str = "", level: str = "INFO") -> None:
         events.append(SimEvent(t, kind, detail))
+        log.debug("%s t=%.2f s %s: %s %s", name, t, level, kind, detail)
         if rec is not None:
             rec.log_event(t, f"{kind}: {detail}", level)
 
@@ -749,7 +758,18 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
     X_log: list[np.ndarray] = [x.copy()]
 
     n_steps = int(np.ceil(time_limit / dt))
+    beat = time.perf_counter()
     for _ in range(n_steps):
+        if time.perf_counter() - beat >= HEARTBEAT_SECONDS:
+            beat = time.perf_counter()
+            log.info(
+                "%s: %.2f of at most %.1f s flown in %.0f s of wall time, %d plans so far",
+                name,
+                t,
+                time_limit,
+                beat - wall0,
+                len(plans),
+            )
         # ---- sense ---------------------------------------------------------------------------
         unsafe = None  # (why, plan time of the first failing manoeuvre) when the plan must go
         if t + 1e-9 >= next_frame:

@@ -305,3 +305,20 @@ def test_a_robot_stuck_at_rest_looks_around_once_then_holds(maps_dir, monkeypatc
     # with fewer replans allowed, the budget ends it first
     run = simulate(scenario, "secure", cache=NLPCache(), max_replans=3)
     assert "holding" not in [e.kind for e in run.events] and len(run.solve_times) == 4
+
+
+def test_a_flight_logs_a_heartbeat_and_its_events(maps_dir, monkeypatch, caplog):
+    """simulate never runs silently: INFO heartbeat lines (every HEARTBEAT_SECONDS of wall time)
+    and every event at DEBUG on the ``secure3d.simulation`` logger."""
+    import logging
+
+    from secure3d.simulation import closed_loop
+
+    monkeypatch.setattr(closed_loop, "HEARTBEAT_SECONDS", 0.0)
+    caplog.set_level(logging.DEBUG, logger="secure3d.simulation")
+    run = simulate(secure3d.load_scenario(maps_dir / "blind_corner.yaml"), "secure")
+    beats = [r for r in caplog.records if r.levelno == logging.INFO and "of at most" in r.message]
+    steps = len(run.times) - 1
+    assert len(beats) >= steps // 2, (len(beats), steps)
+    logged = [r.message for r in caplog.records if r.levelno == logging.DEBUG]
+    assert any("goal reached" in m for m in logged) == run.reached_goal
