@@ -38,3 +38,10 @@ class PlanningError(Secure3DError, RuntimeError):
 
 class SimulationError(Secure3DError, RuntimeError):
     """The closed-loop simulation cannot start or continue (e.g. broken world meshes)."""
+
+
+class OutputError(Secure3DError, OSError):
+    """An output path cannot be written: a directory, a wrong extension, or no write access.
+
+    Raised before any work is done (:func:`secure3d.outputs.check_output_path`).
+    """

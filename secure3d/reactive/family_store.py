@@ -23,7 +23,6 @@ import json
 import logging
 import math
 import os
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +32,7 @@ import numpy as np
 
 from secure3d.dynamics.base import VehicleModel
 from secure3d.errors import ConfigError
+from secure3d.outputs import atomic_write_text
 from secure3d.reactive.fitting import fit_family
 from secure3d.reactive.reactive_set import (
     CONTROLLERS,
@@ -149,19 +149,10 @@ def family_key(model: VehicleModel, controller: str, latency: float, settings: F
 
 
 def save_family(family: FittedFamily, path: str | os.PathLike[str]) -> Path:
-    """Write a fitted family as JSON, atomically (a unique temporary file, then a rename)."""
+    """Write a fitted family as JSON, atomically (:func:`secure3d.outputs.atomic_write_text`)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(family.to_dict(), indent=1, sort_keys=True) + "\n"
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return atomic_write_text(path, json.dumps(family.to_dict(), indent=1, sort_keys=True) + "\n")
 
 
 def _same(a: Any, b: Any) -> bool:

@@ -32,7 +32,6 @@ import io
 import math
 import multiprocessing
 import os
-import secrets
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -42,6 +41,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from secure3d import outputs
 from secure3d.errors import ConfigError, Secure3DError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -588,23 +588,12 @@ def _csv_text(records: Sequence[RunRecord]) -> str:
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
-    """Write ``text`` to ``path`` atomically: a temporary file in the same folder, then rename.
-
-    An interrupted write leaves either the previous file or none, never a truncated one (and no
-    temporary file either). The file gets the usual permissions (umask), unlike ``mkstemp``'s 0600.
-    """
+    """Write ``text`` to ``path`` atomically (:func:`secure3d.outputs.atomic_write_text`) into an
+    existing folder."""
     path = Path(path)
     if not path.parent.is_dir():
         raise ConfigError(f"path: folder {str(path.parent)!r} does not exist")
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.part")
-    try:
-        with open(tmp, "x", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    return outputs.atomic_write_text(path, text)
 
 
 # ---- reports -----------------------------------------------------------------------------------

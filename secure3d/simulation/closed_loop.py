@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from secure3d.errors import SimulationError
+from secure3d.outputs import check_output_path
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.result import PlanResult
@@ -550,6 +551,9 @@ def simulate(
         raise SimulationError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
     replan_latency = check_replan_seconds("replan_latency", replan_latency)
     replan_defer = replan_defer_for(replan_defer, replan_latency)
+    # the output contract: a path that cannot be written fails now, not after the flight
+    rrd = None if rrd is None else check_output_path(rrd, (".rrd",), "rrd")
+    png = None if png is None else check_output_path(png, (".png",), "png")
     wall0 = time.perf_counter()
     loop = _Loop(scenario, planner, seed, dict(options), cache)
     settings = _RunSettings(

@@ -15,7 +15,7 @@ Rules it keeps:
   with the same seed log the same data. The files are still not byte-identical: Rerun stamps every
   chunk and row with a TUID (wall-clock nanoseconds plus a random counter) and gives the blueprint
   a random store id, and rerun-sdk 0.41 offers no way to seed either;
-- the file appears atomically: data go to ``<path>.part`` and are renamed to ``path`` by
+- the file appears atomically: data go to a unique ``.<name>.<pid>.<random>.part`` and are renamed to ``path`` by
   :meth:`RerunRecorder.close`; an exception or ``KeyboardInterrupt`` inside a
   ``with RerunRecorder(...)`` block (or :meth:`RerunRecorder.abort`) deletes the partial file.
 
@@ -53,6 +53,7 @@ from scipy.spatial.transform import Rotation
 from secure3d._deps import rerun as _rerun
 from secure3d.errors import ConfigError, GeometryError, SimulationError
 from secure3d.mapping.surface import surface_mask
+from secure3d.outputs import temporary_path
 from secure3d.world.spec import Bounds, Box, MeshObstacle
 
 #: Trust classes of the robot's map (same codes as ``secure3d.mapping.occupancy.Trust``):
@@ -113,7 +114,7 @@ def _rgba(color: tuple[int, int, int, int], alpha: int | None = None) -> tuple[i
 
 
 def _part_path(path: Path) -> Path:
-    return path.with_name(path.name + ".part")
+    return temporary_path(path)  # unique: two runs writing one path never share it
 
 
 def _remove_quietly(path: Path) -> None:

@@ -1,0 +1,99 @@
+"""The output contract: every file secure3d writes is checked before the work and written atomically.
+
+- :func:`check_output_path` runs before a flight, a campaign or a figure is computed: the folder
+  exists or is created, the path is not a directory, its extension is one the writer makes, and
+  the folder really accepts a file (a probe file is created and removed, which also catches
+  read-only mounts and ``/sys``). Its error is one line, :class:`~secure3d.errors.OutputError`.
+- :func:`temporary_path` names a unique temporary file in the target folder (``.<name>.<pid>.
+  <random>.part``, ignored by git), so two runs writing the same path never share one; the writer
+  renames it over the target (:func:`os.replace`, atomic on one file system) or removes it.
+- :func:`atomic_write_bytes` and :func:`atomic_write_text` do both for whole files.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+from collections.abc import Iterable
+from pathlib import Path
+
+from secure3d.errors import OutputError
+
+__all__ = ["atomic_write_bytes", "atomic_write_text", "check_output_path", "temporary_path"]
+
+
+def check_output_path(
+    path: str | os.PathLike[str], suffixes: Iterable[str], what: str = "output"
+) -> Path:
+    """Check that ``path`` can be written, before any work; return it as an absolute Path.
+
+    Parameters
+    ----------
+    path : the file to write.
+    suffixes : accepted extensions, lower case with the dot (``(".png",)``).
+    what : the option or field name for the message (``"--png"``, ``"rrd"``).
+
+    Raises
+    ------
+    OutputError
+        ``path`` is a directory, has another extension, or its folder cannot be created or
+        written.
+    """
+    allowed = tuple(s.lower() for s in suffixes)
+    p = Path(os.fspath(path)).expanduser()
+    if str(path).endswith(("/", os.sep)) or p.is_dir():
+        raise OutputError(
+            f"{what}: {str(path)!r} is a directory; give a file name ending in {allowed[0]}"
+        )
+    if p.suffix.lower() not in allowed:
+        raise OutputError(f"{what}: {str(path)!r} must end in {' or '.join(allowed)}")
+    folder = p.resolve().parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(
+            f"{what}: cannot create folder {str(folder)!r}: {exc.strerror or exc}"
+        ) from None
+    probe = temporary_path(p.resolve())
+    try:
+        probe.touch(exist_ok=False)
+    except OSError as exc:
+        raise OutputError(
+            f"{what}: cannot write in {str(folder)!r}: {exc.strerror or exc}"
+        ) from None
+    probe.unlink()
+    if p.exists() and not os.access(p, os.W_OK):
+        raise OutputError(f"{what}: {str(p)!r} exists and is not writable")
+    return p.resolve()
+
+
+def temporary_path(path: str | os.PathLike[str]) -> Path:
+    """A unique temporary file name beside ``path``: ``.<name>.<pid>.<random>.part``."""
+    p = Path(path)
+    return p.with_name(f".{p.name}.{os.getpid()}.{secrets.token_hex(4)}.part")
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes, mode: int = 0o666) -> Path:
+    """Write ``data`` to ``path`` through a unique temporary file and an atomic rename.
+
+    ``mode`` is masked by the umask, as for any new file (``mkstemp``'s 0600 is not)."""
+    p = Path(path)
+    tmp = temporary_path(p)
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, p)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+    return p
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
+    """:func:`atomic_write_bytes` of UTF-8 text."""
+    if not isinstance(text, str):
+        raise TypeError(f"atomic_write_text: text must be str, got {type(text).__name__}")
+    return atomic_write_bytes(path, text.encode("utf-8"))
