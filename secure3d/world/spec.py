@@ -503,6 +503,11 @@ class PlannerSpec:
     paper's Δi for the fixed rule. solver : ``"ipopt"`` or ``"fatrop"``. reactive_family :
     ``"fitted"`` or ``"closed_form"``. controller : reactive controller, ``"braking"`` or ``"mpc"``.
     margin : clearance added to every obstacle and visibility constraint (m).
+    min_obstacle_size : the smallest obstacle (m) the safety guarantee covers: every obstacle that
+        contains a ball this wide is hit by every frame out to the *observed range* derived from the
+        camera (:func:`secure3d.mapping.observability.observed_range`), and the planner and the
+        certificate count only that far as seen. Default 0.1 m; smaller values shorten the observed
+        range (and slow the secure robot) in proportion.
     """
 
     nodes: int = 40
@@ -513,9 +518,11 @@ class PlannerSpec:
     controller: Literal["braking", "mpc"] = "braking"
     margin: float = 0.02
     max_iter: int = 500
+    min_obstacle_size: float = 0.1
 
     def __post_init__(self) -> None:
         nodes = _integer(self.nodes, "planner.nodes", 5, 400)
+        _positive(self.min_obstacle_size, "planner.min_obstacle_size")
         _choice(self.lookback, ("adaptive", "fixed"), "planner.lookback")
         _integer(self.lookback_steps, "planner.lookback_steps", 1, nodes - 1)
         _choice(self.solver, ("ipopt", "fatrop"), "planner.solver")
@@ -572,6 +579,28 @@ class Scenario:
         self._check_map_size()
         self._check_start_goal()
         self._check_attacks()
+        self._check_observed_range()
+
+    def _check_observed_range(self) -> None:
+        from secure3d.errors import ConfigError
+        from secure3d.mapping.observability import observed_range
+
+        c = self.camera
+        try:
+            observed_range(
+                c.fx,
+                c.fy,
+                c.max_range,
+                c.far_kind,
+                self.server_map.resolution,
+                min_obstacle_size=self.planner.min_obstacle_size,
+                discretize=c.discretize,
+                dropout=c.dropout,
+            )
+        except ConfigError as exc:
+            raise ScenarioError(
+                f"planner.min_obstacle_size: {exc} (got {_short(self.planner.min_obstacle_size)})"
+            ) from None
 
     def _check_map_size(self) -> None:
         b, res = self.world.bounds, self.server_map.resolution
