@@ -13,8 +13,8 @@ import math
 
 from secure3d.errors import ConfigError
 
-#: Default smallest obstacle (m) the guarantee covers: a voxel of the usual 0.1 m map.
-DEFAULT_MIN_OBSTACLE_SIZE = 0.1
+#: Default smallest obstacle (m) the guarantee covers (see PlannerSpec.min_obstacle_size for why).
+DEFAULT_MIN_OBSTACLE_SIZE = 0.15
 #: Per-frame probability of missing such an obstacle that dropout may leave (see
 #: :func:`observed_range`): one in a million frames.
 DROPOUT_MISS_PROBABILITY = 1e-6
