@@ -24,6 +24,16 @@ def test_the_secure_robot_stops_for_a_4cm_pole_that_a_64x48_camera_sees_late(map
     assert baseline.collided and "pole" in baseline.collision_obstacles, baseline.summary()
 
 
+def test_the_secure_robot_ducks_under_a_hidden_beam_seen_with_a_30_deg_vertical_view(maps_dir):
+    scenario = secure3d.load_scenario(maps_dir / "beam_3d.yaml")
+    run = simulate(scenario, "secure", seed=0)
+    assert not run.collided, run.summary()
+    assert run.reached_goal and run.detection_time is not None, run.summary()
+    # it went under the beam (bottom at 1.35 m) with its body
+    under = (run.positions[:, 0] > 5.0) & (run.positions[:, 0] < 5.3)
+    assert under.any() and run.positions[under, 2].max() < 1.35 - 0.2 + 1e-3
+
+
 def test_min_obstacle_size_is_validated_with_the_file_and_field(maps_dir, tmp_path):
     text = (maps_dir / "thin_pole.yaml").read_text()
     for bad in ("-0.1", "0", "abc"):
