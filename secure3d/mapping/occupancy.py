@@ -509,8 +509,8 @@ class OccupancyMap:
 
     def is_known_obstacle_sensed(self, codes: ArrayLike) -> NDArray[np.bool_]:
         """:meth:`is_known_obstacle` of voxels the sensor has evidence on (the ``occupied_codes``
-        of an insertion, say), by Morton code: their trust is their log-odds alone, so the claim
-        layer need not be looked up. Raises :class:`GeometryError` if one of them is unsensed."""
+        of an insertion, say), by Morton code: their trust is their log-odds or a sticky hit, so
+        the claim layer need not be looked up. Raises :class:`GeometryError` if one of them is unsensed."""
         c = np.asarray(codes, dtype=np.int64).ravel()
         val = self._sensor_values(c)
         if np.isnan(val).any():
