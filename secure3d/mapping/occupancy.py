@@ -14,7 +14,10 @@ safety theorem, with O the newly seen obstacles and "observed" the union of the 
 
 so a voxel the sensor has seen free is free even if the server claims it occupied, a voxel the
 sensor has seen occupied is an obstacle even if the server claims it free, and unobserved voxels
-keep the server's claim. Known obstacles for the planner are therefore
+keep the server's claim. "Sensed occupied" is OctoMap's log-odds verdict *or* a sticky hit: a voxel
+any scan has hit stays an obstacle for the planner even after later rays carve its log-odds below
+the threshold (:mod:`secure3d.mapping.hits` gives the rule and why); ``classify``, the log-odds and
+the ``.bt``/``.ot`` files stay exactly OctoMap's. Known obstacles for the planner are therefore
 ``sensed occupied u (claimed occupied \\ sensed free)``, and space outside the map ``bounds`` (the
 server map's extent) is treated as unplannable.
 
@@ -38,6 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 from secure3d.errors import ConfigError, GeometryError, MapFormatError
 from secure3d.mapping import octomap_io
 from secure3d.mapping.boxes import boxes_near_points, merge_cells_budget, merge_grid
+from secure3d.mapping.hits import HitLayer
 from secure3d.mapping.keys import (
     KEY_LIMIT,
     TREE_DEPTH,
@@ -242,6 +246,7 @@ class OccupancyMap:
         self._params = params
         self._bounds = _check_bounds(bounds)
         self._sensor = LeafLayer()
+        self._hits = HitLayer()  # sticky hits: the planner's safety layer (mapping/hits.py)
         self._claim_codes = np.empty(0, np.int64)  # sorted
         self._claim_occ = np.empty(0, bool)
         self._version = 0
@@ -289,6 +294,7 @@ class OccupancyMap:
             None if self._bounds is None else (self._bounds[0].copy(), self._bounds[1].copy())
         )
         out._sensor = self._sensor.copy()
+        out._hits = self._hits.copy()
         out._claim_codes = self._claim_codes.copy()
         out._claim_occ = self._claim_occ.copy()
         out._version = self._version
@@ -345,6 +351,7 @@ class OccupancyMap:
         p = self._params
         self._sensor.add_logodds(upd.free, p.miss_log, p.clamp_min_log, p.clamp_max_log)
         self._sensor.add_logodds(upd.occupied, p.hit_log, p.clamp_min_log, p.clamp_max_log)
+        self._hits.add(upd.occupied)
         self._changed()
         return InsertStats(
             upd.points_used,
@@ -478,8 +485,8 @@ class OccupancyMap:
         out[claim == 0] = Trust.CLAIMED_FREE
         out[claim == 1] = Trust.CLAIMED_OCCUPIED
         sensed = ~np.isnan(val)
-        occ = np.zeros(codes.shape, bool)
-        occ[sensed] = val[sensed] >= self._params.threshold_log
+        occ = self._hits.contains(codes)
+        occ[sensed] |= val[sensed] >= self._params.threshold_log
         out[sensed & ~occ] = Trust.SENSED_FREE
         out[sensed & occ] = Trust.SENSED_OCCUPIED
         return out
@@ -502,8 +509,8 @@ class OccupancyMap:
 
     def is_known_obstacle_sensed(self, codes: ArrayLike) -> NDArray[np.bool_]:
         """:meth:`is_known_obstacle` of voxels the sensor has evidence on (the ``occupied_codes``
-        of an insertion, say), by Morton code: their trust is their log-odds alone, so the claim
-        layer need not be looked up. Raises :class:`GeometryError` if one of them is unsensed."""
+        of an insertion, say), by Morton code: their trust is their log-odds or a sticky hit, so
+        the claim layer need not be looked up. Raises :class:`GeometryError` if one of them is unsensed."""
         c = np.asarray(codes, dtype=np.int64).ravel()
         val = self._sensor_values(c)
         if np.isnan(val).any():
@@ -511,8 +518,10 @@ class OccupancyMap:
                 f"is_known_obstacle_sensed: {int(np.isnan(val).sum())} of {c.size} voxels have no"
                 " sensor evidence"
             )
-        return (val >= self._params.threshold_log) | ~self.in_bounds(
-            codes_to_coords(c, self._resolution)
+        return (
+            (val >= self._params.threshold_log)
+            | self._hits.contains(c)
+            | ~self.in_bounds(codes_to_coords(c, self._resolution))
         )
 
     # ------------------------------------------------------------------ voxel sets
@@ -551,9 +560,12 @@ class OccupancyMap:
 
     def _known_obstacle_runs(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """Morton codes of the claimed occupied voxels with no sensor evidence, and of the sensed
-        occupied voxels: two disjoint sorted runs of unique codes."""
+        occupied voxels (log-odds occupied, or hit once: sticky): two disjoint sorted runs of
+        unique codes."""
         codes, vals = self._sensor_voxels()
-        sensed_occ = unique_sorted(codes[vals >= self._params.threshold_log])
+        occ = vals >= self._params.threshold_log
+        occ |= self._hits.contains(codes)
+        sensed_occ = unique_sorted(codes[occ])
         claimed = self._claim_codes[self._claim_occ]
         return claimed[np.isnan(self._sensor_values(claimed))], sensed_occ
 

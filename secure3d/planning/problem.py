@@ -335,6 +335,32 @@ def start_region(
     return lo, hi
 
 
+def observed_frustum(scenario: Scenario, min_obstacle_size: object | None = None) -> PinholeFrustum:
+    """The camera's field of view cut at the *observed range*: the far limit out to which every
+    frame surely hits obstacles of ``min_obstacle_size`` (default: the scenario's planner setting),
+    from the camera's intrinsics, the map resolution, ``discretize`` and dropout
+    (:func:`secure3d.mapping.observability.observed_range`). The NLP's visibility constraints and
+    the certificate's views both read it from the problem."""
+    from secure3d.geometry.frustum import PinholeFrustum
+    from secure3d.mapping.observability import observed_range
+
+    cam = scenario.camera
+    w = scenario.planner.min_obstacle_size if min_obstacle_size is None else min_obstacle_size
+    if isinstance(w, bool) or not isinstance(w, (int, float)) or not (math.isfinite(w) and w > 0):
+        raise ConfigError(f"planner option min_obstacle_size: must be a number > 0, got {w!r}")
+    far = observed_range(
+        cam.fx,
+        cam.fy,
+        cam.max_range,
+        cam.far_kind,
+        scenario.server_map.resolution,
+        min_obstacle_size=float(w),
+        discretize=cam.discretize,
+        dropout=cam.dropout,
+    )
+    return PinholeFrustum(hfov=cam.hfov, vfov=cam.vfov, far=far, far_kind=cam.far_kind)
+
+
 def problem_from_scenario(
     scenario: Scenario,
     belief: OccupancyMap | None = None,
@@ -351,12 +377,13 @@ def problem_from_scenario(
     x0 : start state; default: the scenario's start.
     obstacle_boxes : (lo, hi) obstacle boxes; default: the belief's known obstacle boxes. A caller
         that replaces them before planning (the closed loop) passes empty ones and saves a merge.
-    **options : :class:`PlannerOptions` fields overriding the scenario's planner settings.
+    **options : :class:`PlannerOptions` fields overriding the scenario's planner settings, and
+        ``min_obstacle_size`` (m) overriding the scenario's: the frustum's far limit is the observed
+        range it gives (:func:`observed_frustum`), never the camera's raw ``max_range``.
     """
     from dataclasses import fields
 
     from secure3d.dynamics import model_from_spec
-    from secure3d.geometry.frustum import PinholeFrustum
     from secure3d.reactive.controllers import BrakingController
     from secure3d.reactive.family_store import family_for
     from secure3d.world.attacks import belief_map
@@ -371,18 +398,18 @@ def problem_from_scenario(
         "max_iter": spec.max_iter,
     }
     known = {f.name for f in fields(PlannerOptions)}
-    unknown = set(options) - known - {"reactive_family", "controller"}
+    unknown = set(options) - known - {"reactive_family", "controller", "min_obstacle_size"}
     if unknown:
         raise ConfigError(f"unknown planner option(s): {sorted(unknown)}; known: {sorted(known)}")
     kind = str(options.pop("reactive_family", spec.reactive_family))
     controller_name = str(options.pop("controller", spec.controller))
+    min_size = options.pop("min_obstacle_size", spec.min_obstacle_size)
     base.update(options)
     opts = PlannerOptions(**base)
 
     model = model_from_spec(scenario.vehicle, scenario.camera)
     family = family_for(model, controller=controller_name, kind=kind)
-    cam = scenario.camera
-    frustum = PinholeFrustum(hfov=cam.hfov, vfov=cam.vfov, far=cam.max_range, far_kind=cam.far_kind)
+    frustum = observed_frustum(scenario, min_size)
     if x0 is None:
         s = scenario.start
         x0 = model.initial_state(np.array(s.position), np.array(s.velocity), s.yaw)

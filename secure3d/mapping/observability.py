@@ -1,0 +1,151 @@
+"""How far a depth camera's frames are guaranteed to see an obstacle: the *observed range*.
+
+The paper's safety theorem assumes continuous perception: whatever lies in the field of view is
+seen. A pixel grid only samples it. :func:`observed_range` gives the far limit out to which every
+obstacle of at least a stated size (``min_obstacle_size``) is hit by some ray of every frame, and
+so (with sticky hits, :mod:`secure3d.mapping.hits`) is a known obstacle from that frame on. The
+planner's frustum and the certificate both cut the field of view there (DESIGN.md section 7).
+"""
+
+from __future__ import annotations
+
+import math
+
+from secure3d.errors import ConfigError
+
+#: Default smallest obstacle (m) the guarantee covers (see PlannerSpec.min_obstacle_size for why).
+DEFAULT_MIN_OBSTACLE_SIZE = 0.15
+#: Per-frame probability of missing such an obstacle that dropout may leave (see
+#: :func:`observed_range`): one in a million frames.
+DROPOUT_MISS_PROBABILITY = 1e-6
+
+
+def _number(value: object, name: str, *, positive: bool = True) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"observed_range: {name} must be a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v) or (positive and v <= 0.0):
+        raise ConfigError(f"observed_range: {name} must be finite and > 0, got {value!r}")
+    return v
+
+
+def rays_needed(dropout: float, miss_probability: float = DROPOUT_MISS_PROBABILITY) -> int:
+    """Rays an obstacle must meet so that losing all of them to dropout (each pixel independently
+    with probability ``dropout``) has probability at most ``miss_probability``: 1 without dropout,
+    else ``ceil(log(miss_probability) / log(dropout))``."""
+    p = _number(dropout, "dropout", positive=False)
+    if not 0.0 <= p < 1.0:
+        raise ConfigError(f"observed_range: dropout must be in [0, 1), got {dropout!r}")
+    eps = _number(miss_probability, "miss_probability")
+    if not eps < 1.0:
+        raise ConfigError(f"observed_range: miss_probability must be in (0, 1), got {eps!r}")
+    if p == 0.0:
+        return 1
+    return max(1, math.ceil(math.log(eps) / math.log(p) - 1e-12))
+
+
+def observed_range(
+    fx: float,
+    fy: float,
+    max_range: float,
+    far_kind: str,
+    resolution: float,
+    *,
+    min_obstacle_size: float = DEFAULT_MIN_OBSTACLE_SIZE,
+    discretize: bool = False,
+    dropout: float = 0.0,
+    miss_probability: float = DROPOUT_MISS_PROBABILITY,
+) -> float:
+    """The far limit (m, in the camera's ``far_kind``) out to which a frame surely hits every
+    obstacle of size ``min_obstacle_size`` inside its field of view.
+
+    Parameters
+    ----------
+    fx, fy : float
+        Focal lengths (pixels); pixel centres at ``u + 0.5``, ``v + 0.5`` (Open3D's convention).
+    max_range : float
+        The sensor's limit (m): z-depth (``far_kind="depth"``) or Euclidean range (``"range"``).
+    far_kind : {"depth", "range"}
+    resolution : float
+        Voxel edge of the robot's map (m).
+    min_obstacle_size : float
+        w (m): the guarantee covers every obstacle that contains a ball of diameter w (a pole, wire
+        or plank at least w thick, a crate...).
+    discretize : bool
+        Frames inserted with OctoMap's ``discretize`` (one ray per end voxel, to its centre).
+    dropout : float
+        Fraction of pixels lost, each independently, in [0, 1).
+    miss_probability : float
+        With dropout, the per-frame probability of missing such an obstacle that is accepted.
+
+    Returns
+    -------
+    float
+        ``min(max_range, z_res - w / 2, z_vox)`` (> 0), with the limits derived below.
+
+    Notes
+    -----
+    *Pixel pitch.* At z-depth z the pixel rays cross the plane ``{depth = z}`` in a rectangular
+    lattice of pitch ``(z / fx, z / fy)``, and every lattice point inside the field of view is a
+    pixel centre. A ball of diameter w centred at depth z cuts that plane in a disc of diameter w,
+    and a disc at least as wide as a lattice cell's diagonal ``z sqrt(fx^-2 + fy^-2)`` contains a
+    lattice point wherever it lies. So some ray meets the ball, and its first hit is the ball or an
+    obstacle in front of it (then that one blocks the view and is hit instead), whenever
+
+        z <= z_res = w / sqrt(fx^-2 + fy^-2)        (= w f / sqrt(2) for fx = fy = f).
+
+    Off the optical axis the lattice is the same in the plane, so no pixel does worse. (A band,
+    like a long pole seen side on, needs only ``z <= w f``; the disc is the worst case.)
+
+    *Far face.* The planner and the certificate see a point (of a manoeuvre's body ball) inside the
+    field of view; an obstacle touching it contains a ball of diameter w through that point, whose
+    centre may lie w / 2 deeper. The far limit is therefore ``z_res - w / 2``. (The side faces have
+    no such allowance: an obstacle ball straddling the image border is guaranteed only once it is
+    inside the image; see docs/guarantees.md.)
+
+    *Dropout.* A frame then still misses the ball if every ray through it is lost. Requiring
+    ``n = rays_needed(dropout, miss_probability)`` rays keeps that below ``miss_probability`` per
+    frame: the disc contains a square of side ``w / sqrt(2)``, which holds at least ``m x m``
+    lattice points when both pitches are at most ``w / (sqrt(2) m)``; with ``m = ceil(sqrt(n))``,
+
+        z_res = w min(fx, fy) / (sqrt(2) m)         (p > 0; a statement per frame, not a certainty).
+
+    *Range.* A Euclidean limit bounds z-depth too (``z <= range``), so ``min(max_range, z_res)`` as a
+    range is sound; the field of view is inner-approximated from it as before.
+
+    *Discretisation.* ``discretize`` casts one ray per *end voxel*, to its centre; every end voxel is
+    still marked occupied, so it loses no hit of the full pixel grid (a thin obstacle is never
+    skipped), except where the centre falls beyond the clipping range while the hit lies within.
+    :meth:`~secure3d.mapping.occupancy.OccupancyMap.insert_depth_image` clips z-depth frames a voxel
+    beyond the far corner, so none is lost there; a range-limited frame loses hits up to half a
+    voxel diagonal inside ``max_range``, so ``z_vox = max_range - (sqrt(3) / 2) resolution`` then.
+
+    *Noise.* Depth noise moves a hit along its ray; the guarantee places it within the noise of the
+    surface, not necessarily in the surface's voxel.
+    """
+    fx = _number(fx, "fx")
+    fy = _number(fy, "fy")
+    far = _number(max_range, "max_range")
+    if far_kind not in ("depth", "range"):
+        raise ConfigError(f"observed_range: far_kind must be 'depth' or 'range', got {far_kind!r}")
+    res = _number(resolution, "resolution")
+    w = _number(min_obstacle_size, "min_obstacle_size")
+    n = rays_needed(dropout, miss_probability)
+    if n == 1:
+        z_res = w / math.hypot(1.0 / fx, 1.0 / fy)
+    else:
+        z_res = w * min(fx, fy) / (math.sqrt(2.0) * math.ceil(math.sqrt(n)))
+    if discretize and far_kind == "range":
+        far -= 0.5 * math.sqrt(3.0) * res
+        if far <= 0.0:
+            raise ConfigError(
+                f"observed_range: max_range {max_range!r} is within half a voxel diagonal of the"
+                f" sensor at resolution {resolution!r}: nothing is surely observed"
+            )
+    z_obs = z_res - 0.5 * w
+    if z_obs <= 0.0:
+        raise ConfigError(
+            f"observed_range: min_obstacle_size {min_obstacle_size!r} is too small for this camera"
+            f" (fx {fx:g}, fy {fy:g} px): no depth is surely observed"
+        )
+    return min(far, z_obs)
