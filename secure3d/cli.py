@@ -352,11 +352,14 @@ def _campaign_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="output folder (out/campaign)",
     )
+    from secure3d.world.family_registry import FAMILIES
+
     parser.add_argument(
         "--kind",
-        choices=("auto", "corner", "forest"),
+        choices=("auto", "corner", "forest", *FAMILIES),
         default="auto",
-        help="where hidden obstacles go (auto)",
+        help="where hidden obstacles go (auto), or a scenario family: "
+        + "; ".join(f"{f.name}: {f.description}" for f in FAMILIES.values()),
     )
     parser.add_argument(
         "--count", type=int, default=1, metavar="C", help="hidden obstacles per variant (1)"

@@ -441,6 +441,19 @@ def _completed(jobs: Sequence[_Job], workers: int) -> Iterator[tuple[int, RunRec
     pool.shutdown()
 
 
+def _variants(base: Scenario, n: int, seed: int, kind: str, count: int) -> list[Scenario]:
+    """The campaign's variants: a hidden-obstacle kind, or a registered family."""
+    from secure3d.world.attacks import random_hidden_obstacle_scenarios
+    from secure3d.world.families import family_variants
+    from secure3d.world.family_registry import FAMILIES
+
+    if kind in FAMILIES:
+        if count != 1:
+            raise ConfigError(f"count: family {kind!r} places its own obstacles (got {count!r})")
+        return family_variants(FAMILIES[kind], base, n, seed)
+    return random_hidden_obstacle_scenarios(base, n, seed, kind=kind, count=count)
+
+
 def run_campaign(
     base: Scenario | str | os.PathLike[str],
     n: int,
@@ -470,7 +483,9 @@ def run_campaign(
     out_dir : folder for ``campaign.csv`` and ``summary.md`` (created if missing).
     progress : show a tqdm progress bar on stderr.
     kind, count : placement and number of hidden obstacles per variant (see
-        :func:`~secure3d.world.attacks.random_hidden_obstacle_scenarios`).
+        :func:`~secure3d.world.attacks.random_hidden_obstacle_scenarios`), or the name of a family
+        in :data:`~secure3d.world.family_registry.FAMILIES` (``thin``, ``occlusion3d``: variant
+        ``i`` is a pure function of (base, seed, i); ``count`` must then be 1).
     flush_every : finished runs between intermediate copies (``campaign.in_progress.csv``).
     replan_defer : :func:`~secure3d.simulation.closed_loop.simulate`'s ``replan_defer`` for every
         run (s; None: its default, 0.5 s; 0: replan at once).
@@ -492,7 +507,6 @@ def run_campaign(
     from tqdm import tqdm
 
     from secure3d.planning.problem import problem_from_scenario
-    from secure3d.world.attacks import random_hidden_obstacle_scenarios
 
     planners = tuple(planners)
     _check_args(n, planners, seed, workers)
@@ -513,7 +527,7 @@ def run_campaign(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"out_dir: cannot create {str(out)!r}: {exc.strerror or exc}") from None
-    variants = random_hidden_obstacle_scenarios(base, n, seed, kind=kind, count=count)
+    variants = _variants(base, n, seed, kind, count)
     jobs = [
         _Job(i, scenario, seed + i, planner, dict(options, replan_defer=replan_defer))
         for i, scenario in enumerate(variants)

@@ -21,7 +21,6 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -37,6 +36,7 @@ from secure3d.world.attacks import (
     _placement_grid,
     true_obstacles,
 )
+from secure3d.world.families import Family
 from secure3d.world.spec import Attack, Box, Scenario
 
 #: Placement tries per variant before giving up.
@@ -46,17 +46,6 @@ MAX_ATTEMPTS = 300
 PATH_SPAN = (0.25, 0.85)
 #: Narrowed vertical fields of view (deg) of half the 3D-occlusion variants.
 NARROW_VFOV_DEG = (30.0, 60.0)
-
-
-# TODO(integrator): replace with ``from secure3d.world.families import Family`` (shared protocol).
-@dataclass(frozen=True)
-class Family:
-    """A random scenario family for campaigns (the shared protocol of ``world/families.py``)."""
-
-    name: str
-    description: str
-    prepare: Callable[[Scenario], Any]
-    variant: Callable[[Any, Scenario, np.random.Generator, int], Scenario]
 
 
 @dataclass(frozen=True, eq=False)

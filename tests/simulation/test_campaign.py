@@ -332,3 +332,30 @@ def test_atomic_write_keeps_the_old_file_on_failure(tmp_path: Path) -> None:
     assert _leftovers(tmp_path) == []
     with pytest.raises(ConfigError, match="does not exist"):
         atomic_write_text(tmp_path / "missing" / "x.csv", "x")
+
+
+def test_a_campaign_flies_a_registered_family(maps_dir, tmp_path):
+    """`--kind thin` draws the thin-obstacle family: variant i is a pure function of (base, seed,
+    i), so a 2-variant campaign flies the first two variants of a 3-variant draw."""
+    from secure3d.world.families import family_variants
+    from secure3d.world.family_registry import FAMILIES
+    from secure3d.world.scenario import load_scenario
+
+    base = load_scenario(maps_dir / "blind_corner.yaml")
+    three = family_variants(FAMILIES["thin"], base, 3, seed=5)
+    result = run_campaign(
+        base,
+        2,
+        planners=("secure",),
+        seed=5,
+        workers=1,
+        out_dir=tmp_path,
+        progress=False,
+        kind="thin",
+        nodes=20,
+    )
+    assert [r.scenario for r in result.records] == [v.name for v in three[:2]]
+    assert three[0].world.boxes != base.world.boxes
+    assert not any(r.collided for r in result.records)
+    with pytest.raises(ConfigError, match="count"):
+        run_campaign(base, 1, workers=1, out_dir=tmp_path, progress=False, kind="thin", count=2)

@@ -7,12 +7,13 @@ import pytest
 
 import secure3d
 from secure3d.world.attacks import server_claim
+from secure3d.world.families import variant_rng
 from secure3d.world.spec import box_distance
 from secure3d.world.thin_families import OCCLUSION_3D, THIN_OBSTACLES
 
 
 def _rng(seed: int, i: int) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(i,)))
+    return variant_rng(seed, i)
 
 
 @pytest.mark.parametrize("family", [THIN_OBSTACLES, OCCLUSION_3D], ids=lambda f: f.name)

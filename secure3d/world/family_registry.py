@@ -1,0 +1,15 @@
+"""The scenario families shipped for campaigns, by name (see :mod:`secure3d.world.families`).
+
+Adding a family is one entry here. The hidden-obstacle kinds ``auto``, ``corner`` and ``forest``
+(:func:`secure3d.world.attacks.random_hidden_obstacle_scenarios`) stay the campaign's defaults.
+"""
+
+from __future__ import annotations
+
+from secure3d.world.families import Family
+from secure3d.world.thin_families import OCCLUSION_3D, THIN_OBSTACLES
+
+__all__ = ["FAMILIES"]
+
+#: Families by name.
+FAMILIES: dict[str, Family] = {f.name: f for f in (THIN_OBSTACLES, OCCLUSION_3D)}
