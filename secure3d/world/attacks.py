@@ -315,6 +315,15 @@ def octomap_voxel_boxes(path: str | os.PathLike[str], what: str = "octomap") -> 
     return _voxel_boxes(str(p.resolve()), stat.st_mtime_ns, stat.st_size, what)
 
 
+def octomap_voxel_colors(path: str | os.PathLike[str], what: str = "octomap") -> np.ndarray | None:
+    """r, g, b (n, 3) uint8 of the boxes of :func:`octomap_voxel_boxes`, row for row, for a
+    colour tree (``ColorOcTree`` ``.ot``); None for files without colours."""
+    leaves = octomap_leaves(path, what)
+    if leaves.colors is None:
+        return None
+    return leaves.colors[leaves.values >= 0]
+
+
 @functools.lru_cache(maxsize=8)
 def _leaves(path: str, _mtime_ns: int, _size: int, what: str):  # noqa: ANN202
     from secure3d.errors import MapFormatError
