@@ -244,13 +244,19 @@ class _Loop:
         )
 
 
+def _voxel_colors(scenario: Scenario) -> np.ndarray | None:
+    """r, g, b of ``world.octomap``'s voxels for a colour tree, else None."""
+    from secure3d.world.attacks import octomap_voxel_colors
+
+    w = scenario.world
+    return None if w.octomap is None else octomap_voxel_colors(w.octomap, "world.octomap")
+
+
 def _voxel_drawing(scenario: Scenario, loop: _Loop) -> dict:
     """Keyword arguments drawing ``world.octomap``'s voxels (in a colour tree's colours) and the
     server map's claimed voxels when it is a file or is attacked by region."""
-    from secure3d.world.attacks import octomap_voxel_colors, server_claim
+    from secure3d.world.attacks import server_claim
 
-    w = scenario.world
-    colors = None if w.octomap is None else octomap_voxel_colors(w.octomap, "world.octomap")
     claim = server_claim(scenario)
     file_claim = claim.bt is not None or claim.cloud is not None or claim.mesh is not None
     claimed = None
@@ -260,7 +266,7 @@ def _voxel_drawing(scenario: Scenario, loop: _Loop) -> dict:
         claimed = belief_map(scenario).claimed_voxels(True)
     return {
         "voxel_boxes": loop.truth.voxel_boxes,
-        "voxel_colors": colors,
+        "voxel_colors": _voxel_colors(scenario),
         "claimed_voxels": claimed,
         "voxel_size": scenario.server_map.resolution,
     }
@@ -736,7 +742,7 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
             hidden_names=tuple(loop.hidden),
             bounds=scenario.world.bounds,
             true_voxels=loop.truth.voxel_boxes,
-            true_voxel_colors=_voxel_drawing(scenario, loop)["voxel_colors"],
+            true_voxel_colors=_voxel_colors(scenario),
         )
 
     x = np.asarray(loop.problem.x0, dtype=float)

@@ -573,7 +573,8 @@ def random_hidden_obstacle_scenarios(
     -------
     list of Scenario
         Named ``<base>_hidden_<i>``. Each new box is added to ``world.boxes`` with a ``hide``
-        attack (no attack when the server map is its own ``.bt``: the file lacks it anyway).
+        attack (no attack when the server map is its own file, OctoMap, cloud or mesh: the file
+        lacks it anyway).
 
     Raises
     ------
@@ -685,7 +686,7 @@ def _fresh_name(world: World, added: list[Box], stem: str) -> str:
 def _with_hidden(base: Scenario, added: list[Box], i: int, kind: str) -> Scenario:
     world = dataclasses.replace(base.world, boxes=(*base.world.boxes, *added))
     server = base.server_map
-    if server.bt is None:
+    if server.source_file is None:
         hides = tuple(Attack("hide", target=b.name) for b in added)
         server = dataclasses.replace(server, attacks=(*server.attacks, *hides))
     names = ", ".join(b.name for b in added)
