@@ -49,6 +49,9 @@ _LEGACY_TREE_TYPE = 3
 MAX_FILE_BYTES = 1 << 30
 
 
+_COMMENT = b"# (feel free to add / change comments, but leave the first line as it is!)\n#\n"
+
+
 class Header(NamedTuple):
     """A validated OctoMap header.
 
@@ -198,3 +201,20 @@ def read_file_bounded(path: str | os.PathLike[str], limit: int = MAX_FILE_BYTES)
             )
         rest = fh.read(max(0, want - len(head)))
     return head[:want] + rest
+
+
+def _format_res(resolution: float) -> str:
+    # OctoMap streams doubles with 6 significant digits; keep that when it is exact, else repr so
+    # that our own files round-trip the resolution bit for bit.
+    short = f"{resolution:.6g}"
+    return short if float(short) == resolution else repr(float(resolution))
+
+
+def format_header(magic: bytes, size: int, resolution: float, tree_id: str = "OcTree") -> bytes:
+    """The text header OctoMap's ``writeBinary``/``write`` put before the body."""
+    return (
+        magic
+        + b"\n"
+        + _COMMENT
+        + f"id {tree_id}\nsize {size}\nres {_format_res(resolution)}\ndata\n".encode()
+    )

@@ -52,6 +52,9 @@ from secure3d.mapping.octomap_header import (
     parse_header,
     read_file_bounded,
 )
+from secure3d.mapping.octomap_header import (
+    format_header as _header,
+)
 
 __all__ = [
     "BT_MAGIC",
@@ -67,11 +70,9 @@ __all__ = [
     "write_ot_bytes",
 ]
 
-_COMMENT = b"# (feel free to add / change comments, but leave the first line as it is!)\n#\n"
 #: Most leaves a file may hold (~1 GB of parsed arrays); geb079.bt, a whole building floor at
 #: 0.08 m, has 428,144.
 MAX_LEAVES = 100_000_000
-TREE_ID = "OcTree"
 
 # Error codes of the numba parsers.
 _OK, _TRUNCATED, _TOO_DEEP, _TOO_MANY_NODES = 0, 1, 2, 3
@@ -111,25 +112,6 @@ class Leaves(NamedTuple):
     tree_id: str = "OcTree"
     fmt: str = "bt"
     colors: NDArray[np.uint8] | None = None
-
-
-# --------------------------------------------------------------------------- header
-
-
-def _format_res(resolution: float) -> str:
-    # OctoMap streams doubles with 6 significant digits; keep that when it is exact, else repr so
-    # that our own files round-trip the resolution bit for bit.
-    short = f"{resolution:.6g}"
-    return short if float(short) == resolution else repr(float(resolution))
-
-
-def _header(magic: bytes, size: int, resolution: float) -> bytes:
-    return (
-        magic
-        + b"\n"
-        + _COMMENT
-        + f"id {TREE_ID}\nsize {size}\nres {_format_res(resolution)}\ndata\n".encode()
-    )
 
 
 # --------------------------------------------------------------------------- parsing kernels
