@@ -4,12 +4,14 @@ Each variant adds one region attack (:class:`~secure3d.world.spec.Attack` with a
 the base scenario's server map, which may be an OctoMap file, a point cloud, a mesh or the world's
 named obstacles:
 
-- ``hide`` (probability 1/2): a box around a claimed-occupied voxel near the straight start-goal
-  line, 0.6-2.0 m a side horizontally and reaching from 0.2 m under the flight height band to
-  above it; the server reports it free (the dangerous lie);
-- ``shift`` (1/4): the same kind of box moved by 0.3-1.5 m horizontally;
-- ``phantom`` (1/4): a box of 0.4-1.2 m a side on the start-goal line, clear of the start and the
-  goal by the body radius plus 0.3 m, claimed occupied.
+- ``hide`` (probability 1/2): a box centred on a claimed-occupied voxel within 3 m of the
+  straight start-goal segment, 0.6-2.0 m a side horizontally and 1-3 m tall (clipped to the world
+  bounds); the server reports everything in it free (the dangerous lie);
+- ``shift`` (1/4): the same kind of box, its claimed obstacles reported 0.3-1.5 m away
+  horizontally;
+- ``phantom`` (1/4): a box 0.4-1.2 m a side horizontally and 0.6-2 m tall centred on the
+  start-goal segment (20-80 % along it), clear of the start and the goal by the body radius plus
+  0.3 m, claimed occupied.
 
 Variant ``i`` is a pure function of (base, seed, i): its generator is
 ``np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(i,)))``.
