@@ -3,8 +3,8 @@
 - ``secure3d map info FILE``: an OctoMap (``.bt``/``.ot``, any tree type OctoMap reads), a point
   cloud (``.ply``/``.pcd``/``.xyz``) or a mesh: its type, resolution, leaves, bounds, occupied
   volume, and whether it has colours.
-- ``secure3d map convert IN OUT``: a cloud (``--resolution``, optional ``--origin`` for OctoMap
-  rays), a mesh (``--resolution``; its surface voxelised) or an OctoMap to ``.bt``/``.ot``; an
+- ``secure3d map convert IN OUT``: a cloud (``--resolution``; OctoMap rays from its per-point
+  origins or ``--origin``, else its points only), a mesh (``--resolution``; its surface voxelised) or an OctoMap to ``.bt``/``.ot``; an
   OctoMap back to a point cloud of its occupied voxel centres (in its colours for a colour tree).
 
 Errors are one line (``secure3d: error: ...``, exit status 2), like every other command.
@@ -148,12 +148,10 @@ def convert(src: Path, dst: Path, resolution: float | None, origin: list[float] 
     m = OccupancyMap(resolution)
     info = map_info(src)[0]
     if "point cloud" in info:
-        from secure3d.world.server_sources import read_cloud
+        from secure3d.world.server_sources import insert_cloud, read_cloud_origins
 
-        pts = read_cloud(src, str(src))
-        if origin is not None:
-            m.insert_point_cloud(pts, np.asarray(origin, float), None)
-        else:
+        pts, origins = read_cloud_origins(src, str(src))
+        if not insert_cloud(m, pts, origins, origin, str(src)):
             codes = _leaves_from_points(pts, resolution)
             _set_occupied(m, codes, TREE_DEPTH)
     else:

@@ -207,13 +207,13 @@ def _claim_sources(belief: OccupancyMap, claim: ServerClaim, res: float) -> None
     from secure3d.world import server_sources
 
     if claim.cloud is not None:
-        points = server_sources.read_cloud(claim.cloud, "server_map.cloud")
-        if claim.origin is None:
-            belief.set_claim_voxels(points, True)
-        else:
-            server = OccupancyMap(res)
-            server.insert_point_cloud(points, np.asarray(claim.origin, float), None)
+        what = "server_map.cloud"
+        points, origins = server_sources.read_cloud_origins(claim.cloud, what)
+        server = OccupancyMap(res)
+        if server_sources.insert_cloud(server, points, origins, claim.origin, what):
             belief.set_claim_from_map(server)
+        else:
+            belief.set_claim_voxels(points, True)
     if claim.mesh is not None:
         v, f = server_sources.read_surface_mesh(claim.mesh, "server_map.mesh")
         belief.set_claim_voxels(server_sources.surface_voxel_centres(v, f, res), True)

@@ -1,11 +1,12 @@
 """Server maps given as files: OctoMaps, point clouds and meshes, read and turned into voxels.
 
 - **OctoMap** (``.bt``, ``.ot``, any tree type OctoMap reads): its occupied and free leaves.
-- **Point cloud** (``.ply``, ``.pcd``, ``.xyz`` through Open3D's reader): with a sensor ``origin``,
-  each point is a ray end inserted with OctoMap's ``insertPointCloud`` semantics (free voxels
-  along the ray, the end voxel occupied, per-scan update sets); without one, each point only marks
-  its voxel occupied and no free space is claimed (a ray from a guessed origin would claim free
-  space nobody saw).
+- **Point cloud** (``.ply``, ``.pcd``, ``.xyz`` through Open3D's reader): each point is a ray
+  end inserted with OctoMap's ``insertPointCloud`` semantics (free voxels along the ray, the end
+  voxel occupied, per-scan update sets) from its own origin if the file has per-point origins
+  (vertex properties ``origin_x``, ``origin_y``, ``origin_z``: one scan per distinct origin),
+  else from the scenario's ``origin``; without either, each point only marks its voxel occupied
+  and no free space is claimed (a ray from a guessed origin would claim free space nobody saw).
 - **Mesh** (``.obj``, ``.stl``, ``.ply``, ``.off``, ``.glb``, any format trimesh loads as
   triangles; need not be closed): its surface voxelised at the map's resolution, i.e. every voxel
   whose centre lies within half a voxel diagonal of a triangle (every voxel the surface touches).
@@ -33,6 +34,8 @@ SERVER_MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
 MAX_SOURCE_BYTES = 200_000_000
 #: Most points of a cloud (~10 s of insertion); more is a unit or sampling mistake.
 MAX_CLOUD_POINTS = 20_000_000
+#: Most distinct per-point sensor origins (scans) of a cloud.
+MAX_CLOUD_ORIGINS = 10_000
 #: Most triangles of a server mesh.
 MAX_SERVER_MESH_FACES = 2_000_000
 #: Most candidate voxels the mesh voxeliser examines (bounding box of the mesh at the resolution).
@@ -55,32 +58,84 @@ def _size_checked(path: Path, what: str, suffixes: tuple[str, ...], kind: str) -
 
 
 def read_cloud(path: str | os.PathLike[str], what: str = "cloud") -> np.ndarray:
-    """Points of a ``.ply``/``.pcd``/``.xyz`` file, through Open3D.
+    """Points of a ``.ply``/``.pcd``/``.xyz`` file, through Open3D (see :func:`read_cloud_origins`).
 
     Returns
     -------
     (n, 3) float64
-        Finite points only (Open3D drops NaN points).
+    """
+    return read_cloud_origins(path, what)[0]
+
+
+def read_cloud_origins(
+    path: str | os.PathLike[str], what: str = "cloud"
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Points of a ``.ply``/``.pcd``/``.xyz`` file and, if it has them, their sensor origins.
+
+    Per-point origins are the vertex properties ``origin_x``, ``origin_y``, ``origin_z`` (a
+    ``.ply`` or ``.pcd`` with those fields, read through Open3D's tensor API). Rows with a
+    non-finite point or origin are dropped.
+
+    Returns
+    -------
+    points : (n, 3) float64
+    origins : (n, 3) float64 or None
 
     Raises
     ------
     ScenarioError
-        Wrong suffix, too large, unreadable, empty, or non-finite points.
+        Wrong suffix, too large, unreadable, empty, or too many points.
     """
     from secure3d._deps import open3d
 
     p = Path(path)
     _size_checked(p, what, CLOUD_SUFFIXES, "point-cloud")
     o3d = open3d()
-    pcd = o3d.io.read_point_cloud(str(p), format="auto", remove_nan_points=True)
-    pts = np.asarray(pcd.points, dtype=np.float64)
-    if pts.shape[0] == 0:
+    try:
+        pcd = o3d.t.io.read_point_cloud(str(p))
+    except RuntimeError as exc:
+        raise ScenarioError(
+            f"{what}: cannot read {p}: {' '.join(str(exc).split())[:120]}"
+        ) from None
+    if "positions" not in pcd.point or pcd.point["positions"].shape[0] == 0:
         raise ScenarioError(f"{what}: {p} holds no points (unreadable or empty)")
+    pts = pcd.point["positions"].numpy().astype(np.float64).reshape(-1, 3)
     if pts.shape[0] > MAX_CLOUD_POINTS:
         raise ScenarioError(f"{what}: {p} has more than {MAX_CLOUD_POINTS} points")
-    if not np.all(np.isfinite(pts)):
-        raise ScenarioError(f"{what}: {p} has non-finite points")
-    return pts
+    names = ("origin_x", "origin_y", "origin_z")
+    origins = None
+    if all(n in pcd.point for n in names):
+        origins = np.hstack([pcd.point[n].numpy().reshape(-1, 1) for n in names]).astype(float)
+    keep = np.all(np.isfinite(pts), axis=1)
+    if origins is not None:
+        keep &= np.all(np.isfinite(origins), axis=1)
+        origins = origins[keep]
+    if not keep.any():
+        raise ScenarioError(f"{what}: {p} has no finite points")
+    return pts[keep], origins
+
+
+def insert_cloud(
+    target: object, points: np.ndarray, origins: np.ndarray | None, origin: object, what: str
+) -> bool:
+    """Insert a cloud into ``target`` (an OccupancyMap) as OctoMap rays: from each point's own
+    origin (one scan per distinct origin, at most :data:`MAX_CLOUD_ORIGINS`) if the file has
+    them, else from ``origin``. Returns False (nothing inserted) when there is no origin at all.
+    """
+    if origins is None:
+        if origin is None:
+            return False
+        target.insert_point_cloud(points, np.asarray(origin, float), None)
+        return True
+    uniq, inverse = np.unique(origins, axis=0, return_inverse=True)
+    if len(uniq) > MAX_CLOUD_ORIGINS:
+        raise ScenarioError(
+            f"{what}: {len(uniq)} distinct per-point origins, more than {MAX_CLOUD_ORIGINS}"
+            " scans (group the points by scan)"
+        )
+    for k, o in enumerate(uniq):
+        target.insert_point_cloud(points[inverse.ravel() == k], o, None)
+    return True
 
 
 def read_surface_mesh(
@@ -185,7 +240,9 @@ __all__ = [
     "CLOUD_SUFFIXES",
     "SERVER_MESH_SUFFIXES",
     "check_source_file",
+    "insert_cloud",
     "read_cloud",
+    "read_cloud_origins",
     "read_surface_mesh",
     "surface_voxel_centres",
 ]

@@ -241,3 +241,41 @@ def test_region_attack_family_is_pure_and_valid() -> None:
         assert v.server_map.attacks[-1].region is not None
         occ, _ = _claims(belief_map(v))
         assert occ != occ0, f"{v.name}: the attack changed nothing"
+
+
+def test_cloud_with_per_point_origins_is_one_octomap_scan_per_origin(tmp_path: Path) -> None:
+    """A .ply with origin_x/y/z vertex properties: each point is a ray from its own origin, as
+    octomap-python inserts each scan; the scenario's origin is not needed."""
+    import octomap
+
+    rng = np.random.default_rng(4)
+    origins = np.array([[1.0, 1.0, 1.0], [6.75, 1.25, 1.25]])
+    pts = np.vstack([o + rng.uniform(-2.5, 2.5, (400, 3)) for o in origins])
+    own = np.repeat(origins, 400, axis=0)
+    rows = "\n".join(" ".join(f"{v:.6f}" for v in (*p, *o)) for p, o in zip(pts, own, strict=True))
+    props = "".join(
+        f"property float {n}\n" for n in ("x", "y", "z", "origin_x", "origin_y", "origin_z")
+    )
+    (tmp_path / "clouds").mkdir()
+    (tmp_path / "clouds" / "scans.ply").write_text(
+        f"ply\nformat ascii 1.0\nelement vertex {len(pts)}\n{props}end_header\n{rows}\n"
+    )
+    data = yaml.safe_load((MAPS / "cloud_server.yaml").read_text())
+    data["server_map"] = {"resolution": 0.1, "cloud": "clouds/scans.ply"}
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(data))
+    occ, free = _claims(belief_map(load_scenario(tmp_path / "s.yaml")))
+    tree = octomap.OcTree(0.1)
+    f32 = pts.astype(np.float32).astype(float)  # the file stores float32
+    for o in origins:
+        tree.insertPointCloud(f32[(own == o).all(1)], o)
+    n_occ = n_free = 0
+    for leaf in tree.begin_leafs():  # OctoMap prunes equal siblings: count voxels per leaf
+        n = 8 ** (16 - leaf.getDepth())
+        if tree.isNodeOccupied(leaf):
+            n_occ += n
+        else:
+            n_free += n
+    assert (len(occ), len(free)) == (n_occ, n_free) and n_free > 1000
+    centre = lambda keys: (np.array(sorted(keys)) + 0.5) * 0.1  # noqa: E731
+    np.testing.assert_array_equal(tree.getLabels(centre(occ)), 1)
+    np.testing.assert_array_equal(tree.getLabels(centre(free)), 0)
