@@ -1,6 +1,6 @@
 """A small region-attack campaign over a scenario (issue 24), run directly through the family.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/region_campaign.py [SCENARIO] [N] [SEED] [PLANNERS]
+    PYTHONPATH=. .venv/bin/python benchmarks/region_campaign.py [SCENARIO] [N] [SEED] [PLANNERS] [FIRST]
 
 Default: maps/geb079_region_attacks.yaml, 20 variants, seed 0, secure only. Variant i is
 ``REGION_ATTACKS.variant(prepare(base), base, default_rng(SeedSequence(seed, spawn_key=(i,))), i)``.
@@ -25,6 +25,7 @@ def main(argv: list[str]) -> int:
     n = int(argv[1]) if len(argv) > 1 else 20
     seed = int(argv[2]) if len(argv) > 2 else 0
     planners = argv[3].split(",") if len(argv) > 3 else ["secure"]
+    first = int(argv[4]) if len(argv) > 4 else 0
     base = load_scenario(path)
     prep = REGION_ATTACKS.prepare(base)
     rows = [
@@ -33,7 +34,7 @@ def main(argv: list[str]) -> int:
         "|---|---|---|---|---|---|---|---|",
     ]
     stats: dict[str, list[int]] = {p: [0, 0, 0] for p in planners}  # runs, collisions, goals
-    for i in range(n):
+    for i in range(first, n):
         v = REGION_ATTACKS.variant(prep, base, variant_rng(seed, i), i)
         for planner in planners:
             t0 = time.perf_counter()
@@ -55,9 +56,10 @@ def main(argv: list[str]) -> int:
         for p, s in stats.items()
     ]
     print("\n".join(summary))
-    out = ROOT / "benchmarks" / "results" / f"region_campaign_{base.name}.md"
+    part = f"_from{first}" if first else ""
+    out = ROOT / "benchmarks" / "results" / f"region_campaign_{base.name}{part}.md"
     out.write_text(
-        f"# Region-attack campaign over {path.name} (seed {seed}, {n} variants)\n\n"
+        f"# Region-attack campaign over {path.name} (seed {seed}, variants {first}-{n - 1})\n\n"
         + "\n".join(summary)
         + "\n\n"
         + "\n".join(rows)
