@@ -52,8 +52,7 @@ def main(argv: list[str]) -> int:
             s[1] += int(r.collided)
             s[2] += int(r.reached_goal)
     summary = [
-        f"- {p}: {s[0]} runs, {s[1]} collisions, goal rate {s[2]}/{s[0]}"
-        for p, s in stats.items()
+        f"- {p}: {s[0]} runs, {s[1]} collisions, goal rate {s[2]}/{s[0]}" for p, s in stats.items()
     ]
     print("\n".join(summary))
     part = f"_from{first}" if first else ""
