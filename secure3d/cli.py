@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
 from secure3d import __version__
+from secure3d.cli_map import map_arguments, run_map
 from secure3d.errors import ConfigError, Secure3DError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -536,6 +537,7 @@ COMMANDS: tuple[Command, ...] = (
         _demo_arguments,
         _demo,
     ),
+    Command("map", "map files: 'info FILE', 'convert IN OUT'", map_arguments, run_map),
 )
 
 

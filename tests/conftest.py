@@ -17,7 +17,9 @@ import pytest  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 MAPS = REPO / "maps"
-SHARED_OCTOMAP = REPO.parent / "shared" / "data" / "octomap"
+SHARED_OCTOMAP = Path(
+    os.environ.get("SECURE3D_SHARED_OCTOMAP", REPO.parent / "shared" / "data" / "octomap")
+)
 
 
 @pytest.fixture

@@ -953,23 +953,24 @@ class OccupancyMap:
         Raises
         ------
         MapFormatError
-            The buffer is not a valid OctoMap ``OcTree`` file (see
-            :func:`secure3d.mapping.octomap_io.read_bt_bytes`).
+            The buffer is not a valid OctoMap file (see
+            :func:`secure3d.mapping.octomap_io.read_bt_bytes` and ``read_ot_bytes``).
         """
         if not isinstance(data, (bytes, bytearray, memoryview)):
             raise MapFormatError(f"expected bytes, got {type(data).__name__}")
-        data = bytes(data)
-        if data.startswith(octomap_io.BT_MAGIC):
-            leaves = octomap_io.read_bt_bytes(data)
+        return cls._from_leaves(octomap_io.read_octomap_bytes(bytes(data)), params, bounds)
+
+    @classmethod
+    def _from_leaves(
+        cls,
+        leaves: octomap_io.Leaves,
+        params: OccupancyParams,
+        bounds: tuple[ArrayLike, ArrayLike] | None,
+    ) -> OccupancyMap:
+        if leaves.fmt == "bt":
             values = np.where(leaves.values > 0, params.clamp_max_log, params.clamp_min_log)
-        elif data.startswith(octomap_io.OT_MAGIC):
-            leaves = octomap_io.read_ot_bytes(data)
-            values = leaves.values
         else:
-            raise MapFormatError(
-                "bad header: not an OctoMap file (first line is neither "
-                f"{octomap_io.BT_MAGIC.decode()!r} nor {octomap_io.OT_MAGIC.decode()!r})"
-            )
+            values = leaves.values
         out = cls(leaves.resolution, params, bounds)
         out._sensor.set_leaves(leaves.starts, leaves.depths, values.astype(np.float32))
         return out
@@ -981,7 +982,10 @@ class OccupancyMap:
         params: OccupancyParams = OccupancyParams(),  # noqa: B008 (frozen, immutable)
         bounds: tuple[ArrayLike, ArrayLike] | None = None,
     ) -> OccupancyMap:
-        """Read an OctoMap ``.bt`` (or ``.ot``) file; see :meth:`from_bytes`.
+        """Read an OctoMap ``.bt`` (or ``.ot``) file, header first; see :meth:`from_bytes`.
+
+        Only the header (at most 4 KB) is read before it is validated, then only as many bytes as
+        its ``size`` allows: ``read_bt("/dev/zero")`` fails after 4 KB.
 
         Raises
         ------
@@ -990,7 +994,7 @@ class OccupancyMap:
         OSError
             The file cannot be read.
         """
-        return cls.from_bytes(_read_limited(Path(path)), params, bounds)
+        return cls._from_leaves(octomap_io.read_octomap_file(Path(path)), params, bounds)
 
     read_ot = read_bt
 
@@ -1221,17 +1225,6 @@ def _bounds_walls(
         wlo.append(b_lo)
         whi.append(b_hi)
     return np.array(wlo), np.array(whi)
-
-
-def _read_limited(path: Path, limit: int = MAX_FILE_BYTES) -> bytes:
-    size = path.stat().st_size
-    if size > limit:
-        raise MapFormatError(f"{path}: {size} bytes exceeds the {limit}-byte limit")
-    with path.open("rb") as fh:
-        data = fh.read(limit + 1)
-    if len(data) > limit:
-        raise MapFormatError(f"{path}: more than {limit} bytes")
-    return data
 
 
 def _write_atomic(path: Path, data: bytes) -> None:

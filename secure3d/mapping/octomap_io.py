@@ -32,7 +32,6 @@ rule) and ``write``.
 from __future__ import annotations
 
 import bz2
-import math
 import os
 from pathlib import Path
 from typing import NamedTuple
@@ -43,16 +42,37 @@ from numpy.typing import NDArray
 
 from secure3d.errors import MapFormatError
 from secure3d.mapping.keys import TREE_DEPTH, unique_sorted
+from secure3d.mapping.octomap_header import (
+    BT_MAGIC,
+    MAX_FILE_BYTES,
+    MAX_HEADER_BYTES,
+    OT_MAGIC,
+    OT_NODE_BYTES,
+    Header,
+    parse_header,
+    read_file_bounded,
+)
+from secure3d.mapping.octomap_header import (
+    format_header as _header,
+)
 
-BT_MAGIC = b"# Octomap OcTree binary file"
-OT_MAGIC = b"# Octomap OcTree file"
-_COMMENT = b"# (feel free to add / change comments, but leave the first line as it is!)\n#\n"
-#: OctoMap's header is ~130 bytes; anything needing more than this is not a real header.
-MAX_HEADER_BYTES = 4096
+__all__ = [
+    "BT_MAGIC",
+    "MAX_HEADER_BYTES",
+    "OT_MAGIC",
+    "Leaves",
+    "read_bt_bytes",
+    "read_octomap_bytes",
+    "read_octomap_file",
+    "read_ot_bytes",
+    "read_scan_dat",
+    "write_bt_bytes",
+    "write_ot_bytes",
+]
+
 #: Most leaves a file may hold (~1 GB of parsed arrays); geb079.bt, a whole building floor at
 #: 0.08 m, has 428,144.
 MAX_LEAVES = 100_000_000
-TREE_ID = "OcTree"
 
 # Error codes of the numba parsers.
 _OK, _TRUNCATED, _TOO_DEEP, _TOO_MANY_NODES = 0, 1, 2, 3
@@ -77,81 +97,21 @@ class Leaves(NamedTuple):
     values : (n,) float32
         ``.ot``: the stored log-odds. ``.bt``: +1 for occupied, -1 for free (the reader of a map
         turns these into its clamping bounds, as OctoMap does).
+    tree_id : str
+        The header's ``id`` (the tree type that wrote the file).
+    fmt : {"bt", "ot"}
+        The file format (a ``.bt``'s values are only +-1).
+    colors : (n, 3) uint8 or None
+        Each leaf's r, g, b for a ``ColorOcTree`` ``.ot``; None otherwise (a ``.bt`` has none).
     """
 
     resolution: float
     starts: NDArray[np.int64]
     depths: NDArray[np.int8]
     values: NDArray[np.float32]
-
-
-# --------------------------------------------------------------------------- header
-
-
-def _parse_header(data: bytes, magic: bytes) -> tuple[float, int, int]:
-    """Validate the text header; return (resolution, size, offset of the first data byte)."""
-    head = data[:MAX_HEADER_BYTES]
-    if not head.startswith(magic):
-        raise MapFormatError(f"bad header: first line must start with {magic.decode()!r}")
-    fields: dict[str, str] = {}
-    pos = head.find(b"\n")
-    while True:
-        if pos < 0:
-            raise MapFormatError(f"bad header: no 'data' line within {MAX_HEADER_BYTES} bytes")
-        nxt = head.find(b"\n", pos + 1)
-        if nxt < 0:
-            raise MapFormatError(f"bad header: no 'data' line within {MAX_HEADER_BYTES} bytes")
-        try:
-            line = head[pos + 1 : nxt].decode("ascii")
-        except UnicodeDecodeError:
-            raise MapFormatError("bad header: non-ASCII bytes before the 'data' line") from None
-        pos = nxt
-        tokens = line.split()
-        if not tokens or tokens[0].startswith("#"):
-            continue
-        if tokens[0] == "data":
-            break
-        if tokens[0] in ("id", "size", "res"):
-            if len(tokens) != 2:
-                raise MapFormatError(f"bad header line {line!r}: expected '{tokens[0]} <value>'")
-            if tokens[0] in fields:
-                raise MapFormatError(f"bad header: duplicate {tokens[0]!r} line")
-            fields[tokens[0]] = tokens[1]
-        # OctoMap skips unknown keywords with a warning; so do we.
-    for name in ("id", "size", "res"):
-        if name not in fields:
-            raise MapFormatError(f"bad header: missing {name!r} line")
-    if fields["id"] != TREE_ID:
-        raise MapFormatError(f"unsupported tree type id {fields['id']!r} (only {TREE_ID!r})")
-    try:
-        size = int(fields["size"])
-    except ValueError:
-        raise MapFormatError(f"bad header: size {fields['size']!r} is not an integer") from None
-    if size < 0:
-        raise MapFormatError(f"bad header: negative size {size}")
-    try:
-        res = float(fields["res"])
-    except ValueError:
-        raise MapFormatError(f"bad header: res {fields['res']!r} is not a number") from None
-    if not (math.isfinite(res) and res > 0.0):
-        raise MapFormatError(f"bad header: res must be finite and > 0, got {fields['res']!r}")
-    return res, size, pos + 1
-
-
-def _format_res(resolution: float) -> str:
-    # OctoMap streams doubles with 6 significant digits; keep that when it is exact, else repr so
-    # that our own files round-trip the resolution bit for bit.
-    short = f"{resolution:.6g}"
-    return short if float(short) == resolution else repr(float(resolution))
-
-
-def _header(magic: bytes, size: int, resolution: float) -> bytes:
-    return (
-        magic
-        + b"\n"
-        + _COMMENT
-        + f"id {TREE_ID}\nsize {size}\nres {_format_res(resolution)}\ndata\n".encode()
-    )
+    tree_id: str = "OcTree"
+    fmt: str = "bt"
+    colors: NDArray[np.uint8] | None = None
 
 
 # --------------------------------------------------------------------------- parsing kernels
@@ -242,7 +202,9 @@ def _parse_bt_body(body: np.ndarray, max_nodes: int, n_out: int) -> tuple:
 
 @numba.njit(cache=True)
 def _parse_ot_body(values: np.ndarray, masks: np.ndarray) -> tuple:
-    """Walk ``.ot`` records; return (starts, depths, values, n_leaves, n_nodes, error).
+    """Walk ``.ot`` records; return (starts, depths, values, nodes, n_leaves, n_nodes, error).
+
+    ``nodes`` is each leaf's record index (for per-node data such as colours).
 
     ``values``/``masks`` are the per-record log-odds and child masks, one per node in pre-order.
     """
@@ -250,6 +212,7 @@ def _parse_ot_body(values: np.ndarray, masks: np.ndarray) -> tuple:
     starts = np.empty(n, np.int64)
     depths = np.empty(n, np.int8)
     leaf_vals = np.empty(n, np.float32)
+    leaf_node = np.empty(n, np.int64)
     stack_prefix = np.empty(TREE_DEPTH + 1, np.int64)
     stack_mask = np.empty(TREE_DEPTH + 1, np.int64)
     stack_next = np.empty(TREE_DEPTH + 1, np.int64)
@@ -259,7 +222,7 @@ def _parse_ot_body(values: np.ndarray, masks: np.ndarray) -> tuple:
     prefix = 0
     while True:
         if pos >= n:
-            return starts, depths, leaf_vals, n_leaves, pos, _TRUNCATED
+            return starts, depths, leaf_vals, leaf_node, n_leaves, pos, _TRUNCATED
         m = np.int64(masks[pos])
         v = values[pos]
         pos += 1
@@ -267,10 +230,11 @@ def _parse_ot_body(values: np.ndarray, masks: np.ndarray) -> tuple:
             starts[n_leaves] = prefix << (3 * (TREE_DEPTH - sp))
             depths[n_leaves] = sp
             leaf_vals[n_leaves] = v
+            leaf_node[n_leaves] = pos - 1
             n_leaves += 1
         else:
             if sp >= TREE_DEPTH:
-                return starts, depths, leaf_vals, n_leaves, pos, _TOO_DEEP
+                return starts, depths, leaf_vals, leaf_node, n_leaves, pos, _TOO_DEEP
             stack_prefix[sp] = prefix
             stack_mask[sp] = m
             stack_next[sp] = 0
@@ -286,16 +250,37 @@ def _parse_ot_body(values: np.ndarray, masks: np.ndarray) -> tuple:
                 break
             sp -= 1
         if sp == 0:
-            return starts, depths, leaf_vals, n_leaves, pos, _OK
+            return starts, depths, leaf_vals, leaf_node, n_leaves, pos, _OK
 
 
-def _sorted(starts: np.ndarray, depths: np.ndarray, values: np.ndarray) -> tuple:
+def _sorted(starts: np.ndarray, *per_leaf: np.ndarray) -> tuple:
     order = np.argsort(starts, kind="stable")
-    return starts[order], depths[order], values[order]
+    return (starts[order], *(x[order] for x in per_leaf))
+
+
+def _empty(header: Header) -> Leaves:
+    empty = np.empty(0, np.int64)
+    colored = header.fmt == "ot" and header.tree_id == "ColorOcTree"
+    colors = np.empty((0, 3), np.uint8) if colored else None
+    return Leaves(
+        header.resolution,
+        empty,
+        np.empty(0, np.int8),
+        np.empty(0, np.float32),
+        header.tree_id,
+        header.fmt,
+        colors,
+    )
+
+
+def _expect(header: Header, fmt: str) -> None:
+    if header.fmt != fmt:
+        magic = BT_MAGIC if fmt == "bt" else OT_MAGIC
+        raise MapFormatError(f"bad header: first line must start with {magic.decode()!r}")
 
 
 def read_bt_bytes(data: bytes) -> Leaves:
-    """Parse an OctoMap ``.bt`` buffer.
+    """Parse an OctoMap ``.bt`` buffer, whatever tree type wrote it (or a legacy binary header).
 
     Parameters
     ----------
@@ -305,22 +290,24 @@ def read_bt_bytes(data: bytes) -> Leaves:
     Returns
     -------
     Leaves
-        ``values`` is +1 (occupied) / -1 (free).
+        ``values`` is +1 (occupied) / -1 (free); ``colors`` is None (a ``.bt`` keeps only
+        occupancy bits).
 
     Raises
     ------
     MapFormatError
-        Bad header, wrong tree id, ``res`` not finite and positive, ``size`` impossible for the
-        number of data bytes, truncated data, a tree deeper than 16 levels, node-count mismatch,
-        or trailing bytes after the tree.
+        Bad header (see :func:`~secure3d.mapping.octomap_header.parse_header`), ``size``
+        impossible for the number of data bytes, truncated data, a tree deeper than 16 levels,
+        node-count mismatch, or trailing bytes after the tree.
     """
-    res, size, offset = _parse_header(data, BT_MAGIC)
-    body = np.frombuffer(data, dtype=np.uint8, offset=offset)
+    header = parse_header(data)
+    _expect(header, "bt")
+    size = header.size
+    body = np.frombuffer(data, dtype=np.uint8, offset=header.offset)
     if size == 0:
         if body.size:
             raise MapFormatError(f"size 0 but {body.size} data bytes follow the header")
-        empty = np.empty(0, np.int64)
-        return Leaves(res, empty, np.empty(0, np.int8), np.empty(0, np.float32))
+        return _empty(header)
     # Each 2-byte record declares at most 8 children: reject an impossible size outright.
     max_nodes = 1 + 8 * (body.size // 2)
     if size > max_nodes:
@@ -339,40 +326,43 @@ def read_bt_bytes(data: bytes) -> Leaves:
         raise MapFormatError(f"{n_leaves} leaves exceed the limit of {MAX_LEAVES}")
     starts, depths, occ, _, _, _, _ = _parse_bt_body(body, size, n_leaves)
     values = np.where(occ, np.float32(1.0), np.float32(-1.0))
-    return Leaves(res, *_sorted(starts, depths, values))
+    return Leaves(header.resolution, *_sorted(starts, depths, values), header.tree_id, "bt")
 
 
 def read_ot_bytes(data: bytes) -> Leaves:
-    """Parse an OctoMap ``.ot`` buffer (``OcTree`` only).
+    """Parse an OctoMap ``.ot`` buffer of an ``OcTree``, ``OcTreeStamped`` or ``ColorOcTree``.
 
     Returns
     -------
     Leaves
-        ``values`` are the stored ``float32`` log-odds.
+        ``values`` are the stored ``float32`` log-odds; ``colors`` the leaves' r, g, b for a
+        ``ColorOcTree`` (else None; an ``OcTreeStamped`` file holds no timestamps).
 
     Raises
     ------
     MapFormatError
-        As :func:`read_bt_bytes`, plus non-finite log-odds.
+        As :func:`read_bt_bytes`, plus non-finite log-odds and tree types without a known layout.
     """
-    res, size, offset = _parse_header(data, OT_MAGIC)
-    body = np.frombuffer(data, dtype=np.uint8, offset=offset)
-    # Every node is exactly one 5-byte record (float32 value + child mask).
-    if body.size != 5 * size:
-        if body.size < 5 * size:
+    header = parse_header(data)
+    _expect(header, "ot")
+    size = header.size
+    width = OT_NODE_BYTES[header.tree_id]
+    body = np.frombuffer(data, dtype=np.uint8, offset=header.offset)
+    # Every node is exactly one record (its data, then the child mask).
+    if body.size != width * size:
+        if body.size < width * size:
             raise MapFormatError(
-                f"size {size} needs {5 * size} data bytes, file has {body.size} (truncated?)"
+                f"size {size} needs {width * size} data bytes, file has {body.size} (truncated?)"
             )
-        raise MapFormatError(f"{body.size - 5 * size} trailing bytes after {size} nodes")
+        raise MapFormatError(f"{body.size - width * size} trailing bytes after {size} nodes")
     if size == 0:
-        empty = np.empty(0, np.int64)
-        return Leaves(res, empty, np.empty(0, np.int8), np.empty(0, np.float32))
+        return _empty(header)
     if size > MAX_LEAVES:
         raise MapFormatError(f"{size} nodes exceed the limit of {MAX_LEAVES}")
-    rec = body.reshape(size, 5)
+    rec = body.reshape(size, width)
     values = np.ascontiguousarray(rec[:, :4]).view("<f4").ravel().astype(np.float32)
-    masks = np.ascontiguousarray(rec[:, 4])
-    starts, depths, leaf_vals, n_leaves, used, err = _parse_ot_body(values, masks)
+    masks = np.ascontiguousarray(rec[:, width - 1])
+    starts, depths, leaf_vals, leaf_node, n_leaves, used, err = _parse_ot_body(values, masks)
     if err != _OK:
         raise MapFormatError(f"corrupt .ot data: {_PARSE_ERRORS[err]}")
     if used != size:
@@ -380,7 +370,33 @@ def read_ot_bytes(data: bytes) -> Leaves:
     leaf_vals = leaf_vals[:n_leaves]
     if not np.all(np.isfinite(leaf_vals)):
         raise MapFormatError("non-finite log-odds in .ot leaves")
-    return Leaves(res, *_sorted(starts[:n_leaves], depths[:n_leaves], leaf_vals))
+    per_leaf = [starts[:n_leaves], depths[:n_leaves], leaf_vals]
+    colored = header.tree_id == "ColorOcTree"
+    if colored:
+        per_leaf.append(np.ascontiguousarray(rec[leaf_node[:n_leaves], 4:7]))
+    out = _sorted(*per_leaf)
+    return Leaves(header.resolution, *out[:3], header.tree_id, "ot", out[3] if colored else None)
+
+
+def read_octomap_bytes(data: bytes) -> Leaves:
+    """Parse any OctoMap occupancy file (``.bt``, legacy ``.bt`` or ``.ot``), by its header."""
+    if parse_header(data).fmt == "bt":
+        return read_bt_bytes(data)
+    return read_ot_bytes(data)
+
+
+def read_octomap_file(path: str | os.PathLike[str], limit: int = MAX_FILE_BYTES) -> Leaves:
+    """Read an OctoMap file header first (see
+    :func:`~secure3d.mapping.octomap_header.read_file_bounded`), then parse it.
+
+    Raises
+    ------
+    MapFormatError
+        Malformed, truncated, hostile or too large.
+    OSError
+        The file cannot be read.
+    """
+    return read_octomap_bytes(read_file_bounded(path, limit))
 
 
 # --------------------------------------------------------------------------- tree structure

@@ -256,6 +256,34 @@ class _Loop:
         )
 
 
+def _voxel_colors(scenario: Scenario) -> np.ndarray | None:
+    """r, g, b of ``world.octomap``'s voxels for a colour tree, else None."""
+    from secure3d.world.attacks import octomap_voxel_colors
+
+    w = scenario.world
+    return None if w.octomap is None else octomap_voxel_colors(w.octomap, "world.octomap")
+
+
+def _voxel_drawing(scenario: Scenario, loop: _Loop) -> dict:
+    """Keyword arguments drawing ``world.octomap``'s voxels (in a colour tree's colours) and the
+    server map's claimed voxels when it is a file or is attacked by region."""
+    from secure3d.world.attacks import server_claim
+
+    claim = server_claim(scenario)
+    file_claim = claim.bt is not None or claim.cloud is not None or claim.mesh is not None
+    claimed = None
+    if file_claim or claim.regions:
+        from secure3d.world.attacks import belief_map
+
+        claimed = belief_map(scenario).claimed_voxels(True)
+    return {
+        "voxel_boxes": loop.truth.voxel_boxes,
+        "voxel_colors": _voxel_colors(scenario),
+        "claimed_voxels": claimed,
+        "voxel_size": scenario.server_map.resolution,
+    }
+
+
 def _new_obstacle_voxels(loop: _Loop, occupied_codes: np.ndarray) -> np.ndarray:
     """Centres ``(n, 3)`` of the known obstacle voxels among those a frame (already inserted)
     updated as occupied (``occupied_codes``, Morton codes) that the boxes the current plan was last
@@ -605,6 +633,7 @@ def simulate(
             goal=settings.goal,
             collision_points=[result.positions[-1]] if result.collided else (),
             title=f"{scenario.name}: {planner} ({result.outcome})",
+            **_voxel_drawing(scenario, loop),
         )
     return dataclasses.replace(result, setup_time=setup_time, outputs=outputs)
 
@@ -729,6 +758,8 @@ def _run(loop: _Loop, rec: object | None, settings: _RunSettings) -> SimResult:
             claimed_meshes=claim.meshes,
             hidden_names=tuple(loop.hidden),
             bounds=scenario.world.bounds,
+            true_voxels=loop.truth.voxel_boxes,
+            true_voxel_colors=_voxel_colors(scenario),
         )
 
     x = np.asarray(loop.problem.x0, dtype=float)

@@ -154,6 +154,45 @@ def top_down_figure(
     return save_figure(fig, out_path)
 
 
+def _draw_voxel_slices(
+    ax: Axes,
+    z: float,
+    boxes: np.ndarray | None,
+    colors: np.ndarray | None,
+    claimed: np.ndarray | None,
+    size: float | None,
+) -> list[Any]:
+    """Fill the true voxels and outline the claimed ones cut by the plane at height ``z``."""
+    handles: list[Any] = []
+    if boxes is not None and len(boxes):
+        cut = (boxes[:, 0, 2] <= z) & (boxes[:, 1, 2] > z)
+        lo, hi = boxes[cut, 0, :2], boxes[cut, 1, :2]
+        if len(lo):
+            polys = np.stack([lo, np.c_[hi[:, 0], lo[:, 1]], hi, np.c_[lo[:, 0], hi[:, 1]]], axis=1)
+            face = KNOWN_COLOR if colors is None else np.asarray(colors)[cut] / 255.0
+            ax.add_collection(
+                PolyCollection(polys, facecolors=face, edgecolors="none", alpha=0.85, zorder=2)
+            )
+            handles.append(Patch(facecolor=KNOWN_COLOR, alpha=0.85, label="OctoMap voxels"))
+    if claimed is not None and len(claimed) and size:
+        cut = np.abs(claimed[:, 2] - z) < 0.5 * size
+        c = claimed[cut, :2]
+        if len(c):
+            d = 0.5 * size
+            polys = np.stack([c + [-d, -d], c + [d, -d], c + [d, d], c + [-d, d]], axis=1)
+            ax.add_collection(
+                PolyCollection(
+                    polys, facecolors="none", edgecolors=PHANTOM_COLOR, linewidths=0.4, zorder=3
+                )
+            )
+            handles.append(
+                Patch(
+                    facecolor="none", edgecolor=PHANTOM_COLOR, label="server map (claimed voxels)"
+                )
+            )
+    return handles
+
+
 def draw_top_down(
     ax: Axes,
     bounds: Bounds,
@@ -173,6 +212,10 @@ def draw_top_down(
     ellipse_every: int = 1,
     z_slice: float | None = None,
     title: str | None = None,
+    voxel_boxes: np.ndarray | None = None,
+    voxel_colors: np.ndarray | None = None,
+    claimed_voxels: np.ndarray | None = None,
+    voxel_size: float | None = None,
 ) -> None:
     """Draw the paper-style top view of a run on ``ax``.
 
@@ -203,6 +246,12 @@ def draw_top_down(
         Height (m) of the horizontal section shown: only obstacles whose z-extent contains it are
         drawn, so floors and ceilings do not cover the map. Default: the start's height, else the
         median height of the plans and paths, else the middle of the bounds.
+    voxel_boxes : (n, 2, 3) float, optional
+        ``[lo, hi]`` of true OctoMap voxels (``world.octomap``): those cut by the slice are filled,
+        in ``voxel_colors`` ((n, 3) uint8, a colour tree's) where given.
+    claimed_voxels : (m, 3) float, optional
+        Centres of the voxels (edge ``voxel_size``) the server's map claims occupied: those cut by
+        the slice are outlined in red.
     """
     if isinstance(ellipse_every, bool) or not isinstance(ellipse_every, int) or ellipse_every < 1:
         raise ConfigError(f"ellipse_every: must be a positive integer, got {ellipse_every!r}")
@@ -239,6 +288,7 @@ def draw_top_down(
                 zorder=3,
             )
         )
+    handles += _draw_voxel_slices(ax, z, voxel_boxes, voxel_colors, claimed_voxels, voxel_size)
     if any(o.name not in hidden for o in truth):
         handles.append(Patch(facecolor=KNOWN_COLOR, alpha=0.75, label="known obstacle"))
     if any(o.name in hidden for o in truth):

@@ -278,8 +278,14 @@ class RerunRecorder:
         claimed_meshes: Sequence[MeshObstacle] = (),
         hidden_names: Sequence[str] = (),
         bounds: Bounds | None = None,
+        true_voxels: np.ndarray | None = None,
+        true_voxel_colors: np.ndarray | None = None,
     ) -> None:
         """Log the true world and the server's claim (static: they do not change during a run).
+
+        ``true_voxels`` ((n, 2, 3) ``[lo, hi]``, ``world.octomap``'s occupied leaves) are logged
+        as solid boxes under ``world/truth/voxels``, in ``true_voxel_colors`` ((n, 3) uint8, a
+        colour tree's) where given.
 
         Hidden obstacles (``hidden_names``: true obstacles the server does not report) are drawn
         near-black under ``world/truth/hidden``; claimed obstacles absent from the truth (by name)
@@ -322,6 +328,22 @@ class RerunRecorder:
                     vertex_positions=m.vertices,
                     triangle_indices=m.faces,
                     albedo_factor=color,
+                ),
+                static=True,
+            )
+        if true_voxels is not None and len(true_voxels):
+            colors = (
+                [_TRUE_COLOR] * len(true_voxels)
+                if true_voxel_colors is None
+                else np.asarray(true_voxel_colors, np.uint8)
+            )
+            rec.log(
+                "world/truth/voxels",
+                rr.Boxes3D(
+                    mins=true_voxels[:, 0],
+                    sizes=true_voxels[:, 1] - true_voxels[:, 0],
+                    colors=colors,
+                    fill_mode="Solid",
                 ),
                 static=True,
             )

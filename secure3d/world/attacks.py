@@ -72,14 +72,23 @@ class ServerClaim:
     meshes : tuple of MeshObstacle
         Claimed mesh obstacles.
     bt : Path or None
-        An OctoMap whose occupied voxels are claimed obstacles: ``server_map.bt`` when the server
-        map is given as its own file (then ``boxes`` and ``meshes`` are empty), else the true
-        world's ``world.octomap`` (reported as is: attacks only act on named obstacles).
+        An OctoMap (``.bt``/``.ot``) whose occupied voxels are claimed obstacles: the server map's
+        own file (then ``boxes`` and ``meshes`` are empty), else the true world's
+        ``world.octomap`` (reported as is but for region attacks).
+    cloud, mesh : Path or None
+        The server map as a point cloud (rays from ``origin``, or bare points without it) or as a
+        mesh surface (see :mod:`secure3d.world.server_sources`).
+    regions : tuple of Attack
+        Region attacks, applied voxel by voxel after everything above is claimed.
     """
 
     boxes: tuple[Box, ...] = ()
     meshes: tuple[MeshObstacle, ...] = ()
     bt: Path | None = None
+    cloud: Path | None = None
+    origin: tuple[float, float, float] | None = None
+    mesh: Path | None = None
+    regions: tuple[Attack, ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -120,11 +129,16 @@ def server_claim(scenario: Scenario) -> ServerClaim:
     offset, ``phantom`` adds its box. Obstacles keep the world's order; phantoms come last.
     """
     spec = scenario.server_map
-    if spec.bt is not None:
-        return ServerClaim(bt=spec.bt)
+    regions = tuple(a for a in spec.attacks if a.region is not None)
+    if spec.source_file is not None:
+        return ServerClaim(
+            bt=spec.bt, cloud=spec.cloud, origin=spec.origin, mesh=spec.mesh, regions=regions
+        )
     world = scenario.world
     claimed: dict[str, Box | MeshObstacle] = {o.name: o for o in (*world.boxes, *world.meshes)}
     for attack in spec.attacks:
+        if attack.region is not None:
+            continue
         if attack.kind in ("hide", "stale"):
             del claimed[attack.target]
         elif attack.kind == "shift":
@@ -135,6 +149,7 @@ def server_claim(scenario: Scenario) -> ServerClaim:
         boxes=tuple(o for o in claimed.values() if isinstance(o, Box)),
         meshes=tuple(o for o in claimed.values() if isinstance(o, MeshObstacle)),
         bt=world.octomap,
+        regions=regions,
     )
 
 
@@ -180,11 +195,100 @@ def belief_map(scenario: Scenario, resolution: float | None = None) -> Occupancy
             occupied = log_odds >= server.params.threshold_log
             half = 0.5 * sizes[occupied, None]
             belief.set_claim_boxes(centres[occupied] - half, centres[occupied] + half)
+    _claim_sources(belief, claim, res)
+    for attack in claim.regions:
+        apply_region_attack(belief, attack)
     return belief
 
 
+def _claim_sources(belief: OccupancyMap, claim: ServerClaim, res: float) -> None:
+    """Claim a point-cloud or mesh server map (:mod:`secure3d.world.server_sources`)."""
+    from secure3d.mapping.occupancy import OccupancyMap
+    from secure3d.world import server_sources
+
+    if claim.cloud is not None:
+        what = "server_map.cloud"
+        points, origins = server_sources.read_cloud_origins(claim.cloud, what)
+        server = OccupancyMap(res)
+        if server_sources.insert_cloud(server, points, origins, claim.origin, what):
+            belief.set_claim_from_map(server)
+        else:
+            belief.set_claim_voxels(points, True)
+    if claim.mesh is not None:
+        v, f = server_sources.read_surface_mesh(claim.mesh, "server_map.mesh")
+        belief.set_claim_voxels(server_sources.surface_voxel_centres(v, f, res), True)
+
+
+def apply_region_attack(belief: OccupancyMap, attack: Attack) -> None:
+    """Tamper with the claim layer of ``belief`` in ``attack.region`` (see
+    :class:`~secure3d.world.spec.Attack`).
+
+    ``hide``: every claimed voxel whose centre lies in the region is claimed free. ``shift``: the
+    region's claimed-occupied voxels are claimed free and re-claimed occupied ``offset`` away
+    (rounded to whole voxels). ``phantom``: every voxel the region touches is claimed occupied.
+    The sensor layer is untouched: the robot's own evidence still overrides every claim.
+    """
+    lo, hi = np.asarray(attack.region.lo), np.asarray(attack.region.hi)
+    if attack.kind == "phantom":
+        belief.set_claim_boxes(lo[None], hi[None], occupied=True)
+        return
+    occ = belief.claimed_voxels(True)
+    inside = occ[np.all((occ >= lo) & (occ <= hi), axis=1)]
+    if attack.kind == "hide":
+        # Also free what the region claimed free already: nothing else changes.
+        if len(inside):
+            belief.set_claim_voxels(inside, False)
+        return
+    if not len(inside):
+        return
+    res = belief.resolution
+    step = np.round(np.asarray(attack.offset, float) / res) * res
+    belief.set_claim_voxels(inside, False)
+    belief.set_claim_voxels(inside + step, True)
+
+
+OCTOMAP_SUFFIXES = (".bt", ".ot")
+
+
+def _stat_checked(path: str | os.PathLike[str], what: str) -> tuple[Path, os.stat_result]:
+    p = Path(path)
+    if p.suffix.lower() not in OCTOMAP_SUFFIXES:
+        raise ScenarioError(f"{what}: OctoMap files must be .bt or .ot (got {p.name!r})")
+    try:
+        stat = p.stat()
+    except OSError as exc:
+        raise ScenarioError(f"{what}: cannot read {p}: {exc.strerror or exc}") from None
+    if stat.st_size > MAX_BT_BYTES:
+        raise ScenarioError(
+            f"{what}: {p} is larger than {MAX_BT_BYTES // 1_000_000} MB (got {stat.st_size} bytes)"
+        )
+    return p, stat
+
+
+def octomap_leaves(path: str | os.PathLike[str], what: str = "octomap"):  # noqa: ANN201
+    """The leaves of an OctoMap ``.bt`` or ``.ot`` file (any tree type OctoMap reads), cached per
+    file version (path, modification time, size).
+
+    Returns
+    -------
+    secure3d.mapping.octomap_io.Leaves
+
+    Raises
+    ------
+    ScenarioError
+        Unreadable, too large, not ``.bt``/``.ot``, or malformed (the reader's reason is given).
+    """
+    p, stat = _stat_checked(path, what)
+    return _leaves(str(p.resolve()), stat.st_mtime_ns, stat.st_size, what)
+
+
+def octomap_resolution(path: str | os.PathLike[str], what: str = "octomap") -> float:
+    """The resolution (m) of an OctoMap file, validated as :func:`octomap_leaves` does."""
+    return float(octomap_leaves(path, what).resolution)
+
+
 def octomap_voxel_boxes(path: str | os.PathLike[str], what: str = "octomap") -> np.ndarray:
-    """``[lo, hi]`` of every occupied leaf of an OctoMap ``.bt`` file.
+    """``[lo, hi]`` of every occupied leaf of an OctoMap ``.bt`` or ``.ot`` file.
 
     A leaf at depth d is a cube of ``2**(16 - d)`` voxels a side whose lowest key is the decoded
     Morton code of its first voxel (DESIGN.md section 5, OctoMap semantics). Results are cached
@@ -194,7 +298,7 @@ def octomap_voxel_boxes(path: str | os.PathLike[str], what: str = "octomap") -> 
     Parameters
     ----------
     path : path
-        The ``.bt`` file.
+        The ``.bt`` or ``.ot`` file.
     what : str
         Field path for error messages (e.g. ``"world.octomap"``).
 
@@ -205,37 +309,40 @@ def octomap_voxel_boxes(path: str | os.PathLike[str], what: str = "octomap") -> 
     Raises
     ------
     ScenarioError
-        Unreadable, too large, not ``.bt``, or malformed (the reader's reason is given).
+        Unreadable, too large, not ``.bt``/``.ot``, or malformed (the reader's reason is given).
     """
-    p = Path(path)
-    if p.suffix.lower() != ".bt":
-        raise ScenarioError(f"{what}: OctoMap files must be binary .bt (got {p.name!r})")
-    try:
-        stat = p.stat()
-    except OSError as exc:
-        raise ScenarioError(f"{what}: cannot read {p}: {exc.strerror or exc}") from None
-    if stat.st_size > MAX_BT_BYTES:
-        raise ScenarioError(
-            f"{what}: {p} is larger than {MAX_BT_BYTES // 1_000_000} MB (got {stat.st_size} bytes)"
-        )
+    p, stat = _stat_checked(path, what)
     return _voxel_boxes(str(p.resolve()), stat.st_mtime_ns, stat.st_size, what)
 
 
+def octomap_voxel_colors(path: str | os.PathLike[str], what: str = "octomap") -> np.ndarray | None:
+    """r, g, b (n, 3) uint8 of the boxes of :func:`octomap_voxel_boxes`, row for row, for a
+    colour tree (``ColorOcTree`` ``.ot``); None for files without colours."""
+    leaves = octomap_leaves(path, what)
+    if leaves.colors is None:
+        return None
+    return leaves.colors[leaves.values >= 0]
+
+
 @functools.lru_cache(maxsize=8)
-def _voxel_boxes(path: str, _mtime_ns: int, _size: int, what: str) -> np.ndarray:
+def _leaves(path: str, _mtime_ns: int, _size: int, what: str):  # noqa: ANN202
     from secure3d.errors import MapFormatError
-    from secure3d.mapping.keys import TREE_DEPTH, TREE_MAX_VAL, morton_decode
-    from secure3d.mapping.octomap_io import read_bt_bytes
+    from secure3d.mapping.octomap_io import read_octomap_file
 
     try:
-        data = Path(path).read_bytes()
+        return read_octomap_file(path, MAX_BT_BYTES)
     except OSError as exc:
         raise ScenarioError(f"{what}: cannot read {path}: {exc.strerror or exc}") from None
-    try:
-        leaves = read_bt_bytes(data)
     except MapFormatError as exc:
         raise ScenarioError(f"{what}: {path} is not a valid OctoMap: {exc}") from None
-    occupied = leaves.values > 0
+
+
+@functools.lru_cache(maxsize=8)
+def _voxel_boxes(path: str, mtime_ns: int, size: int, what: str) -> np.ndarray:
+    from secure3d.mapping.keys import TREE_DEPTH, TREE_MAX_VAL, morton_decode
+
+    leaves = _leaves(path, mtime_ns, size, what)
+    occupied = leaves.values >= 0  # OctoMap: log-odds >= 0 (a .bt's +1/-1 alike)
     keys = morton_decode(leaves.starts[occupied])
     side = (2 ** (TREE_DEPTH - leaves.depths[occupied].astype(np.int64))) * leaves.resolution
     lo = (keys - TREE_MAX_VAL) * leaves.resolution
@@ -466,7 +573,8 @@ def random_hidden_obstacle_scenarios(
     -------
     list of Scenario
         Named ``<base>_hidden_<i>``. Each new box is added to ``world.boxes`` with a ``hide``
-        attack (no attack when the server map is its own ``.bt``: the file lacks it anyway).
+        attack (no attack when the server map is its own file, OctoMap, cloud or mesh: the file
+        lacks it anyway).
 
     Raises
     ------
@@ -578,7 +686,7 @@ def _fresh_name(world: World, added: list[Box], stem: str) -> str:
 def _with_hidden(base: Scenario, added: list[Box], i: int, kind: str) -> Scenario:
     world = dataclasses.replace(base.world, boxes=(*base.world.boxes, *added))
     server = base.server_map
-    if server.bt is None:
+    if server.source_file is None:
         hides = tuple(Attack("hide", target=b.name) for b in added)
         server = dataclasses.replace(server, attacks=(*server.attacks, *hides))
     names = ", ".join(b.name for b in added)

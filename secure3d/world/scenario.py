@@ -38,6 +38,7 @@ from secure3d.world import spec
 from secure3d.world.attacks import octomap_voxel_boxes
 from secure3d.world.meshes import load_mesh, mesh_from_arrays, resolve_inside
 from secure3d.world.placement import check_start_goal_clear
+from secure3d.world.server_sources import check_source_file
 from secure3d.world.spec import (
     ATTACK_KINDS,
     MAX_OBSTACLES,
@@ -49,6 +50,7 @@ from secure3d.world.spec import (
     GoalSpec,
     MeshObstacle,
     PlannerSpec,
+    Region,
     Scenario,
     ServerMapSpec,
     SimulationSpec,
@@ -434,6 +436,26 @@ _ATTACK_KEYS = {
 }
 
 
+_REGION_KEYS = {"hide": ("kind", "region"), "phantom": ("kind", "region")}
+_REGION_KEYS["shift"] = ("kind", "region", "by")
+
+
+def _region_attack(data: dict[str, Any], path: str, world: World) -> Attack:
+    kind = data["kind"]
+    if kind not in _REGION_KEYS:
+        raise _FieldError(f"{path}.kind", "a region attack is hide, shift or phantom", kind)
+    _check_keys(data, _REGION_KEYS[kind], _REGION_KEYS[kind], path)
+    region = _as_mapping(data["region"], f"{path}.region")
+    _check_keys(region, ("lo", "hi"), ("lo", "hi"), f"{path}.region")
+    lo = _as_vec3(region["lo"], f"{path}.region.lo")
+    hi = _as_vec3(region["hi"], f"{path}.region.hi")
+    if np.any(np.subtract(hi, lo) <= 0):
+        raise _FieldError(f"{path}.region.hi", f"must exceed lo {list(lo)} on every axis", list(hi))
+    _check_touches_bounds(lo, hi, world.bounds, f"{path}.region")
+    by = _as_vec3(data["by"], f"{path}.by") if kind == "shift" else None
+    return Attack(kind, offset=by, region=Region(lo, hi))
+
+
 def _attack(data: object, path: str, world: World, taken: set[str]) -> Attack:
     data = _as_mapping(data, path)
     if "kind" not in data:
@@ -442,6 +464,8 @@ def _attack(data: object, path: str, world: World, taken: set[str]) -> Attack:
     kind = data["kind"]
     if kind not in ATTACK_KINDS:
         raise _FieldError(f"{path}.kind", f"must be one of {', '.join(ATTACK_KINDS)}", kind)
+    if "region" in data:
+        return _region_attack(data, path, world)
     keys = _ATTACK_KEYS[kind]
     _check_keys(data, keys, keys, path)
     if kind == "phantom":
@@ -460,20 +484,40 @@ def _attack(data: object, path: str, world: World, taken: set[str]) -> Attack:
     return Attack(kind, target=target, offset=offset)
 
 
+_SERVER_KEYS = ("resolution", "attacks", "octomap", "bt", "cloud", "origin", "mesh")
+
+
 def _server_map(data: object, folder: Path, world: World) -> ServerMapSpec:
     data = _as_mapping(data if data is not None else {}, "server_map")
-    _check_keys(data, ("resolution", "attacks", "bt"), (), "server_map")
+    _check_keys(data, _SERVER_KEYS, (), "server_map")
+    sources = [k for k in ("octomap", "bt", "cloud", "mesh") if data.get(k) is not None]
+    if len(sources) > 1:
+        raise _FieldError("server_map", "give one of octomap, cloud, mesh", ", ".join(sources))
     taken = set(world.obstacle_names)
     attacks = [
         _attack(item, f"server_map.attacks[{i}]", world, taken)
         for i, item in enumerate(_as_list(data.get("attacks"), "server_map.attacks"))
     ]
-    bt = _optional_path(data.get("bt"), folder, "server_map.bt")
-    if bt is not None:
-        octomap_voxel_boxes(bt, "server_map.bt")
-    kwargs: dict[str, Any] = {"attacks": tuple(attacks), "bt": bt}
+    kwargs: dict[str, Any] = {"attacks": tuple(attacks)}
     if "resolution" in data:
         kwargs["resolution"] = _as_float(data["resolution"], "server_map.resolution")
+    if sources:
+        key = sources[0]
+        file = _optional_path(data[key], folder, f"server_map.{key}")
+        field = {"octomap": "bt"}.get(key, key)
+        res = check_source_file(file, field, f"server_map.{key}")
+        if res is not None and "resolution" in data and res != kwargs["resolution"]:
+            raise _FieldError(
+                "server_map.resolution",
+                f"differs from the resolution {res:g} m of {file.name} (drop one or make them"
+                " equal)",
+                kwargs["resolution"],
+            )
+        kwargs[field] = file
+    if "origin" in data:
+        if not sources or sources[0] != "cloud":
+            raise _FieldError("server_map.origin", "only a cloud has a sensor origin")
+        kwargs["origin"] = _as_vec3(data["origin"], "server_map.origin")
     return ServerMapSpec(**kwargs)
 
 
@@ -680,6 +724,11 @@ def scenario_to_dict(
         }
 
     def attack_entry(a: Attack) -> dict[str, Any]:
+        if a.region is not None:
+            entry = {"kind": a.kind, "region": _flat_dict(a.region)}
+            if a.kind == "shift":
+                entry["by"] = list(a.offset)
+            return entry
         if a.kind == "phantom":
             return {"kind": "phantom", "box": _flat_dict(a.box)}
         entry: dict[str, Any] = {"kind": a.kind, "target": a.target}
@@ -699,7 +748,12 @@ def scenario_to_dict(
         "server_map": {
             "resolution": s.resolution,
             "attacks": [attack_entry(a) for a in s.attacks],
-            "bt": None if s.bt is None else _path_text(s.bt, base, "server_map.bt"),
+            **{
+                key: _path_text(getattr(s, field), base, f"server_map.{key}")
+                for key, field in (("octomap", "bt"), ("cloud", "cloud"), ("mesh", "mesh"))
+                if getattr(s, field) is not None
+            },
+            **({"origin": list(s.origin)} if s.origin is not None else {}),
         },
         "vehicle": _flat_dict(scenario.vehicle),
         "camera": _flat_dict(scenario.camera),

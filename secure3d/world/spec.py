@@ -318,6 +318,23 @@ class World:
 
 
 @dataclass(frozen=True)
+class Region:
+    """An axis-aligned region of a server map, ``lo <= p <= hi`` (m): what a region attack edits."""
+
+    lo: Vec3
+    hi: Vec3
+
+    def __post_init__(self) -> None:
+        lo, hi = _vec3(self.lo, "attack.region.lo"), _vec3(self.hi, "attack.region.hi")
+        object.__setattr__(self, "lo", lo)
+        object.__setattr__(self, "hi", hi)
+        if np.any(np.subtract(hi, lo) <= 0):
+            raise ScenarioError(
+                f"attack.region.hi: must exceed lo on every axis (got lo={lo}, hi={hi})"
+            )
+
+
+@dataclass(frozen=True)
 class Attack:
     """One tampering of the server map.
 
@@ -326,15 +343,25 @@ class Attack:
         ``phantom``: ``box`` is added although it does not exist;
         ``shift``: obstacle ``target`` is reported moved by ``offset`` (m);
         ``stale``: obstacle ``target`` appeared after the map was made (reported absent).
+
+    A *region attack* names a ``region`` instead of an obstacle and acts on any server map (an
+    OctoMap file, a point cloud, a mesh, or the world's named obstacles), voxel by voxel:
+    ``hide`` reports every voxel whose centre lies in the region free, ``shift`` moves the
+    region's claimed-occupied voxels by ``offset`` (rounded to whole voxels) and reports the
+    voxels they left free, ``phantom`` claims every voxel the region touches occupied.
     """
 
     kind: Literal["hide", "phantom", "shift", "stale"]
     target: str | None = None
     box: Box | None = None
     offset: Vec3 | None = None
+    region: Region | None = None
 
     def __post_init__(self) -> None:
         _choice(self.kind, ATTACK_KINDS, "attack.kind")
+        if self.region is not None:
+            self._check_region()
+            return
         if self.kind in ("hide", "shift", "stale"):
             _name(self.target, f"attack {self.kind!r}.target")
         elif self.target is not None:
@@ -345,6 +372,9 @@ class Attack:
             raise ScenarioError(f"attack 'phantom'.box: needs a Box (got {_short(self.box)})")
         if self.kind != "phantom" and self.box is not None:
             raise ScenarioError(f"attack {self.kind!r}.box: only a phantom has a box")
+        self._check_offset()
+
+    def _check_offset(self) -> None:
         if self.kind == "shift":
             if self.offset is None:
                 raise ScenarioError("attack 'shift'.offset: missing (a shift needs an offset)")
@@ -352,8 +382,24 @@ class Attack:
         elif self.offset is not None:
             raise ScenarioError(f"attack {self.kind!r}.offset: only a shift has an offset")
 
+    def _check_region(self) -> None:
+        if not isinstance(self.region, Region):
+            raise ScenarioError(f"attack.region: needs a Region (got {_short(self.region)})")
+        if self.kind == "stale":
+            raise ScenarioError("attack 'stale'.region: a region attack is hide, shift or phantom")
+        if self.target is not None or self.box is not None:
+            raise ScenarioError(
+                f"attack {self.kind!r}.region: a region attack has no target or box"
+                f" (got target={self.target!r})"
+            )
+        self._check_offset()
+
     def describe(self) -> str:
         """One phrase such as ``"shift shelf_3 by (0.5, 0, 0)"``."""
+        if self.region is not None:
+            where = f"region {_fmt(self.region.lo)}-{_fmt(self.region.hi)}"
+            by = f" by {_fmt(self.offset)}" if self.kind == "shift" else ""
+            return f"{self.kind} {where}{by}"
         if self.kind == "phantom":
             return f"phantom {self.box.name} {_fmt(self.box.lo)}-{_fmt(self.box.hi)}"
         if self.kind == "shift":
@@ -365,26 +411,52 @@ class Attack:
 class ServerMapSpec:
     """What the (untrusted) map server claims.
 
-    Either derived from the true world with ``attacks`` applied (``bt is None``), or given as its
-    own OctoMap file ``bt``. ``resolution`` is the voxel size of the robot's map (m).
+    One source: derived from the true world with ``attacks`` applied (no file), or its own
+    OctoMap file ``bt`` (``.bt`` or ``.ot``; the YAML key is ``octomap``, ``bt`` still works), a
+    point cloud ``cloud`` (``.ply``/``.pcd``/``.xyz``, its points ray ends from ``origin``) or a
+    mesh ``mesh`` (its surface voxelised). ``resolution`` is the voxel size of the robot's map
+    (m). Region attacks apply to every source; attacks on named obstacles only to the world.
     """
 
     attacks: tuple[Attack, ...] = ()
     bt: Path | None = None
     resolution: float = 0.1
+    cloud: Path | None = None
+    origin: Vec3 | None = None
+    mesh: Path | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "attacks", tuple(self.attacks))
         r = _positive(self.resolution, "server_map.resolution")
         if not 0.01 <= r <= 2.0:  # finer than 1 cm or coarser than 2 m is a unit error here
             raise ScenarioError(f"server_map.resolution: must be in [0.01, 2] m (got {r})")
-        if self.bt is not None:
-            object.__setattr__(self, "bt", Path(self.bt))
-            if self.attacks:
-                raise ScenarioError(
-                    "server_map.attacks: must be empty when the server map is given as a .bt"
-                    f" (got {len(self.attacks)} attacks)"
-                )
+        given = [k for k in ("bt", "cloud", "mesh") if getattr(self, k) is not None]
+        if len(given) > 1:
+            raise ScenarioError(
+                f"server_map: give one of octomap, cloud, mesh (got {', '.join(given)})"
+            )
+        for k in given:
+            object.__setattr__(self, k, Path(getattr(self, k)))
+        if self.origin is not None:
+            if self.cloud is None:
+                raise ScenarioError("server_map.origin: only a cloud has a sensor origin")
+            object.__setattr__(self, "origin", _vec3(self.origin, "server_map.origin"))
+        named = [a for a in self.attacks if a.region is None]
+        if given and named:
+            raise ScenarioError(
+                f"server_map.attacks: only region attacks act on a server map given as a"
+                f" {given[0]} file (got {named[0].describe()!r})"
+            )
+
+    @property
+    def octomap(self) -> Path | None:
+        """The server's OctoMap file (``.bt`` or ``.ot``), if it is one."""
+        return self.bt
+
+    @property
+    def source_file(self) -> Path | None:
+        """The server map's own file (OctoMap, cloud or mesh), None when derived from the world."""
+        return self.bt or self.cloud or self.mesh
 
 
 @dataclass(frozen=True)
@@ -707,7 +779,11 @@ class Scenario:
     @property
     def hidden_obstacles(self) -> tuple[str, ...]:
         """Names of true obstacles the server does not report (hide/stale attacks)."""
-        return tuple(a.target for a in self.server_map.attacks if a.kind in ("hide", "stale"))
+        return tuple(
+            a.target
+            for a in self.server_map.attacks
+            if a.kind in ("hide", "stale") and a.target is not None
+        )
 
     def summary(self, max_obstacles: int = 30) -> str:
         """A readable multi-line description (also what ``secure3d show`` prints).
@@ -720,6 +796,8 @@ class Scenario:
         w, b, v, c, p = self.world, self.world.bounds, self.vehicle, self.camera, self.planner
         status: dict[str, str] = {}
         for a in self.server_map.attacks:
+            if a.target is None:
+                continue
             if a.kind in ("hide", "stale"):
                 status[a.target] = f"HIDDEN by the server ({a.kind})"
             elif a.kind == "shift":
@@ -738,7 +816,7 @@ class Scenario:
         rows += [
             (a.box.name, "box", a.box.lo, a.box.hi, "PHANTOM: claimed by the server, not real")
             for a in self.server_map.attacks
-            if a.kind == "phantom"
+            if a.kind == "phantom" and a.box is not None
         ]
         width = max([len(r[0]) for r in rows] + [4])
         kind_width = max([len(r[1]) for r in rows] + [3])
@@ -760,8 +838,11 @@ class Scenario:
         if len(rows) > max_obstacles:
             out.append(f"    ... and {len(rows) - max_obstacles} more")
         s = self.server_map
-        if s.bt is not None:
-            claim = f"given as its own OctoMap {s.bt.name}"
+        if s.source_file is not None:
+            kind = "OctoMap" if s.bt else ("point cloud" if s.cloud else "mesh")
+            claim = f"given as its own {kind} {s.source_file.name}"
+            if s.attacks:
+                claim += "; attacks: " + "; ".join(a.describe() for a in s.attacks)
         else:
             claim = "the truth with attacks: " + (
                 "; ".join(a.describe() for a in s.attacks) if s.attacks else "none (honest)"

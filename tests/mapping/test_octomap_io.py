@@ -160,7 +160,7 @@ CHAIN_SIZE = 1 + 15 + 1
         (b"# Octomap OcTree file\nid OcTree\nsize 0\nres 0.1\ndata\n", "bad header"),
         (b"# Octomap OcTree binary file\nid OcTree\nsize 1\nres 0.1\n", "no 'data' line"),
         (b"# Octomap OcTree binary file\n" + b"#" * 10_000 + b"\ndata\n", "no 'data' line"),
-        (b"# Octomap OcTree binary file\nid ColorOcTree\nsize 0\nres 0.1\ndata\n", "tree type"),
+        (b"# Octomap OcTree file\nid CountingOcTree\nsize 0\nres 0.1\ndata\n", "tree type"),
         (b"# Octomap OcTree binary file\nsize 0\nres 0.1\ndata\n", "missing 'id'"),
         (b"# Octomap OcTree binary file\nid OcTree\nsize x\nres 0.1\ndata\n", "not an integer"),
         (b"# Octomap OcTree binary file\nid OcTree\nsize 0\nres 0.1\nres 0.2\ndata\n", "duplicate"),

@@ -278,7 +278,7 @@ BAD_CORNER = [
         "bt with attacks",
         _set("server_map.bt", "octomaps/office_server.bt"),
         "server_map.attacks",
-        "empty",
+        "only region attacks",
     ),
     ("negative limit", _set("vehicle.limits.max_accel", -4.0), "vehicle.limits.max_accel", "> 0"),
     ("unknown limit", _set("vehicle.limits.max_acel", 4.0), "vehicle.limits.max_acel", "unknown"),

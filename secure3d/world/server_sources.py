@@ -1,0 +1,248 @@
+"""Server maps given as files: OctoMaps, point clouds and meshes, read and turned into voxels.
+
+- **OctoMap** (``.bt``, ``.ot``, any tree type OctoMap reads): its occupied and free leaves.
+- **Point cloud** (``.ply``, ``.pcd``, ``.xyz`` through Open3D's reader): each point is a ray
+  end inserted with OctoMap's ``insertPointCloud`` semantics (free voxels along the ray, the end
+  voxel occupied, per-scan update sets) from its own origin if the file has per-point origins
+  (vertex properties ``origin_x``, ``origin_y``, ``origin_z``: one scan per distinct origin),
+  else from the scenario's ``origin``; without either, each point only marks its voxel occupied
+  and no free space is claimed (a ray from a guessed origin would claim free space nobody saw).
+- **Mesh** (``.obj``, ``.stl``, ``.ply``, ``.off``, ``.glb``, any format trimesh loads as
+  triangles; need not be closed): its surface voxelised at the map's resolution, i.e. every voxel
+  whose centre lies within half a voxel diagonal of a triangle (every voxel the surface touches).
+  Nothing is claimed free.
+
+Each becomes the claim layer of the robot's map exactly like a claimed OctoMap
+(:func:`secure3d.world.attacks.belief_map`), so trust layers, certificate and replay treat them
+alike. Errors are :class:`~secure3d.errors.ScenarioError` naming the field and file.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from secure3d.errors import ScenarioError
+
+CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz")
+SERVER_MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
+#: Largest point-cloud or mesh file read (bytes).
+MAX_SOURCE_BYTES = 200_000_000
+#: Most points of a cloud (~10 s of insertion); more is a unit or sampling mistake.
+MAX_CLOUD_POINTS = 20_000_000
+#: Most distinct per-point sensor origins (scans) of a cloud.
+MAX_CLOUD_ORIGINS = 10_000
+#: Most triangles of a server mesh.
+MAX_SERVER_MESH_FACES = 2_000_000
+#: Most candidate voxels the mesh voxeliser examines (bounding box of the mesh at the resolution).
+MAX_MESH_CELLS = 50_000_000
+
+
+def _size_checked(path: Path, what: str, suffixes: tuple[str, ...], kind: str) -> None:
+    if path.suffix.lower() not in suffixes:
+        raise ScenarioError(
+            f"{what}: {kind} files must be {', '.join(suffixes)} (got {path.name!r})"
+        )
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise ScenarioError(f"{what}: cannot read {path}: {exc.strerror or exc}") from None
+    if size > MAX_SOURCE_BYTES:
+        raise ScenarioError(
+            f"{what}: {path} is larger than {MAX_SOURCE_BYTES // 1_000_000} MB (got {size} bytes)"
+        )
+
+
+def read_cloud(path: str | os.PathLike[str], what: str = "cloud") -> np.ndarray:
+    """Points of a ``.ply``/``.pcd``/``.xyz`` file, through Open3D (see :func:`read_cloud_origins`).
+
+    Returns
+    -------
+    (n, 3) float64
+    """
+    return read_cloud_origins(path, what)[0]
+
+
+def read_cloud_origins(
+    path: str | os.PathLike[str], what: str = "cloud"
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Points of a ``.ply``/``.pcd``/``.xyz`` file and, if it has them, their sensor origins.
+
+    Per-point origins are the vertex properties ``origin_x``, ``origin_y``, ``origin_z`` (a
+    ``.ply`` or ``.pcd`` with those fields, read through Open3D's tensor API). Rows with a
+    non-finite point or origin are dropped.
+
+    Returns
+    -------
+    points : (n, 3) float64
+    origins : (n, 3) float64 or None
+
+    Raises
+    ------
+    ScenarioError
+        Wrong suffix, too large, unreadable, empty, or too many points.
+    """
+    from secure3d._deps import open3d
+
+    p = Path(path)
+    _size_checked(p, what, CLOUD_SUFFIXES, "point-cloud")
+    o3d = open3d()
+    try:
+        pcd = o3d.t.io.read_point_cloud(str(p))
+    except RuntimeError as exc:
+        raise ScenarioError(
+            f"{what}: cannot read {p}: {' '.join(str(exc).split())[:120]}"
+        ) from None
+    if "positions" not in pcd.point or pcd.point["positions"].shape[0] == 0:
+        raise ScenarioError(f"{what}: {p} holds no points (unreadable or empty)")
+    pts = pcd.point["positions"].numpy().astype(np.float64).reshape(-1, 3)
+    if pts.shape[0] > MAX_CLOUD_POINTS:
+        raise ScenarioError(f"{what}: {p} has more than {MAX_CLOUD_POINTS} points")
+    names = ("origin_x", "origin_y", "origin_z")
+    origins = None
+    if all(n in pcd.point for n in names):
+        origins = np.hstack([pcd.point[n].numpy().reshape(-1, 1) for n in names]).astype(float)
+    keep = np.all(np.isfinite(pts), axis=1)
+    if origins is not None:
+        keep &= np.all(np.isfinite(origins), axis=1)
+        origins = origins[keep]
+    if not keep.any():
+        raise ScenarioError(f"{what}: {p} has no finite points")
+    return pts[keep], origins
+
+
+def insert_cloud(
+    target: object, points: np.ndarray, origins: np.ndarray | None, origin: object, what: str
+) -> bool:
+    """Insert a cloud into ``target`` (an OccupancyMap) as OctoMap rays: from each point's own
+    origin (one scan per distinct origin, at most :data:`MAX_CLOUD_ORIGINS`) if the file has
+    them, else from ``origin``. Returns False (nothing inserted) when there is no origin at all.
+    """
+    if origins is None:
+        if origin is None:
+            return False
+        target.insert_point_cloud(points, np.asarray(origin, float), None)
+        return True
+    uniq, inverse = np.unique(origins, axis=0, return_inverse=True)
+    if len(uniq) > MAX_CLOUD_ORIGINS:
+        raise ScenarioError(
+            f"{what}: {len(uniq)} distinct per-point origins, more than {MAX_CLOUD_ORIGINS}"
+            " scans (group the points by scan)"
+        )
+    for k, o in enumerate(uniq):
+        target.insert_point_cloud(points[inverse.ravel() == k], o, None)
+    return True
+
+
+def read_surface_mesh(
+    path: str | os.PathLike[str], what: str = "mesh"
+) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles of any mesh file trimesh reads (open surfaces allowed).
+
+    Returns
+    -------
+    vertices : (v, 3) float64
+    faces : (f, 3) int64
+
+    Raises
+    ------
+    ScenarioError
+        Wrong suffix, too large, unparsable, empty, or non-finite vertices.
+    """
+    import trimesh
+
+    p = Path(path)
+    _size_checked(p, what, SERVER_MESH_SUFFIXES, "mesh")
+    try:
+        mesh = trimesh.load(
+            io.BytesIO(p.read_bytes()), file_type=p.suffix[1:].lower(), force="mesh", resolver=None
+        )
+    except Exception as exc:  # noqa: BLE001 - any parser failure means a broken file
+        detail = " ".join(str(exc).split())[:120] or type(exc).__name__
+        raise ScenarioError(f"{what}: cannot parse {p}: {detail}") from None
+    v = np.asarray(getattr(mesh, "vertices", np.empty((0, 3))), dtype=np.float64)
+    f = np.asarray(getattr(mesh, "faces", np.empty((0, 3))), dtype=np.int64)
+    if f.ndim != 2 or f.shape[0] == 0 or f.shape[1] != 3:
+        raise ScenarioError(f"{what}: {p} holds no triangles")
+    if f.shape[0] > MAX_SERVER_MESH_FACES:
+        raise ScenarioError(f"{what}: {p} has more than {MAX_SERVER_MESH_FACES} triangles")
+    if not np.all(np.isfinite(v)):
+        raise ScenarioError(f"{what}: {p} has non-finite vertices")
+    return v, f
+
+
+def surface_voxel_centres(
+    vertices: np.ndarray, faces: np.ndarray, resolution: float, what: str = "mesh"
+) -> np.ndarray:
+    """Centres of every voxel of the OctoMap grid that the surface touches.
+
+    A voxel is taken when its centre lies within half a voxel diagonal of a triangle (Open3D's
+    unsigned distance), which includes every voxel a triangle passes through.
+
+    Parameters
+    ----------
+    vertices : (v, 3) float
+    faces : (f, 3) int
+    resolution : float
+
+    Returns
+    -------
+    (n, 3) float64
+    """
+    from secure3d._deps import open3d
+
+    half_diag = 0.5 * math.sqrt(3.0) * resolution
+    klo = np.floor((vertices.min(axis=0) - half_diag) / resolution).astype(np.int64)
+    khi = np.floor((vertices.max(axis=0) + half_diag) / resolution).astype(np.int64)
+    shape = khi - klo + 1
+    if float(np.prod(shape.astype(float))) > MAX_MESH_CELLS:
+        raise ScenarioError(
+            f"{what}: voxelising at {resolution:g} m would examine {np.prod(shape):.3g} cells"
+            f" (limit {MAX_MESH_CELLS:.0e}); check units or resolution"
+        )
+    o3d = open3d()
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32))
+    )
+    out = []
+    ix, iy, iz = (np.arange(n) for n in shape)
+    for x0 in range(0, int(shape[0]), 64):  # slabs: bounded memory
+        g = np.stack(np.meshgrid(ix[x0 : x0 + 64], iy, iz, indexing="ij"), -1).reshape(-1, 3)
+        centres = (g + klo + 0.5) * resolution
+        d = scene.compute_distance(o3d.core.Tensor(centres.astype(np.float32))).numpy()
+        out.append(centres[d <= half_diag])
+    return np.concatenate(out)
+
+
+def check_source_file(path: Path, field: str, what: str) -> float | None:
+    """Read a server-map file once at load time so that a broken file fails there.
+
+    Returns the file's own resolution for an OctoMap (to compare with
+    ``server_map.resolution``), else None.
+    """
+    if field == "bt":
+        from secure3d.world.attacks import octomap_resolution
+
+        return octomap_resolution(path, what)
+    if field == "cloud":
+        read_cloud(path, what)
+    else:
+        read_surface_mesh(path, what)
+    return None
+
+
+__all__ = [
+    "CLOUD_SUFFIXES",
+    "SERVER_MESH_SUFFIXES",
+    "check_source_file",
+    "insert_cloud",
+    "read_cloud",
+    "read_cloud_origins",
+    "read_surface_mesh",
+    "surface_voxel_centres",
+]

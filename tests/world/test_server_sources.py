@@ -1,0 +1,281 @@
+"""Server maps from files (OctoMap of any type, point cloud, mesh), region attacks, and the
+region-attack campaign family."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+import yaml
+
+from secure3d.errors import ScenarioError
+from secure3d.mapping import OccupancyMap
+from secure3d.world import load_scenario, save_scenario
+from secure3d.world.attacks import belief_map, octomap_voxel_boxes
+from secure3d.world.region_attacks import REGION_ATTACKS, variant_rng
+from secure3d.world.server_sources import read_cloud, surface_voxel_centres
+from secure3d.world.spec import Attack, Region, ServerMapSpec
+
+MAPS = Path(__file__).resolve().parents[2] / "maps"
+
+
+@pytest.fixture
+def office(tmp_path: Path) -> Path:
+    """office_bt.yaml and its two OctoMaps in a scratch folder."""
+    (tmp_path / "octomaps").mkdir()
+    for name in ("office_truth.bt", "office_server.bt"):
+        (tmp_path / "octomaps" / name).write_bytes((MAPS / "octomaps" / name).read_bytes())
+    (tmp_path / "office_bt.yaml").write_text((MAPS / "office_bt.yaml").read_text())
+    return tmp_path
+
+
+def _edit(folder: Path, change) -> Path:
+    data = yaml.safe_load((folder / "office_bt.yaml").read_text())
+    change(data)
+    path = folder / "edited.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def _claims(belief: OccupancyMap) -> tuple[set, set]:
+    r = belief.resolution
+    occ = {tuple(k) for k in np.floor(belief.claimed_voxels(True) / r).astype(int)}
+    free = {tuple(k) for k in np.floor(belief.claimed_voxels(False) / r).astype(int)}
+    return occ, free
+
+
+def test_colour_tree_bt_and_ot_are_accepted_as_world_and_server_maps(office: Path) -> None:
+    """The user's ColorOcTree scan (id line as OctoMap writes it) and .ot files load and give the
+    same voxels as the plain .bt."""
+    truth = office / "octomaps" / "office_truth.bt"
+    raw = truth.read_bytes()
+    (office / "octomaps" / "truth_color.bt").write_bytes(
+        raw.replace(b"\nid OcTree\n", b"\nid ColorOcTree\n", 1)
+    )
+    OccupancyMap.read_bt(office / "octomaps" / "office_server.bt").write_ot(
+        office / "octomaps" / "server.ot"
+    )
+
+    def change(d: dict) -> None:
+        d["world"]["octomap"] = "octomaps/truth_color.bt"
+        d["server_map"].pop("bt")
+        d["server_map"]["octomap"] = "octomaps/server.ot"
+
+    s = load_scenario(_edit(office, change))
+    assert s.server_map.octomap.name == "server.ot"
+    np.testing.assert_array_equal(octomap_voxel_boxes(s.world.octomap), octomap_voxel_boxes(truth))
+    base = load_scenario(office / "office_bt.yaml")
+    assert _claims(belief_map(s)) == _claims(belief_map(base))
+
+
+def test_server_octomap_key_and_old_bt_key_are_the_same(office: Path) -> None:
+    def rename(d: dict) -> None:
+        d["server_map"]["octomap"] = d["server_map"].pop("bt")
+
+    new = load_scenario(_edit(office, rename))
+    old = load_scenario(office / "office_bt.yaml")
+    assert new.server_map == old.server_map
+    # written back with the new key, read back equal
+    again = load_scenario(save_scenario(new, office / "saved.yaml"))
+    assert "octomap:" in (office / "saved.yaml").read_text()
+    assert again.server_map == new.server_map
+
+
+def test_server_resolution_must_match_the_file(office: Path) -> None:
+    def change(d: dict) -> None:
+        d["server_map"]["resolution"] = 0.05
+
+    with pytest.raises(ScenarioError, match=r"server_map\.resolution: differs from .* 0\.1 m") as e:
+        load_scenario(_edit(office, change))
+    assert "\n" not in str(e.value) and "edited.yaml" in str(e.value)
+
+
+@pytest.mark.parametrize(
+    ("attack", "field", "problem"),
+    [
+        ({"kind": "stale", "region": {"lo": [1, 1, 0], "hi": [2, 2, 1]}}, "kind", "hide, shift"),
+        ({"kind": "hide", "region": {"lo": [1, 1, 0], "hi": [0, 2, 1]}}, "region.hi", "exceed"),
+        ({"kind": "shift", "region": {"lo": [1, 1, 0], "hi": [2, 2, 1]}}, "by", "missing"),
+        (
+            {"kind": "hide", "region": {"lo": [1, 1, 0], "hi": [2, 2, 1]}, "target": "x"},
+            "target",
+            "unknown key",
+        ),
+        ({"kind": "hide", "region": {"lo": [50, 50, 0], "hi": [51, 51, 1]}}, "region", "outside"),
+    ],
+)
+def test_bad_region_attacks_are_one_line_errors(office, attack, field, problem) -> None:
+    def change(d: dict) -> None:
+        d["server_map"]["attacks"] = [attack]
+
+    with pytest.raises(ScenarioError, match=problem) as e:
+        load_scenario(_edit(office, change))
+    assert f"server_map.attacks[0].{field}" in str(e.value)
+    assert "\n" not in str(e.value)
+
+
+def test_named_attacks_need_a_world_derived_server_map() -> None:
+    with pytest.raises(ScenarioError, match="only region attacks act on a server map given as"):
+        ServerMapSpec(attacks=(Attack("hide", target="crate"),), cloud="scan.ply")
+    ServerMapSpec(attacks=(Attack("hide", region=Region((0, 0, 0), (1, 1, 1))),), cloud="a.ply")
+
+
+def test_region_attacks_edit_a_real_server_map(office: Path) -> None:
+    """hide frees the region's claimed obstacles, shift moves them, phantom invents some; nothing
+    outside the region (and its shifted copy) changes."""
+    region = {"lo": [6.0, 0.0, 0.0], "hi": [9.5, 2.5, 1.5]}  # desk_b and part of the walls
+    base = load_scenario(office / "office_bt.yaml")
+    occ0, free0 = _claims(belief_map(base))
+    lo, hi = np.array(region["lo"]) / 0.1, np.array(region["hi"]) / 0.1
+    in_region = {k for k in occ0 if np.all(np.add(k, 0.5) >= lo) and np.all(np.add(k, 0.5) <= hi)}
+    assert len(in_region) > 200
+
+    def with_attack(attack: dict) -> OccupancyMap:
+        def change(d: dict) -> None:
+            d["server_map"]["attacks"] = [attack]
+
+        return belief_map(load_scenario(_edit(office, change)))
+
+    occ, free = _claims(with_attack({"kind": "hide", "region": region}))
+    assert occ == occ0 - in_region and in_region <= free
+
+    occ, free = _claims(with_attack({"kind": "shift", "region": region, "by": [0.0, 1.0, 0.0]}))
+    moved = {(k[0], k[1] + 10, k[2]) for k in in_region}
+    assert moved <= occ and occ == (occ0 - in_region) | moved
+    assert (in_region - moved) <= free
+
+    occ, _ = _claims(
+        with_attack(
+            {"kind": "phantom", "region": {"lo": [2.03, 3.03, 1.03], "hi": [2.97, 3.97, 1.97]}}
+        )
+    )
+    box = {(x, y, z) for x in range(20, 30) for y in range(30, 40) for z in range(10, 20)}
+    assert box <= occ and occ - box == occ0 - box
+
+
+def test_region_attack_on_world_derived_map_and_round_trip(tmp_path: Path) -> None:
+    s = load_scenario(MAPS / "blind_corner.yaml")
+    attack = Attack("hide", region=Region((5.4, 2.4, 0.0), (8.1, 9.0, 2.5)))
+    s2 = dataclasses.replace(
+        s, server_map=dataclasses.replace(s.server_map, attacks=(*s.server_map.attacks, attack))
+    )
+    occ0, _ = _claims(belief_map(s))
+    occ, free = _claims(belief_map(s2))
+    assert occ < occ0 and free
+    (tmp_path / "x.yaml").write_text("")
+    back = load_scenario(save_scenario(s2, tmp_path / "x.yaml"))
+    assert back.server_map.attacks == s2.server_map.attacks
+    assert "hide region" in back.summary()
+
+
+def test_cloud_server_map_is_octomap_rays_from_the_origin() -> None:
+    s = load_scenario(MAPS / "cloud_server.yaml")
+    points = read_cloud(s.server_map.cloud)
+    ref = OccupancyMap(0.1)
+    ref.insert_point_cloud(points, np.array(s.server_map.origin), None)
+    occ, free = _claims(belief_map(s))
+    r = 0.1
+    assert occ == {tuple(k) for k in np.floor(ref.occupied_voxels() / r).astype(int)}
+    assert free == {tuple(k) for k in np.floor(ref.free_voxels() / r).astype(int)}
+    assert len(free) > 10_000
+    # The crate (5.5..6.9, 3.6..4.4) is not in the scan: its inside is claimed free.
+    assert (60, 40, 12) in free
+
+
+def test_cloud_without_origin_claims_only_its_points(tmp_path: Path) -> None:
+    data = yaml.safe_load((MAPS / "cloud_server.yaml").read_text())
+    del data["server_map"]["origin"]
+    (tmp_path / "clouds").mkdir()
+    (tmp_path / "clouds" / "blind_corner_scan.ply").write_bytes(
+        (MAPS / "clouds" / "blind_corner_scan.ply").read_bytes()
+    )
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(data))
+    s = load_scenario(tmp_path / "s.yaml")
+    occ, free = _claims(belief_map(s))
+    pts = read_cloud(s.server_map.cloud)
+    assert not free
+    assert occ == {tuple(k) for k in np.floor(pts / 0.1).astype(int)}
+
+
+def test_mesh_surface_voxels_cover_the_surface_and_nothing_far() -> None:
+    lo, hi = np.array([0.33, -0.21, 1.07]), np.array([1.47, 0.58, 1.93])
+    mesh = trimesh.creation.box(extents=hi - lo)
+    mesh.apply_translation(0.5 * (lo + hi))
+    res = 0.1
+    centres = surface_voxel_centres(np.asarray(mesh.vertices), np.asarray(mesh.faces), res)
+    keys = {tuple(k) for k in np.floor(centres / res).astype(int)}
+    samples, _ = trimesh.sample.sample_surface(mesh, 20_000, seed=1)
+    touched = {tuple(k) for k in np.floor(samples / res).astype(int)}
+    assert touched <= keys
+    # unsigned distance of each centre to the box's surface, analytically
+    outside = np.linalg.norm(np.maximum(np.maximum(lo - centres, centres - hi), 0), axis=1)
+    inside = np.min(np.minimum(centres - lo, hi - centres), axis=1)
+    dist = np.where(outside > 0, outside, inside)
+    assert np.all(dist <= 0.5 * np.sqrt(3) * res + 1e-6)
+    # the inside of the box is not claimed (a surface, not a solid)
+    assert tuple(np.floor(0.5 * (lo + hi) / res).astype(int)) not in keys
+
+
+def test_mesh_server_map_claims_the_building_surface() -> None:
+    s = load_scenario(MAPS / "mesh_server.yaml")
+    occ, free = _claims(belief_map(s))
+    assert not free and len(occ) > 10_000
+    # a wall surface voxel is claimed; the hidden crate's inside is not
+    assert (84, 50, 12) in occ and (60, 40, 12) not in occ
+
+
+def test_region_attack_family_is_pure_and_valid() -> None:
+    base = load_scenario(MAPS / "geb079_region_attacks.yaml")
+    prep = REGION_ATTACKS.prepare(base)
+    variants = [REGION_ATTACKS.variant(prep, base, variant_rng(7, i), i) for i in range(12)]
+    again = REGION_ATTACKS.variant(REGION_ATTACKS.prepare(base), base, variant_rng(7, 5), 5)
+    assert again == variants[5]
+    kinds = {v.server_map.attacks[-1].kind for v in variants}
+    assert kinds <= {"hide", "shift", "phantom"} and len(kinds) >= 2
+    assert len({v.name for v in variants}) == 12
+    occ0, _ = _claims(belief_map(base))
+    for v in variants:
+        assert v.server_map.attacks[-1].region is not None
+        occ, _ = _claims(belief_map(v))
+        assert occ != occ0, f"{v.name}: the attack changed nothing"
+
+
+def test_cloud_with_per_point_origins_is_one_octomap_scan_per_origin(tmp_path: Path) -> None:
+    """A .ply with origin_x/y/z vertex properties: each point is a ray from its own origin, as
+    octomap-python inserts each scan; the scenario's origin is not needed."""
+    import octomap
+
+    rng = np.random.default_rng(4)
+    origins = np.array([[1.0, 1.0, 1.0], [6.75, 1.25, 1.25]])
+    pts = np.vstack([o + rng.uniform(-2.5, 2.5, (400, 3)) for o in origins])
+    own = np.repeat(origins, 400, axis=0)
+    rows = "\n".join(" ".join(f"{v:.6f}" for v in (*p, *o)) for p, o in zip(pts, own, strict=True))
+    props = "".join(
+        f"property float {n}\n" for n in ("x", "y", "z", "origin_x", "origin_y", "origin_z")
+    )
+    (tmp_path / "clouds").mkdir()
+    (tmp_path / "clouds" / "scans.ply").write_text(
+        f"ply\nformat ascii 1.0\nelement vertex {len(pts)}\n{props}end_header\n{rows}\n"
+    )
+    data = yaml.safe_load((MAPS / "cloud_server.yaml").read_text())
+    data["server_map"] = {"resolution": 0.1, "cloud": "clouds/scans.ply"}
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(data))
+    occ, free = _claims(belief_map(load_scenario(tmp_path / "s.yaml")))
+    tree = octomap.OcTree(0.1)
+    f32 = pts.astype(np.float32).astype(float)  # the file stores float32
+    for o in origins:
+        tree.insertPointCloud(f32[(own == o).all(1)], o)
+    n_occ = n_free = 0
+    for leaf in tree.begin_leafs():  # OctoMap prunes equal siblings: count voxels per leaf
+        n = 8 ** (16 - leaf.getDepth())
+        if tree.isNodeOccupied(leaf):
+            n_occ += n
+        else:
+            n_free += n
+    assert (len(occ), len(free)) == (n_occ, n_free) and n_free > 1000
+    centre = lambda keys: (np.array(sorted(keys)) + 0.5) * 0.1  # noqa: E731
+    np.testing.assert_array_equal(tree.getLabels(centre(occ)), 1)
+    np.testing.assert_array_equal(tree.getLabels(centre(free)), 0)
