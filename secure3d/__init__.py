@@ -35,7 +35,14 @@ _EXPORTS = {
 
 __all__ = sorted(_EXPORTS)
 
-if TYPE_CHECKING:  # pragma: no cover
+if TYPE_CHECKING:  # pragma: no cover - the real types for checkers and IDEs
+    from secure3d.mapping.occupancy import OccupancyMap as OccupancyMap
+    from secure3d.planning.certificate import certify as certify
+    from secure3d.planning.result import PlanResult as PlanResult
+    from secure3d.planning.solve import plan as plan
+    from secure3d.simulation.closed_loop import SimResult as SimResult
+    from secure3d.simulation.closed_loop import simulate as simulate
+    from secure3d.world.scenario import load_scenario as load_scenario
     from secure3d.world.spec import Scenario as Scenario
 
 
@@ -45,3 +52,7 @@ def __getattr__(name: str) -> Any:
     except KeyError:
         raise AttributeError(f"module 'secure3d' has no attribute {name!r}") from None
     return getattr(importlib.import_module(module), name)
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})
