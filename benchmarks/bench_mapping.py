@@ -140,6 +140,9 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3, help="timing repetitions (best kept)")
     args = parser.parse_args()
 
+    missing = [n for n in ("scan.dat.bz2", "geb079.bt") if not (args.data / n).is_file()]
+    if missing:
+        parser.error(f"--data {str(args.data)!r}: no {' or '.join(missing)} there")
     scan = read_scan_dat(args.data / "scan.dat.bz2")
     origin = np.zeros(3)
     # Warm-up: load the numba kernels from their cache (or compile them) outside the timings.

@@ -339,3 +339,18 @@ def test_interrupt_exits_130_with_one_line(tiny: Path, monkeypatch, capsys) -> N
     monkeypatch.setattr(secure3d.planning, "plan", interrupted)
     assert main(["plan", str(tiny)]) == 130
     _one_line_error(capsys, "interrupted")
+
+
+def test_bench_mapping_with_a_missing_data_folder_is_one_line(tmp_path):
+    """It used to end in a FileNotFoundError traceback."""
+    import subprocess
+    import sys
+
+    run = subprocess.run(
+        [sys.executable, "-m", "secure3d", "bench", "mapping", "--data", str(tmp_path / "none")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert run.returncode == 2, run.stderr
+    assert "Traceback" not in run.stderr and "no scan.dat.bz2 or geb079.bt" in run.stderr
