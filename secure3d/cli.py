@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, NoReturn
 from secure3d import __version__
 from secure3d.cli_map import map_arguments, run_map
 from secure3d.errors import ConfigError, Secure3DError
+from secure3d.outputs import check_output_path
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.simulation.closed_loop import SimResult
@@ -258,6 +259,11 @@ def _simulate_arguments(parser: argparse.ArgumentParser) -> None:
     )
     _add_replan_defer(parser, with_latency=True)
     parser.add_argument("--events", action="store_true", help="print every event of each run")
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print the runs as JSON on stdout (SimResult.to_dict) instead of the text report",
+    )
 
 
 def _add_replan_defer(parser: argparse.ArgumentParser, with_latency: bool = False) -> None:
@@ -299,22 +305,33 @@ def _simulate(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     _check_seed(args.seed)
     planners = _planners(args.planner)
-    rrd, png, speed = (_output_path(p) for p in (args.rrd, args.png, args.speed_png))
+    rrd, png, speed = (
+        None if p is None else check_output_path(p, (suffix,), flag)
+        for p, suffix, flag in (
+            (args.rrd, ".rrd", "--rrd"),
+            (args.png, ".png", "--png"),
+            (args.speed_png, ".png", "--speed-png"),
+        )
+    )
     several = len(planners) > 1
     results = fly_planners(
         scenario,
         planners,
         args.seed,
         rrd=lambda planner: _per_planner(rrd, planner, several),
-        report=lambda result: _print_run(result, args.events),
+        report=(lambda result: None) if args.json else (lambda r: _print_run(r, args.events)),
         replan_latency=args.replan_latency,
         replan_defer=args.replan_defer,
         **_planner_options(args),
     )
+    figures = comparison_figures(scenario, results, top_down=png, speed=speed)
+    if args.json:
+        print(json.dumps([r.to_dict() for r in results], indent=1))
+        return 0
     if several:
         print()
         print(comparison_table(results))
-    for path in comparison_figures(scenario, results, top_down=png, speed=speed).values():
+    for path in figures.values():
         print(f"wrote {path}")
     return 0
 

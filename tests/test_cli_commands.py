@@ -354,3 +354,38 @@ def test_bench_mapping_with_a_missing_data_folder_is_one_line(tmp_path):
     )
     assert run.returncode == 2, run.stderr
     assert "Traceback" not in run.stderr and "no scan.dat.bz2 or geb079.bt" in run.stderr
+
+
+def test_simulate_json_is_the_runs_as_data(maps_dir, capsys):
+    import json
+
+    from secure3d.cli import main
+
+    code = main(
+        [
+            "simulate",
+            str(maps_dir / "blind_corner.yaml"),
+            "--planner",
+            "secure",
+            "--json",
+            "--nodes",
+            "20",
+        ]
+    )
+    assert code == 0
+    runs = json.loads(capsys.readouterr().out)
+    assert [r["planner"] for r in runs] == ["secure"]
+    run = runs[0]
+    assert run["outcome"] in ("reached goal", "collided", "did not arrive", "no plan")
+    assert run["collided"] is False and run["plans"] and run["plans"][0]["certificate"]["ok"]
+    assert run["events"] and {"time", "kind", "detail"} <= set(run["events"][0])
+
+
+def test_simulate_refuses_an_output_folder_before_it_flies(maps_dir, tmp_path, capsys):
+    """`--png out/` used to fail with a traceback after both flights."""
+    from secure3d.cli import main
+
+    code = main(["simulate", str(maps_dir / "blind_corner.yaml"), "--png", f"{tmp_path}/"])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == "", out
+    assert err.count("\n") == 1 and "is a directory" in err

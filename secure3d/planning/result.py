@@ -135,6 +135,34 @@ class PlanResult:
     def ok(self) -> bool:
         return self.status.ok
 
+    def to_dict(self) -> dict[str, object]:
+        """The plan's outcome as JSON-ready data (no arrays): status, final time, solver figures
+        and the certificate's verdict and margins."""
+        cert = self.certificate
+        return {
+            "planner": self.planner,
+            "model": self.model_name,
+            "status": self.status.value,
+            "message": self.message,
+            "final_time": finite_or_none(self.final_time) if self.ok else None,
+            "nodes": int(len(self.times)),
+            "solver": self.solver,
+            "build_time": float(self.build_time),
+            "solve_time": float(self.solve_time),
+            "iterations": int(self.iterations),
+            "certificate": None
+            if cert is None
+            else {
+                "ok": bool(cert.ok),
+                "min_margin": finite_or_none(cert.min_margin),
+                "min_visibility_margin": finite_or_none(cert.min_visibility_margin),
+                "min_obstacle_margin": finite_or_none(cert.min_obstacle_margin),
+                "first_violation": None
+                if cert.first_violation is None
+                else str(cert.first_violation),
+            },
+        }
+
     @property
     def final_time(self) -> float:
         return float(self.times[-1]) if len(self.times) else float("nan")
@@ -151,3 +179,9 @@ class PlanResult:
             f" build={self.build_time * 1e3:7.1f}ms solve={self.solve_time * 1e3:8.1f}ms"
             f" iters={self.iterations:4d} lookback={self.lookback_rule:8s} {cert}"
         )
+
+
+def finite_or_none(value: float) -> float | None:
+    """``value`` as a float, or None when it is not finite (JSON has no NaN or infinity)."""
+    v = float(value)
+    return v if np.isfinite(v) else None

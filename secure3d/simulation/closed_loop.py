@@ -28,6 +28,7 @@ import numpy as np
 
 from secure3d.errors import SimulationError
 from secure3d.outputs import check_output_path
+from secure3d.planning.result import finite_or_none
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.result import PlanResult
@@ -131,6 +132,36 @@ class SimResult:
     @property
     def flight_time(self) -> float:
         return self.wall_time - self.setup_time
+
+    def to_dict(self) -> dict[str, object]:
+        """The run as JSON-ready data for scripts (``secure3d simulate --json``): outcome, times,
+        clearance, counts, events and each followed plan's :meth:`PlanResult.to_dict`; no arrays."""
+        num = finite_or_none
+        return {
+            "scenario": self.scenario,
+            "planner": self.planner,
+            "seed": int(self.seed),
+            "outcome": self.outcome,
+            "collided": bool(self.collided),
+            "collision_time": None if self.collision_time is None else num(self.collision_time),
+            "collision_obstacles": list(self.collision_obstacles),
+            "reached_goal": bool(self.reached_goal),
+            "time_to_goal": None if self.time_to_goal is None else num(self.time_to_goal),
+            "min_clearance": num(self.min_clearance),
+            "detection_time": None if self.detection_time is None else num(self.detection_time),
+            "sim_time": num(self.sim_time),
+            "frames": int(self.frames),
+            "takeovers": int(self.takeovers),
+            "replans": int(self.replans),
+            "wall_time": num(self.wall_time),
+            "setup_time": num(self.setup_time),
+            "real_time_factor": num(self.real_time_factor),
+            "events": [
+                {"time": num(e.time), "kind": e.kind, "detail": e.detail} for e in self.events
+            ],
+            "plans": [{"time": num(t), **p.to_dict()} for t, p in self.plans],
+            "outputs": {k: str(v) for k, v in self.outputs.items()},
+        }
 
     @property
     def real_time_factor(self) -> float:
