@@ -480,6 +480,13 @@ def _demo_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="camera noise seed (0)")
 
 
+def _rerun_command() -> str:
+    """The Rerun viewer installed beside this Python (``.venv/bin/rerun``), which need not be on
+    PATH; plain ``rerun`` when it is not there."""
+    beside = Path(sys.executable).parent / "rerun"
+    return str(beside) if beside.is_file() else "rerun"
+
+
 def _demo(args: argparse.Namespace) -> int:
     from secure3d.simulation.campaign import (
         PAPER_BLIND_CORNER,
@@ -515,7 +522,7 @@ def _demo(args: argparse.Namespace) -> int:
         print(comparison_table(results, PAPER_BLIND_CORNER, PAPER_BLIND_CORNER_LABEL))
     else:
         print(comparison_table(results))
-    print(f"\nReplay a flight with: rerun {out / f'{name}_secure.rrd'}")
+    print(f"\nReplay a flight with: {_rerun_command()} {out / f'{name}_secure.rrd'}")
     return 0
 
 
