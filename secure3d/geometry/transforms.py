@@ -2,7 +2,9 @@
 
 Frames: world is z-up; the body frame has x forward, y left, z up; the camera optical frame follows
 OpenCV (z forward, x right, y down). Quaternions are ``(w, x, y, z)`` (scalar first, Hamilton
-product). Functions marked "numpy or CasADi" share one body through :mod:`.backend`; their numpy
+product), as in the quadrotor's state; **scipy's ``Rotation.from_quat`` and Rerun's
+``Quaternion(xyzw=...)`` take ``(x, y, z, w)``**: reorder with ``q[[1, 2, 3, 0]]`` (ours to theirs)
+and ``q[[3, 0, 1, 2]]`` (theirs to ours). Functions marked "numpy or CasADi" share one body through :mod:`.backend`; their numpy
 versions broadcast over leading batch dimensions.
 """
 
