@@ -54,7 +54,7 @@ class Command:
 
 
 def _show_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scenario", type=Path, help="scenario YAML file (see maps/README.md)")
+    parser.add_argument("scenario", type=Path, help=_SCENARIO_HELP + "; format: maps/README.md")
     parser.add_argument(
         "--json", action="store_true", help="print the full scenario as JSON instead"
     )
@@ -83,10 +83,10 @@ PLAN_COLUMNS = (
     "certified",
     "margin",
 )
-#: Where ``secure3d demo`` and ``bench campaign`` find their scenario: the repository's maps/ (the
-#: source of truth), else a copy shipped in the package.
+#: The repository's benchmarks/ folder: ``bench`` is offered only in a source checkout (the
+#: scripts are not part of the installed package).
 _REPO = Path(__file__).resolve().parents[1]
-_SCENARIO_DIRS = (_REPO / "maps", Path(__file__).resolve().parent / "scenarios")
+_SCENARIO_HELP = "scenario YAML file or a shipped scenario's name (blind_corner, forest, ...)"
 _BENCHMARKS = _REPO / "benchmarks"
 
 
@@ -125,21 +125,17 @@ def _output_dir(folder: Path) -> Path:
 
 
 def _bundled_scenario(name: str) -> Path:
-    for folder in _SCENARIO_DIRS:
-        path = folder / f"{name}.yaml"
-        if path.is_file():
-            return path
-    raise ConfigError(
-        f"scenario {name!r} not found in {' or '.join(str(d) for d in _SCENARIO_DIRS)};"
-        " pass a scenario file"
-    )
+    """The shipped scenario ``name`` (``secure3d/maps/NAME.yaml``)."""
+    from secure3d.world.bundled import resolve_scenario
+
+    return resolve_scenario(name)
 
 
 # ---- plan --------------------------------------------------------------------------------------
 
 
 def _plan_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scenario", type=Path, help="scenario YAML file")
+    parser.add_argument("scenario", type=Path, help=_SCENARIO_HELP)
     parser.add_argument(
         "--planner", choices=PLANNER_CHOICES, default="both", help="planner(s) to run (both)"
     )
@@ -232,7 +228,7 @@ def _plan(args: argparse.Namespace) -> int:
 
 
 def _simulate_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scenario", type=Path, help="scenario YAML file")
+    parser.add_argument("scenario", type=Path, help=_SCENARIO_HELP)
     parser.add_argument(
         "--planner", choices=PLANNER_CHOICES, default="both", help="planner(s) to fly (both)"
     )
@@ -350,7 +346,7 @@ def _planner_names(text: str) -> tuple[str, ...]:
 
 
 def _campaign_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scenario", type=Path, help="base scenario YAML file")
+    parser.add_argument("scenario", type=Path, help="base " + _SCENARIO_HELP)
     parser.add_argument("-n", type=int, required=True, help="number of hidden-obstacle variants")
     parser.add_argument(
         "--planners",
@@ -598,6 +594,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for command in COMMANDS:
+        if command.name == "bench" and not _BENCHMARKS.is_dir():
+            continue  # an installed wheel has no benchmark scripts
         p = sub.add_parser(command.name, help=command.help, description=command.help)
         command.add_arguments(p)
         p.set_defaults(run=command.run)

@@ -6,6 +6,9 @@ import os
 import tempfile
 from pathlib import Path
 
+#: The environment as pytest was started, before the sandbox below (the wheel test reuses pip's
+#: real cache from it).
+ORIGINAL_ENV = dict(os.environ)
 _SANDBOX_HOME = Path(tempfile.mkdtemp(prefix="secure3d-test-home-"))
 for _var in ("HOME", "XDG_CONFIG_HOME", "XDG_DATA_HOME", "XDG_CACHE_HOME", "MPLCONFIGDIR"):
     os.environ[_var] = str(_SANDBOX_HOME / _var.lower())
@@ -39,3 +42,9 @@ def octomap_dir() -> Path:
     if not SHARED_OCTOMAP.is_dir():
         raise FileNotFoundError(f"shared OctoMap data not found at {SHARED_OCTOMAP}")
     return SHARED_OCTOMAP
+
+
+@pytest.fixture(scope="session")
+def original_env() -> dict[str, str]:
+    """The environment pytest started with, before this file sandboxed HOME and the caches."""
+    return dict(ORIGINAL_ENV)

@@ -23,3 +23,28 @@ def test_the_version_is_written_once():
     assert "version" not in project and "version" in project["dynamic"]
     assert importlib.metadata.version("secure3d") == secure3d.__version__
     assert (REPO / "LICENSE").read_text().startswith("BSD 3-Clause License")
+
+
+def test_scenarios_load_by_name_from_the_package(tmp_path, monkeypatch):
+    from secure3d.errors import ScenarioError
+    from secure3d.world.bundled import bundled_dir, bundled_names
+
+    monkeypatch.chdir(tmp_path)  # nowhere near the repository's maps/
+    assert {"blind_corner", "forest", "thin_pole"} <= set(bundled_names())
+    assert secure3d.load_scenario("blind_corner").name == "blind_corner"
+    assert secure3d.load_scenario("forest.yaml").name == "forest"
+    assert (bundled_dir() / "octomaps" / "geb079.bt").is_file()
+    try:
+        secure3d.load_scenario("no_such_scenario")
+    except ScenarioError as exc:
+        assert "no_such_scenario" in str(exc) and "blind_corner" in str(exc)
+    else:
+        raise AssertionError("an unknown name loaded")
+    # a file in the working directory wins over a shipped scenario of the same name
+    (tmp_path / "forest.yaml").write_text("name: [")
+    try:
+        secure3d.load_scenario("forest.yaml")
+    except ScenarioError as exc:
+        assert "YAML error" in str(exc)
+    else:
+        raise AssertionError("the shipped forest was taken instead of the local file")

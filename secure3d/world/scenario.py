@@ -36,6 +36,7 @@ import yaml
 from secure3d.errors import ConfigError, ScenarioError
 from secure3d.world import spec
 from secure3d.world.attacks import octomap_voxel_boxes
+from secure3d.world.bundled import resolve_scenario
 from secure3d.world.meshes import load_mesh, mesh_from_arrays, resolve_inside
 from secure3d.world.placement import check_start_goal_clear
 from secure3d.world.server_sources import check_source_file
@@ -647,9 +648,10 @@ def load_scenario(path: str | os.PathLike[str]) -> Scenario:
 
     Parameters
     ----------
-    path : path
-        The YAML file (schema in ``maps/README.md``). Mesh and ``.bt`` paths inside it are relative
-        to its folder.
+    path : path or name
+        The YAML file (schema in ``maps/README.md``), or the name of a shipped scenario
+        (``"blind_corner"``; see :func:`secure3d.world.bundled.bundled_names`). Mesh and map
+        paths inside it are relative to its folder.
 
     Returns
     -------
@@ -662,7 +664,7 @@ def load_scenario(path: str | os.PathLike[str]) -> Scenario:
         One line naming the file, the field and the bad value.
     """
     label = os.fspath(path)
-    p = Path(path)
+    p = resolve_scenario(path)
     data = _read_yaml(p, label)
     return scenario_from_dict(data, p.resolve().parent, source=p.resolve(), label=label)
 
