@@ -7,7 +7,11 @@
 - :func:`temporary_path` names a unique temporary file in the target folder (``.<name>.<pid>.
   <random>.part``, ignored by git), so two runs writing the same path never share one; the writer
   renames it over the target (:func:`os.replace`, atomic on one file system) or removes it.
-- :func:`atomic_write_bytes` and :func:`atomic_write_text` do both for whole files.
+- :func:`atomic_output` is the one writer: it opens the temporary file, yields it, and renames it
+  over the target when the block ends normally, or removes it on any exception (Ctrl-C included).
+  :func:`atomic_write_bytes` and :func:`atomic_write_text` use it for whole files; figures, map
+  files and campaign tables use it too. (Rerun's recordings stream into a :func:`temporary_path`
+  of their own, renamed when the recording is closed.)
 """
 
 from __future__ import annotations
@@ -15,12 +19,19 @@ from __future__ import annotations
 import contextlib
 import os
 import secrets
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 from secure3d.errors import OutputError
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "check_output_path", "temporary_path"]
+__all__ = [
+    "atomic_output",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "check_output_path",
+    "temporary_path",
+]
 
 
 def check_output_path(
@@ -74,22 +85,33 @@ def temporary_path(path: str | os.PathLike[str]) -> Path:
     return p.with_name(f".{p.name}.{os.getpid()}.{secrets.token_hex(4)}.part")
 
 
-def atomic_write_bytes(path: str | os.PathLike[str], data: bytes, mode: int = 0o666) -> Path:
-    """Write ``data`` to ``path`` through a unique temporary file and an atomic rename.
+@contextlib.contextmanager
+def atomic_output(path: str | os.PathLike[str], mode: int = 0o666) -> Iterator[BinaryIO]:
+    """Open a unique temporary file beside ``path`` for binary writing; on a normal exit of the
+    block, flush it to disk and rename it over ``path``; on any exception, remove it.
 
-    ``mode`` is masked by the umask, as for any new file (``mkstemp``'s 0600 is not)."""
+    ``mode`` is masked by the umask, as for any new file (``mkstemp``'s 0600 is not).
+    """
     p = Path(path)
     tmp = temporary_path(p)
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode)
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
         os.replace(tmp, p)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
         raise
-    return p
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes, mode: int = 0o666) -> Path:
+    """Write ``data`` to ``path`` through :func:`atomic_output`."""
+    with atomic_output(path, mode) as fh:
+        fh.write(data)
+    return Path(path)
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:

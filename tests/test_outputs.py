@@ -51,3 +51,29 @@ def test_temporary_names_are_unique_and_writes_are_atomic(tmp_path):
         th.join()
     assert target.read_text() in texts  # one whole file, never a mix or a truncation
     assert sorted(os.listdir(tmp_path)) == ["table.csv"]
+
+
+def test_an_interrupted_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path):
+    """Figures, map files and tables share one writer: Ctrl-C in the middle of a write keeps the
+    previous file whole and leaves no ``.part`` file behind."""
+    import matplotlib.pyplot as plt
+
+    from secure3d.mapping.occupancy import OccupancyMap
+    from secure3d.outputs import atomic_output
+    from secure3d.viz.figures import save_figure
+
+    target = tmp_path / "table.csv"
+    target.write_text("old\n")
+    with pytest.raises(KeyboardInterrupt), atomic_output(target) as fh:
+        fh.write(b"half a new")
+        raise KeyboardInterrupt
+    assert target.read_text() == "old\n"
+    fig = plt.figure()
+    try:
+        save_figure(fig, tmp_path / "f.png")
+    finally:
+        plt.close(fig)
+    OccupancyMap(resolution=0.1).write_bt(tmp_path / "m.bt")
+    assert (tmp_path / "f.png").read_bytes()[:4] == b"\x89PNG"
+    assert (tmp_path / "m.bt").read_bytes().startswith(b"# Octomap OcTree binary file")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.png", "m.bt", "table.csv"]

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from enum import IntEnum
 from pathlib import Path
@@ -57,6 +56,7 @@ from secure3d.mapping.keys import (
 )
 from secure3d.mapping.store import LeafLayer
 from secure3d.mapping.surface import boundary_mesh
+from secure3d.outputs import atomic_write_bytes
 
 #: Most voxels one claim call may create (about 0.5 GB); bigger claims are almost surely a unit or
 #: resolution mistake.
@@ -1000,11 +1000,11 @@ class OccupancyMap:
 
     def write_bt(self, path: str | os.PathLike[str]) -> None:
         """Write the sensor layer as ``.bt`` atomically (temporary file, then ``os.replace``)."""
-        _write_atomic(Path(path), self.to_bytes("bt"))
+        atomic_write_bytes(path, self.to_bytes("bt"))
 
     def write_ot(self, path: str | os.PathLike[str]) -> None:
         """Write the sensor layer as ``.ot`` (log-odds kept) atomically."""
-        _write_atomic(Path(path), self.to_bytes("ot"))
+        atomic_write_bytes(path, self.to_bytes("ot"))
 
 
 def depth_image_points(
@@ -1225,16 +1225,3 @@ def _bounds_walls(
         wlo.append(b_lo)
         whi.append(b_hi)
     return np.array(wlo), np.array(whi)
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise

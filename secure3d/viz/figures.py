@@ -13,9 +13,7 @@ interrupted run never leaves a truncated PNG.
 
 from __future__ import annotations
 
-import contextlib
 import os
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -29,6 +27,7 @@ from matplotlib.patches import Patch, Polygon, Rectangle
 from scipy.spatial import ConvexHull, QhullError
 
 from secure3d.errors import ConfigError, GeometryError
+from secure3d.outputs import atomic_output
 from secure3d.world.spec import Bounds, Box, MeshObstacle
 
 #: Colours by planner label; other labels cycle through matplotlib's default palette.
@@ -42,7 +41,7 @@ _DPI = 150
 
 
 def save_figure(fig: Figure, out_path: str | os.PathLike[str]) -> Path:
-    """Write ``fig`` to ``out_path`` atomically (temporary file in the same folder + rename).
+    """Write ``fig`` to ``out_path`` atomically (:func:`secure3d.outputs.atomic_output`).
 
     The format follows the suffix of ``out_path`` (``.png`` for the project's figures).
     """
@@ -50,18 +49,8 @@ def save_figure(fig: Figure, out_path: str | os.PathLike[str]) -> Path:
     if not out.parent.is_dir():
         raise ConfigError(f"out_path: folder {str(out.parent)!r} does not exist")
     fmt = out.suffix.lstrip(".").lower() or "png"
-    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".part")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fig.savefig(fh, format=fmt, dpi=_DPI, bbox_inches="tight")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; a figure is meant to be shared
-        os.replace(tmp, out)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+    with atomic_output(out) as fh:
+        fig.savefig(fh, format=fmt, dpi=_DPI, bbox_inches="tight")
     return out
 
 
