@@ -3,19 +3,52 @@
 open3d links ``libusb-1.0`` at import time. Machines without the system package still work because
 the ``libusb-package`` wheel ships the library: we load it globally with ctypes before importing
 open3d (no root needed). Rerun is imported lazily so that ``import secure3d`` stays fast.
+
+Each import runs under :func:`_interrupt_after`: a Ctrl-C that arrives while an extension module
+initialises would otherwise surface as that module's ``ImportError("initialization failed")``
+(pybind11 turns the ``KeyboardInterrupt`` into one) instead of a clean stop.
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import functools
 import os
+import signal
+import threading
+from collections.abc import Iterator
 from types import ModuleType
+
+
+@contextlib.contextmanager
+def _interrupt_after() -> Iterator[None]:
+    """Hold a Ctrl-C that arrives inside the block; raise it as ``KeyboardInterrupt`` at the end.
+
+    In other threads than the main one (where Python takes no signals) it changes nothing.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    try:
+        yield
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+    if held:
+        raise KeyboardInterrupt
 
 
 @functools.cache
 def open3d() -> ModuleType:
     """Return the ``open3d`` module, preloading libusb from the ``libusb-package`` wheel."""
+    with _interrupt_after():
+        return _import_open3d()
+
+
+def _import_open3d() -> ModuleType:
     try:
         import libusb_package
 
@@ -32,7 +65,8 @@ def open3d() -> ModuleType:
 @functools.cache
 def rerun() -> ModuleType:
     """Return the ``rerun`` module (rerun-sdk 0.41)."""
-    import rerun as rr
+    with _interrupt_after():
+        import rerun as rr
 
     return rr
 
@@ -40,6 +74,7 @@ def rerun() -> ModuleType:
 @functools.cache
 def fcl() -> ModuleType:
     """Return the python-fcl module."""
-    import fcl as _fcl
+    with _interrupt_after():
+        import fcl as _fcl
 
     return _fcl

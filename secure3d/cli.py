@@ -34,6 +34,8 @@ from secure3d import __version__
 from secure3d.cli_map import map_arguments, run_map
 from secure3d.errors import ConfigError, Secure3DError
 from secure3d.outputs import check_output_path
+from secure3d.sigint import EXIT_INTERRUPTED, cli_interrupts
+from secure3d.sigint import requested as interrupt_requested
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.simulation.closed_loop import SimResult
@@ -603,36 +605,55 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; return the exit status (0 success, 2 bad input).
+    """Run the command line; return the exit status (0 success, 1 I/O error, 2 bad input,
+    130 interrupted by Ctrl-C, within a second whatever runs: :mod:`secure3d.sigint`).
 
     Parameters
     ----------
     argv : sequence of str, optional
         Arguments without the program name; default ``sys.argv[1:]``.
     """
+    with cli_interrupts(f"{PROG}: error: interrupted"):
+        try:
+            return _run(argv)
+        except KeyboardInterrupt:
+            return _interrupted()
+        except Exception as exc:
+            if interrupt_requested():  # a Ctrl-C that surfaced as another exception
+                return _interrupted()
+            return _report(exc)
+
+
+def _interrupted() -> int:
+    _fail("interrupted")
+    return EXIT_INTERRUPTED
+
+
+def _report(exc: Exception) -> int:
+    """The one-line report and exit status of an expected error; anything else propagates."""
+    if isinstance(exc, Secure3DError):
+        _fail(str(exc))
+        return EXIT_USAGE
+    if isinstance(exc, BrokenPipeError):
+        # the reader went away (`secure3d show ... | head`): no traceback; later writes to the
+        # closed stdout must not raise again at interpreter exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        _fail("output closed before it was all written (broken pipe)")
+        return 1
+    if isinstance(exc, OSError):
+        where = f"{exc.filename}: " if exc.filename else ""
+        _fail(f"{where}{exc.strerror or exc}")
+        return 1
+    raise exc
+
+
+def _run(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version and usage errors
         return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     _log_to_stderr()
-    try:
-        status = args.run(args)
-        sys.stdout.flush()  # a closed pipe shows here, not as a traceback at interpreter exit
-        return status
-    except Secure3DError as exc:
-        _fail(str(exc))
-        return EXIT_USAGE
-    except KeyboardInterrupt:
-        _fail("interrupted")
-        return 130
-    except BrokenPipeError:
-        # the reader went away (`secure3d show ... | head`): no traceback; later writes to the
-        # closed stdout must not raise again at interpreter exit
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        _fail("output closed before it was all written (broken pipe)")
-        return 1
-    except OSError as exc:
-        where = f"{exc.filename}: " if exc.filename else ""
-        _fail(f"{where}{exc.strerror or exc}")
-        return 1
+    status = args.run(args)
+    sys.stdout.flush()  # a closed pipe shows here, not as a traceback at interpreter exit
+    return status

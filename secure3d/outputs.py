@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import os
 import secrets
+import threading
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import BinaryIO
@@ -30,8 +31,15 @@ __all__ = [
     "atomic_write_bytes",
     "atomic_write_text",
     "check_output_path",
+    "release_temporary",
+    "remove_temporaries",
     "temporary_path",
 ]
+
+#: Temporary files handed out by :func:`temporary_path` and not yet renamed or removed: what
+#: :func:`remove_temporaries` deletes when the process must stop at once (a second Ctrl-C).
+_live: set[Path] = set()
+_live_lock = threading.Lock()
 
 
 def check_output_path(
@@ -69,20 +77,47 @@ def check_output_path(
     probe = temporary_path(p.resolve())
     try:
         probe.touch(exist_ok=False)
+        probe.unlink()
     except OSError as exc:
         raise OutputError(
             f"{what}: cannot write in {str(folder)!r}: {exc.strerror or exc}"
         ) from None
-    probe.unlink()
+    finally:
+        release_temporary(probe)
     if p.exists() and not os.access(p, os.W_OK):
         raise OutputError(f"{what}: {str(p)!r} exists and is not writable")
     return p.resolve()
 
 
 def temporary_path(path: str | os.PathLike[str]) -> Path:
-    """A unique temporary file name beside ``path``: ``.<name>.<pid>.<random>.part``."""
+    """A unique temporary file name beside ``path``: ``.<name>.<pid>.<random>.part``.
+
+    The name is registered until :func:`release_temporary`, so that :func:`remove_temporaries`
+    can delete it if the process has to stop before its writer finishes."""
     p = Path(path)
-    return p.with_name(f".{p.name}.{os.getpid()}.{secrets.token_hex(4)}.part")
+    tmp = p.with_name(f".{p.name}.{os.getpid()}.{secrets.token_hex(4)}.part")
+    with _live_lock:
+        _live.add(tmp.absolute())
+    return tmp
+
+
+def release_temporary(tmp: str | os.PathLike[str]) -> None:
+    """Forget a temporary name of :func:`temporary_path` (renamed into place or removed)."""
+    with _live_lock:
+        _live.discard(Path(tmp).absolute())
+
+
+def remove_temporaries() -> list[Path]:
+    """Delete every temporary file still registered (for an immediate exit); return them."""
+    with _live_lock:
+        live = list(_live)
+        _live.clear()
+    removed = []
+    for tmp in live:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+            removed.append(tmp)
+    return removed
 
 
 @contextlib.contextmanager
@@ -105,6 +140,8 @@ def atomic_output(path: str | os.PathLike[str], mode: int = 0o666) -> Iterator[B
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
         raise
+    finally:
+        release_temporary(tmp)
 
 
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes, mode: int = 0o666) -> Path:

@@ -325,9 +325,12 @@ def test_demo_scenario_is_found_from_any_folder(tmp_path: Path, monkeypatch) -> 
 
 
 def test_demo_without_its_scenario_is_one_line(tmp_path: Path, monkeypatch, capsys) -> None:
-    monkeypatch.setattr(cli, "_SCENARIO_DIRS", (tmp_path,))
+    import secure3d.world.bundled as bundled
+
+    monkeypatch.setattr(bundled, "bundled_dir", lambda: tmp_path)
+    monkeypatch.chdir(tmp_path)
     assert main(["demo", "--out", str(tmp_path / "out")]) == 2
-    _one_line_error(capsys, "scenario 'blind_corner' not found")
+    _one_line_error(capsys, "blind_corner: no such file, and no shipped scenario of that name")
 
 
 def test_interrupt_exits_130_with_one_line(tiny: Path, monkeypatch, capsys) -> None:

@@ -53,7 +53,7 @@ from scipy.spatial.transform import Rotation
 from secure3d._deps import rerun as _rerun
 from secure3d.errors import ConfigError, GeometryError, SimulationError
 from secure3d.mapping.surface import surface_mask
-from secure3d.outputs import temporary_path
+from secure3d.outputs import release_temporary, temporary_path
 from secure3d.world.spec import Bounds, Box, MeshObstacle
 
 #: Trust classes of the robot's map (same codes as ``secure3d.mapping.occupancy.Trust``):
@@ -217,6 +217,7 @@ class RerunRecorder:
         self._rec.flush()
         self._rec.disconnect()
         os.replace(self.part_path, self.path)
+        release_temporary(self.part_path)
         return self.path
 
     def abort(self) -> None:
@@ -564,3 +565,4 @@ def _abandon(rec: Any, part_path: Path) -> None:
     with contextlib.suppress(Exception):
         rec.disconnect()
     _remove_quietly(part_path)
+    release_temporary(part_path)
