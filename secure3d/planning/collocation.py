@@ -41,7 +41,7 @@ SYM = ca.SX
 
 #: Give IPOPT the constraint Jacobian and Lagrangian Hessian assembled from the node kernels
 #: (:mod:`secure3d.planning.assembled_derivatives`) instead of CasADi's whole-graph derivatives:
-#: same values to rounding, same sparsity, a third of the compilation time (README, Measured).
+#: same values to rounding, same sparsity, a third of the compilation time (benchmarks/results/README.md).
 ASSEMBLED_DERIVATIVES = True
 
 #: Bounds on the final time (s): below is numerically meaningless, above is a unit error.
