@@ -149,6 +149,77 @@ def sample_plan(
     return SampledPlan(times=t, points=pts.reshape(-1, 3), owner=owner, rotations=R, origins=o)
 
 
+def _judge_points(
+    flat: np.ndarray,
+    owner: np.ndarray,
+    R: np.ndarray,
+    o: np.ndarray,
+    problem: object,
+    r: float,
+    tol: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The certificate's test of manoeuvre points ``flat`` (n, 3), each seen only from the cameras
+    (R, o) before ``owner``: (obstacle margin (n,), visibility margin (n,), the view that observes
+    each point (-1: the start region), the points that needed a view, and which of those were
+    inside an earlier field of view but occluded)."""
+    # ---- clear of known obstacles and inside the map -------------------------------------------
+    lo_b, hi_b = problem.boxes_lo, problem.boxes_hi
+    dist = np.maximum(min_box_distance(flat, lo_b, hi_b), 0.0)  # 0 inside a box
+    in_map = np.minimum(flat - problem.bounds_lo, problem.bounds_hi - flat).min(axis=1)
+    obstacle_margin = np.minimum(dist, in_map) - r
+
+    # ---- observed before: start ball, or an earlier view with a clear line of sight -------------
+    start_margin = (
+        np.minimum(flat - problem.start_region_lo, problem.start_region_hi - flat).min(axis=1) - r
+    )
+    # The body ball is seen only if the whole cone of sight lines from the camera to it is clear.
+    vis_margin = start_margin.copy()
+    unresolved = np.flatnonzero(start_margin < -tol)
+    occluded_only = np.zeros(len(unresolved), bool)
+    view = np.full(len(flat), -1, dtype=np.int64)  # -1: the start region
+    if len(unresolved):
+        found, best, raw, view[unresolved] = _clear_views(
+            flat[unresolved], owner[unresolved], R, o, problem.frustum, r, lo_b, hi_b, tol
+        )
+        occluded_only = ~found & (raw > -tol)
+        # never seen with a clear line of sight: 1 cm worse than the best (blocked) view, or -1 m
+        # when no earlier view exists at all
+        unseen = np.where(np.isfinite(raw), np.minimum(raw, 0.0) - 0.01, -1.0)
+        vis_margin[unresolved] = np.maximum(start_margin[unresolved], np.where(found, best, unseen))
+    return obstacle_margin, vis_margin, view, unresolved, occluded_only
+
+
+def state_margin(
+    x: np.ndarray,
+    problem: object,
+    rotations: np.ndarray,
+    origins: np.ndarray,
+    *,
+    controller: object | None = None,
+    settings: CertificateSettings | None = None,
+) -> tuple[float, str]:
+    """The certificate's test for one state: the reactive manoeuvre simulated from ``x`` (nx,) must
+    stay clear of the problem's known obstacles and be observed, by the start region or by one of
+    the camera poses ``rotations`` (k, 3, 3), ``origins`` (k, 3) with a clear sight cone, all by
+    the body radius. Returns the smallest margin (m; >= -tolerance passes) and what limits it.
+
+    This is what the tracking guard of the closed loop asks of the state the robot is really in
+    (:mod:`secure3d.simulation.guard`); :func:`certify` asks it of every sampled planned state.
+    """
+    settings = settings or CertificateSettings()
+    controller = controller if controller is not None else problem.controller
+    model, tol = problem.model, settings.tolerance
+    x = np.asarray(x, dtype=float).reshape(1, -1)
+    pts = _manoeuvres(controller, model, x, settings.rollout_dt, settings.points_per_manoeuvre)[0]
+    R = np.asarray(rotations, dtype=float).reshape(-1, 3, 3)
+    o = np.asarray(origins, dtype=float).reshape(-1, 3)
+    owner = np.full(len(pts), len(R), dtype=np.int64)  # every view given counts as earlier
+    obstacle, visible, _, _, _ = _judge_points(pts, owner, R, o, problem, model.body_radius, tol)
+    if obstacle.min() <= visible.min():
+        return float(obstacle.min()), "its reactive manoeuvre meets a known obstacle"
+    return float(visible.min()), "its reactive manoeuvre reaches space not observed before"
+
+
 def certify(
     plan: PlanResult,
     problem: object,
@@ -197,31 +268,9 @@ def certify(
     kept = np.flatnonzero(keep)
     flat, owner = flat[keep], owner[keep]
 
-    # ---- clear of known obstacles and inside the map -------------------------------------------
-    lo_b, hi_b = problem.boxes_lo, problem.boxes_hi
-    dist = np.maximum(min_box_distance(flat, lo_b, hi_b), 0.0)  # 0 inside a box
-    in_map = np.minimum(flat - problem.bounds_lo, problem.bounds_hi - flat).min(axis=1)
-    obstacle_margin = np.minimum(dist, in_map) - r
-
-    # ---- observed before: start ball, or an earlier view with a clear line of sight -------------
-    start_margin = (
-        np.minimum(flat - problem.start_region_lo, problem.start_region_hi - flat).min(axis=1) - r
+    obstacle_margin, vis_margin, view, unresolved, occluded_only = _judge_points(
+        flat, owner, R, o, problem, r, tol
     )
-    # The body ball is seen only if the whole cone of sight lines from the camera to it is clear.
-    vis_margin = start_margin.copy()
-    unresolved = np.flatnonzero(start_margin < -tol)
-    occluded_only = np.zeros(len(unresolved), bool)
-    view = np.full(len(flat), -1, dtype=np.int64)  # -1: the start region
-    if len(unresolved):
-        found, best, raw, view[unresolved] = _clear_views(
-            flat[unresolved], owner[unresolved], R, o, problem.frustum, r, lo_b, hi_b, tol
-        )
-        occluded_only = ~found & (raw > -tol)
-        # never seen with a clear line of sight: 1 cm worse than the best (blocked) view, or -1 m
-        # when no earlier view exists at all
-        unseen = np.where(np.isfinite(raw), np.minimum(raw, 0.0) - 0.01, -1.0)
-        vis_margin[unresolved] = np.maximum(start_margin[unresolved], np.where(found, best, unseen))
-
     margin = np.minimum(vis_margin, obstacle_margin)
     bad = margin < -tol
     views = np.full(len(sampled.points), -2, dtype=np.int64)

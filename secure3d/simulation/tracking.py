@@ -322,20 +322,30 @@ def _tilt_limited(thrust_vec: np.ndarray, max_tilt: float) -> np.ndarray:
 
 
 class DiffDriveTracker(Tracker):
-    """Kanayama's kinematic tracking law with first-order (v, omega) loops (dynamic extension)."""
+    """Kanayama's kinematic tracking law with first-order (v, omega) loops (dynamic extension).
+
+    Kanayama's law needs the reference to move forward (``v_r >= 0``): with ``v_r < 0`` its
+    heading and lateral corrections change sign and push the robot away from the plan (a reversing
+    replan was lost with heading errors of 2.5-3.5 rad). While the reference reverses, the law is
+    applied to the *mirrored* robot, the same body with heading ``theta + pi`` and forward speed
+    ``-v``, which moves forward along the reference; its speed command is negated back. Both laws
+    give the same command at ``v_r = 0``, so the control is continuous at a cusp.
+    """
 
     model_name = "diff_drive"
 
     def _control(self, x: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> np.ndarray:
         g, lim = self.gains, self.model.limits
         px, py, th, v, w = x
+        v_r, w_r = x_ref[3], x_ref[4]
+        mirror = -1.0 if v_r < 0.0 else 1.0  # reversing: track the mirrored robot forwards
         dx, dy = x_ref[0] - px, x_ref[1] - py
-        c, s = math.cos(th), math.sin(th)
+        c, s = mirror * math.cos(th), mirror * math.sin(th)
         e_x, e_y = c * dx + s * dy, -s * dx + c * dy
         e_th = float(_wrap(x_ref[2] - th))
-        v_r, w_r = x_ref[3], x_ref[4]
-        v_cmd = v_r * math.cos(e_th) + g.kx * e_x
-        w_cmd = w_r + v_r * (g.ky * e_y + g.k_theta * math.sin(e_th))
+        v_m = mirror * v_r
+        v_cmd = mirror * (v_m * math.cos(e_th) + g.kx * e_x)
+        w_cmd = w_r + v_m * (g.ky * e_y + g.k_theta * math.sin(e_th))
         v_cmd = float(np.clip(v_cmd, -lim.max_speed, lim.max_speed))
         w_cmd = float(np.clip(w_cmd, -lim.max_ang_speed, lim.max_ang_speed))
         a = u_ref[0] + g.k_v * (v_cmd - v)

@@ -1,0 +1,589 @@
+"""The closed loop as an explicit state machine: the paper's Algorithm 1, line by line.
+
+Algorithm 1 (Ivanov & Campbell) and where each line lives here::
+
+    1  [x*(t), u*(t)] <- Solve Eq. (Obj_Highlevel)       Flight.make_plan      HOLD --PLANNED--> FOLLOW
+    2  while O_u ∩ S_s(t) = ∅:                          Flight.observe        (each camera frame)
+    3      u(t) = u*(t)                                  Flight.act_follow     FOLLOW
+    4  if x*(t) != safe:                                 Flight.recheck, Flight.respond
+    5      while evasive manoeuvre:                      FOLLOW --UNSAFE--> BRAKE
+    6          u(t) = pi(x(t), O)                        Flight.act_brake      BRAKE
+    7  go to 1                                           BRAKE --STOPPED--> HOLD, Flight.act_hold
+
+The modes (:class:`Mode`) and every change between them (:data:`TRANSITIONS`) are in one table;
+:meth:`Flight.go` is the only place the mode changes. Beyond the paper, and each named where it
+acts: a replan from the moving state before braking (line 4 tries line 1 first), deferred replans
+and replan latency (:meth:`Flight.recheck`), looking around at rest (``SCAN``), holding after
+repeated failures, and the tracking guard (FOLLOW --OFF_TUBE--> BRAKE,
+:mod:`secure3d.simulation.guard`).
+
+One control step (:meth:`Flight.step`) is: sense (if a frame is due) and re-check the plan,
+respond to a broken plan, switch to a pending plan, choose the control by mode, integrate and check
+against the truth.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from secure3d.errors import SimulationError
+from secure3d.simulation.loop import (
+    CERT_STEP,
+    SCAN_TOLERANCE,
+    heading_error,
+    new_obstacle_voxels,
+    observed_box,
+    scan_control,
+    scan_headings,
+    voxel_colors,
+)
+from secure3d.simulation.modes import (
+    ARRIVAL_SPEED,
+    CONTACT_SAMPLES,
+    DETOUR_FACTOR,
+    DETOUR_SLACK_M,
+    DETOUR_SLACK_S,
+    HEARTBEAT_SECONDS,
+    REPLAN_RETRY,
+    RETRY_SPEEDS,
+    STOP_SPEED,
+    STUCK_RETRIES,
+    SURFACE_BIAS,
+    TRANSITIONS,
+    Followed,
+    Mode,
+    RunSettings,
+    Trigger,
+    log,
+)
+from secure3d.simulation.recheck import plan_unsafe
+from secure3d.simulation.results import SimEvent, SimResult
+
+if TYPE_CHECKING:  # pragma: no cover
+    from secure3d.planning.result import PlanResult
+    from secure3d.simulation.guard import TrackingGuard
+    from secure3d.simulation.loop import Loop
+
+class Flight:
+    """One closed-loop run: the state (time, state, mode, plans, counts, logs) and the steps."""
+
+    def __init__(
+        self,
+        loop: Loop,
+        rec: object | None,
+        settings: RunSettings,
+        guard: TrackingGuard | None = None,
+    ) -> None:
+        self.loop, self.rec, self.s, self.guard = loop, rec, settings, guard
+        self.model = loop.model
+        self.events: list[SimEvent] = []
+        self.plans: list[tuple[float, PlanResult]] = []
+        self.solve_times: list[float] = []
+        self.failures = 0  # failed plan calls in a row
+        self.t = 0.0
+        self.x = np.asarray(loop.problem.x0, dtype=float)
+        self.frame_no = 0
+        self.next_frame = settings.frame_period
+        self.mode = Mode.HOLD
+        self.current: Followed | None = None
+        self.pending: Followed | None = None  # a replan waiting out its latency (start = switch)
+        self.deferred: tuple[float, tuple[str, float]] | None = None  # (due, (why, t_bad))
+        self.last_attempt = 0.0
+        self.headings: list[float] = []  # look-around headings still to turn to
+        self.reference: tuple = (None, None)  # (plan followed, its Interpolant) for the tracker
+        self.hfov = loop.problem.frustum.hfov
+        self.replans = self.takeovers = 0
+        self.held_failures = 0  # failed replans in a row at rest (see STUCK_RETRIES)
+        self.detection_time: float | None = None
+        self.detection_point: np.ndarray | None = None
+        self.collided = self.reached = False
+        self.collision_time: float | None = None
+        self.time_to_goal: float | None = None
+        self.collision_names: tuple[str, ...] = ()
+        self.clear = float(
+            loop.collision.clearance(self.model.position(self.x), self.model.body_radius)
+        )
+        self.min_clear = self.clear
+        self.T_log: list[float] = [self.t]
+        self.X_log: list[np.ndarray] = [self.x.copy()]
+        self.beat = time.perf_counter()
+
+    # ---- the machine ---------------------------------------------------------------------------
+
+    def go(self, trigger: Trigger) -> Mode:
+        """Change the mode along :data:`TRANSITIONS` (the only place the mode changes)."""
+        nxt = TRANSITIONS.get((self.mode, trigger))
+        if nxt is None:
+            raise SimulationError(
+                f"closed loop: no transition from {self.mode.name} on {trigger.name}"
+            )
+        self.mode = nxt
+        return nxt
+
+    def event(self, kind: str, detail: str = "", level: str = "INFO") -> None:
+        self.events.append(SimEvent(self.t, kind, detail))
+        log.debug("%s t=%.2f s %s: %s %s", self.loop.scenario.name, self.t, level, kind, detail)
+        if self.rec is not None:
+            self.rec.log_event(self.t, f"{kind}: {detail}", level)
+
+    def run(self) -> SimResult:
+        """Take off (first frame, line 1), then step until the goal, a collision or the time limit."""
+        self.log_world()
+        self.sense()
+        self.start_following(self.make_plan(self.x), Trigger.PLANNED)
+        for _ in range(int(np.ceil(self.s.time_limit / self.s.dt))):
+            if self.step():
+                break
+        else:
+            limit = self.s.time_limit
+            self.event("time limit", f"{limit:.1f} s without reaching the goal", "WARN")
+        return self.result()
+
+    def step(self) -> bool:
+        """One control step; True when the run is over (goal or collision)."""
+        self.heartbeat()
+        unsafe = self.observe()  # lines 2 and 4: sense, re-check the plan
+        if unsafe is not None:
+            self.respond(unsafe)
+        self.switch_to_pending()
+        u = self.disturbed(self.act())
+        if (off := self.guard_check(u)) is not None:
+            self.take_over(off[0], Trigger.OFF_TUBE)
+            u = self.disturbed(self.act())  # brake from this very state
+        return self.integrate(u)
+
+    def disturbed(self, u: np.ndarray) -> np.ndarray:
+        """The ``disturbance`` seam of :func:`simulate`: a gust moves the state, a tracker or
+        actuator fault changes the control, before the guard and the integration see them."""
+        if self.s.disturbance is None:
+            return u
+        x, u = self.s.disturbance(self.t, self.x.copy(), np.array(u, dtype=float))
+        self.x = np.asarray(x, dtype=float)
+        return np.asarray(u, dtype=float)
+
+    # ---- sense and re-check (lines 2 and 4) ---------------------------------------------------
+
+    def sense(self) -> tuple[np.ndarray, set[str]]:
+        """Capture a frame, insert it, return (centres of the obstacle voxels it revealed outside
+        the judged boxes, hidden obstacles seen)."""
+        loop, scenario = self.loop, self.loop.scenario
+        R, o = self.model.camera_pose(self.x)
+        R, o = np.asarray(R, float), np.asarray(o, float).ravel()
+        frame = loop.camera.render(R, o)
+        cam = loop.camera
+        # Insert hits a hair (0.1 mm) in front of the surface: a wall lying exactly on a voxel
+        # boundary then marks the voxel in front of it (which its claim covers) instead of flipping
+        # between the two voxels with float rounding and carving the claim into fragments.
+        stats = loop.belief.insert_depth_image(
+            frame.depth - SURFACE_BIAS,
+            (cam.fx, cam.fy, cam.cx, cam.cy),
+            R,
+            o,
+            scenario.camera.max_range,
+            discretize=scenario.camera.discretize,
+            far_kind=scenario.camera.far_kind,
+        )
+        if self.guard is not None:
+            self.guard.add_view(R, o)
+        new = new_obstacle_voxels(loop, stats.occupied_codes)
+        self.log_frame(R, o, frame.depth)
+        return new, set(frame.hit_names()) & loop.hidden
+
+    def observe(self) -> tuple[str, float] | None:
+        """Sense if a frame is due and judge the plan being followed: (why, plan time of its first
+        failing manoeuvre) when it must be replaced now, else None."""
+        unsafe = None
+        if self.t + 1e-9 >= self.next_frame:
+            self.frame_no += 1
+            self.next_frame += self.s.frame_period
+            new, hidden_seen = self.sense()
+            if hidden_seen and self.detection_time is None:
+                self.detection_time = self.t
+                self.detection_point = np.asarray(self.model.position(self.x), float).copy()
+                self.event("hidden obstacle seen", ", ".join(sorted(hidden_seen)), "WARN")
+            if len(new) and self.mode is Mode.FOLLOW and self.current is not None:
+                unsafe = self.recheck(new)
+        if (
+            self.deferred is not None
+            and self.mode is Mode.FOLLOW
+            and self.t + 1e-9 >= self.deferred[0]
+        ):
+            unsafe, self.deferred = self.deferred[1], None  # the deferred replan is due
+        return unsafe
+
+    def guard_check(self, u: np.ndarray) -> tuple[str, float] | None:
+        """The tracking guard (beyond the paper): will the state, one check interval ahead under
+        the control ``u`` about to be applied, still be in the certified tube?"""
+        if self.guard is None or self.mode is not Mode.FOLLOW or self.current is None:
+            return None
+        return self.guard.check(self.t, self.x, u, self.current, self.reference_state()[0])
+
+    def recheck(self, new: np.ndarray) -> tuple[str, float] | None:
+        """Re-certify the followed (and any pending) plan after a frame revealed the voxels ``new``:
+        first against the judged boxes plus those voxels (a superset of the known obstacles), and
+        only if that fails against the whole map merged afresh; then defer when allowed."""
+        loop, cur, pending = self.loop, self.current, self.pending
+        t_rel = self.t - cur.start
+        lo, hi = loop.judged_plus(new)
+        unsafe = plan_unsafe(loop, cur.plan, cur.problem, t_rel, lo, hi)
+        broken = None
+        if pending is not None:
+            broken = plan_unsafe(loop, pending.plan, pending.problem, 0.0, lo, hi)
+        if unsafe is not None or broken is not None:
+            loop.refresh_obstacles()
+            lo, hi = loop.problem.boxes_lo, loop.problem.boxes_hi
+            unsafe = plan_unsafe(loop, cur.plan, cur.problem, t_rel, lo, hi)
+            if pending is not None:
+                broken = plan_unsafe(loop, pending.plan, pending.problem, 0.0, lo, hi)
+        if broken is not None:
+            self.event("pending plan dropped", broken[0], "WARN")
+            self.pending = None
+            unsafe = unsafe or broken
+        return self.defer_or_replan(unsafe, lo, hi, t_rel)
+
+    def defer_or_replan(
+        self, unsafe: tuple[str, float] | None, lo: np.ndarray, hi: np.ndarray, t_rel: float
+    ) -> tuple[str, float] | None:
+        """What a re-check's verdict means now: the plan passed (judged boxes move on), a pending
+        plan takes over in time, the replan is deferred (``replan_defer``), or replan now."""
+        loop, defer = self.loop, self.s.replan_defer
+        if unsafe is None:
+            loop.judged_lo, loop.judged_hi = lo, hi
+            self.deferred = None
+        elif (
+            self.pending is not None
+            and unsafe[1] > self.pending.start - self.current.start + CERT_STEP
+        ):
+            loop.judged_lo, loop.judged_hi = lo, hi  # the pending plan takes over in time
+            unsafe = None
+        elif (
+            defer > 0.0
+            and self.s.replan_in_flight
+            and np.isfinite(unsafe[1])  # the baseline promises no manoeuvre: no deferring
+            and unsafe[1] - t_rel > defer + CERT_STEP
+        ):
+            # The plan stays certified until its first failing manoeuvre: keep following it and
+            # replan `defer` before then (sooner if later evidence brings that manoeuvre closer),
+            # once, with all the camera sees meanwhile. The judged boxes stay as they were, so
+            # every later frame re-checks the plan.
+            if self.deferred is None:
+                self.event("replan deferred", unsafe[0])
+            self.deferred = (self.current.start + unsafe[1] - defer, unsafe)
+            unsafe = None
+        else:
+            self.deferred = None
+        return unsafe
+
+    # ---- respond (lines 4-5: replan from the moving state, else take over) ----------------------
+
+    def respond(self, unsafe: tuple[str, float]) -> None:
+        """The plan broke at plan time ``unsafe[1]``: replan in flight if allowed and in time
+        (line 1 from the moving state), else brake (the take-over, line 5)."""
+        from secure3d.planning.trajectory import interpolate
+
+        s, cur = self.s, self.current
+        t_rel = self.t - cur.start
+        why, t_bad = unsafe
+        # with latency, the current plan must stay certified until the new one starts
+        in_time = s.replan_latency <= 0.0 or t_bad > t_rel + s.replan_latency + CERT_STEP
+        replanned = None
+        if s.replan_in_flight and self.replans < s.max_replans and in_time:
+            # Line 1 of Algorithm 1 from the current (moving) state: the new plan is certified
+            # from here on, its first reactive set in space the camera saw.
+            self.replans += 1
+            self.event("replan in flight", why)
+            x_from = self.x
+            if s.replan_latency > 0.0:
+                p = cur.plan
+                t_pred = np.array([t_rel + s.replan_latency])
+                x_from = interpolate(self.model, p.times, p.states, p.controls, t_pred)[0][0]
+            replanned = self.make_plan(x_from)
+        if replanned is not None and s.replan_latency > 0.0:
+            switch = self.t + s.replan_latency
+            self.pending = Followed(replanned, switch, self.loop.start_problem)
+            self.event("plan pending", f"takes over at {switch:.2f} s")
+            self.loop.judged_against_current()
+        elif replanned is not None:
+            self.current = Followed(replanned, self.t, self.loop.start_problem)
+            self.loop.judged_against_current()
+        else:
+            self.take_over(why, Trigger.UNSAFE)
+
+    def take_over(self, why: str, trigger: Trigger) -> None:
+        """Line 5: hand over to the reactive (braking) controller, now."""
+        self.pending = None
+        self.go(trigger)
+        self.takeovers += 1
+        self.event("take-over", why, "WARN")
+
+    def switch_to_pending(self) -> None:
+        if (
+            self.pending is not None
+            and self.mode is Mode.FOLLOW
+            and self.t + 1e-9 >= self.pending.start
+        ):
+            self.current, self.pending = self.pending, None
+            self.event("plan takes over", f"T={self.current.plan.final_time:.2f}s")
+
+    # ---- line 1: plan ---------------------------------------------------------------------------
+
+    def make_plan(self, x: np.ndarray) -> PlanResult | None:
+        """Plan from state ``x`` now (line 1): the take-off plan from the start region observed
+        before take-off (the paper's premise), a replan from the box the camera has observed
+        around the robot. None (and an event) if no certified plan was found."""
+        from secure3d.planning.solve import plan_problem
+
+        loop, model = self.loop, self.model
+        loop.refresh_obstacles()
+        if self.t == 0.0:
+            problem = (
+                loop.problem
+            )  # the paper's premise: the start region was observed before take-off
+        else:
+            # In flight only what the camera has actually seen counts as observed around the robot.
+            p = np.asarray(model.position(x), dtype=float).ravel()
+            first = loop.first_problem
+            box = observed_box(
+                loop.belief,
+                p,
+                loop.problem.options.start_region_radius,
+                assumed=(first.start_region_lo, first.start_region_hi),
+            )
+            problem = loop.problem.with_start(x, region=box if box is not None else (p, p))
+        if self.failures:
+            speed = RETRY_SPEEDS[self.failures % len(RETRY_SPEEDS)]
+            problem = problem.with_options(guess_speed_fraction=speed)
+        loop.start_problem = problem
+        t0 = time.perf_counter()
+        result = plan_problem(problem, loop.planner, cache=loop.cache)
+        self.solve_times.append(time.perf_counter() - t0)
+        why = None if not result.ok or self.t == 0.0 else self.detour(result, x)
+        if not result.ok or why is not None:
+            self.failures += 1
+            what = why or f"{result.status.value}: {result.message}"
+            self.event("plan failed", what, "WARN")
+            return None
+        self.failures = 0
+        self.plans.append((self.t, result))
+        self.event("plan", f"T={result.final_time:.2f}s solve={1e3 * self.solve_times[-1]:.0f}ms")
+        if self.rec is not None:
+            self.rec.log_plan(self.t, result, label=loop.planner)
+            self.rec.log_scalar(self.t, "solve_time_ms", 1e3 * self.solve_times[-1])
+        return result
+
+    def detour(self, plan: PlanResult, x: np.ndarray) -> str | None:
+        """Why a replan from ``x`` is too long a detour to fly (see DETOUR_FACTOR), or None."""
+        P = np.asarray(self.model.position(plan.states), dtype=float)
+        p0 = np.asarray(self.model.position(x), dtype=float).ravel()
+        line = float(np.linalg.norm(self.s.goal - p0))
+        length = float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum())
+        if length > DETOUR_FACTOR * line + DETOUR_SLACK_M:
+            return f"replan refused: path {length:.1f} m for {line:.1f} m to the goal"
+        top = DETOUR_FACTOR * line / self.model.limits.max_speed + DETOUR_SLACK_S
+        if plan.final_time > top:
+            return f"replan refused: {plan.final_time:.1f} s for {line:.1f} m (at most {top:.1f} s)"
+        return None
+
+    def start_following(self, plan: PlanResult | None, trigger: Trigger) -> None:
+        """HOLD -> FOLLOW on a new plan (line 1 succeeded)."""
+        if plan is None:
+            return
+        self.current = Followed(plan, self.t, self.loop.start_problem)
+        self.loop.judged_against_current()
+        self.go(trigger)
+
+    # ---- act: the control of each mode ------------------------------------------------------------
+
+    def act(self) -> np.ndarray:
+        """The control for this step, by mode (a mode that ends hands the step on to the next)."""
+        return {
+            Mode.FOLLOW: self.act_follow,
+            Mode.BRAKE: self.act_brake,
+            Mode.SCAN: self.act_scan,
+            Mode.HOLD: self.act_hold,
+        }[self.mode]()
+
+    def reference_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The followed plan's state and control now."""
+        from secure3d.planning.trajectory import Interpolant
+
+        p = self.current.plan
+        if self.reference[0] is not p:
+            self.reference = (p, Interpolant(self.model, p.times, p.states, p.controls))
+        x_ref, u_ref = self.reference[1](np.array([self.t - self.current.start]))
+        return x_ref[0], u_ref[0]
+
+    def act_follow(self) -> np.ndarray:
+        """Line 3: track the plan."""
+        x_ref, u_ref = self.reference_state()
+        return self.loop.tracker.control(self.x, x_ref, u_ref)
+
+    def act_brake(self) -> np.ndarray:
+        """Lines 5-6: the reactive manoeuvre until at rest, then HOLD (or SCAN to look around)."""
+        u = self.loop.brake.control(self.x)
+        if float(np.linalg.norm(self.model.velocity(self.x))) >= STOP_SPEED:
+            return u
+        self.event("stopped", "reactive manoeuvre complete")
+        self.last_attempt = -np.inf
+        if not self.s.look_around:
+            self.go(Trigger.STOPPED)
+            return self.act_hold()
+        self.go(Trigger.STOPPED_LOOK)
+        self.headings = scan_headings(float(self.model.yaw(self.x)), self.hfov)
+        self.event("look around", f"turning {np.degrees(0.5 * self.hfov):.0f} deg either way")
+        return self.act_scan(u)
+
+    def act_scan(self, u: np.ndarray | None = None) -> np.ndarray:
+        """Turn through the look-around headings at rest, then HOLD."""
+        yaw = float(self.model.yaw(self.x))
+        while self.headings and abs(heading_error(self.headings[0], yaw)) < SCAN_TOLERANCE:
+            self.headings.pop(0)
+        if self.headings:
+            return scan_control(self.model, self.loop.brake, self.x, self.headings[0], self.s.dt)
+        self.go(Trigger.LOOKED)
+        return self.act_hold()
+
+    def act_hold(self) -> np.ndarray:
+        """Line 7, "go to 1": at rest, replan every REPLAN_RETRY s; look around once after
+        STUCK_RETRIES failures in a row, stop trying after twice that many."""
+        s = self.s
+        u = self.loop.brake.control(self.x)
+        due = self.t - self.last_attempt >= REPLAN_RETRY
+        if self.replans >= s.max_replans or self.held_failures >= 2 * STUCK_RETRIES or not due:
+            return u
+        self.last_attempt = self.t
+        self.replans += 1
+        plan = self.make_plan(self.x)
+        if plan is not None:
+            self.start_following(plan, Trigger.PLANNED)
+            self.held_failures = 0
+            self.deferred = None
+            return u
+        self.held_failures += 1
+        if self.held_failures == 2 * STUCK_RETRIES:
+            self.event(
+                "holding", f"{self.held_failures} replans at rest failed: no more replans", "WARN"
+            )
+        elif self.replans < s.max_replans and (
+            s.look_around or self.held_failures == STUCK_RETRIES
+        ):
+            self.go(Trigger.STUCK)
+            self.headings = scan_headings(float(self.model.yaw(self.x)), self.hfov)
+            if not s.look_around:
+                self.event(
+                    "look around",
+                    f"{self.held_failures} replans at rest failed: turning"
+                    f" {np.degrees(0.5 * self.hfov):.0f} deg either way for new views",
+                )
+        return u
+
+    # ---- integrate and check against the truth --------------------------------------------------
+
+    def integrate(self, u: np.ndarray) -> bool:
+        """Step the vehicle; check the swept body against the true world and the goal."""
+        model, loop, r = self.model, self.loop, self.model.body_radius
+        p_prev = np.asarray(model.position(self.x), float).ravel()
+        self.x = np.asarray(model.step(self.x, u, self.s.dt), dtype=float)
+        self.t += self.s.dt
+        p_new = np.asarray(model.position(self.x), float).ravel()
+        self.T_log.append(self.t)
+        self.X_log.append(self.x.copy())
+        if loop.collision.swept_collides(p_prev, p_new, r, clearance0=self.clear):
+            self.collided, self.collision_time = True, self.t
+            # The colliding step counts: its deepest sampled point (<= 0: the capsule touched).
+            along = p_prev + np.linspace(0.0, 1.0, CONTACT_SAMPLES)[:, None] * (p_new - p_prev)
+            deepest = float(loop.collision.clearances(along, r).min())
+            self.min_clear = min(self.min_clear, 0.0, deepest)
+            self.collision_names = loop.collision.contact_obstacles(p_prev, p_new, r)
+            self.event("collision", ", ".join(self.collision_names), "ERROR")
+            return True
+        self.clear = float(loop.collision.clearance(p_new, r))
+        self.min_clear = min(self.min_clear, self.clear)
+        speed = float(np.linalg.norm(model.velocity(self.x)))
+        if self.rec is not None and len(self.T_log) % 5 == 0:
+            v = np.asarray(model.velocity(self.x), float).ravel()
+            self.rec.log_state(self.t, p_new, v, speed, self.clear)
+        goal = self.loop.scenario.goal
+        if np.linalg.norm(p_new - self.s.goal) <= goal.tolerance and speed <= ARRIVAL_SPEED:
+            self.reached, self.time_to_goal = True, self.t
+            self.event("goal reached", f"{self.t:.2f} s")
+            return True
+        return False
+
+    # ---- logging and the result -----------------------------------------------------------------
+
+    def heartbeat(self) -> None:
+        if time.perf_counter() - self.beat < HEARTBEAT_SECONDS:
+            return
+        self.beat = time.perf_counter()
+        log.info(
+            "%s: %.2f of at most %.1f s flown in %.0f s of wall time, %d plans so far",
+            self.loop.scenario.name,
+            self.t,
+            self.s.time_limit,
+            self.beat - self.s.wall0,
+            len(self.plans),
+        )
+
+    def log_world(self) -> None:
+        if self.rec is None:
+            return
+        from secure3d.world.attacks import server_claim
+
+        scenario, truth = self.loop.scenario, self.loop.truth
+        claim = server_claim(scenario)
+        self.rec.log_world(
+            true_boxes=truth.boxes,
+            true_meshes=truth.meshes,
+            claimed_boxes=claim.boxes,
+            claimed_meshes=claim.meshes,
+            hidden_names=tuple(self.loop.hidden),
+            bounds=scenario.world.bounds,
+            true_voxels=truth.voxel_boxes,
+            true_voxel_colors=voxel_colors(scenario),
+        )
+
+    def log_frame(self, R: np.ndarray, o: np.ndarray, depth: np.ndarray) -> None:
+        rec, s, loop = self.rec, self.s, self.loop
+        if rec is None:
+            return
+        if self.frame_no % s.frame_log_every == 0:
+            cam, spec = loop.camera, loop.scenario.camera
+            rec.log_camera(self.t, R, o, cam.fx, cam.fy, spec.width, spec.height, depth)
+        if self.frame_no % s.belief_log_every == 0:
+            occ, trust = loop.belief.known_obstacles()
+            if len(occ):
+                rec.log_belief(self.t, occ, trust, loop.belief.resolution)
+
+    def result(self) -> SimResult:
+        model = self.model
+        states = np.array(self.X_log)
+        positions = np.asarray(model.position(states), dtype=float)
+        speeds = np.linalg.norm(np.asarray(model.velocity(states), dtype=float), axis=1)
+        return SimResult(
+            scenario=self.loop.scenario.name,
+            planner=self.loop.planner,
+            seed=self.s.seed,
+            collided=self.collided,
+            collision_time=self.collision_time,
+            collision_obstacles=tuple(self.collision_names),
+            reached_goal=self.reached,
+            time_to_goal=self.time_to_goal,
+            min_clearance=self.min_clear,
+            times=np.array(self.T_log),
+            states=states,
+            positions=positions,
+            speeds=speeds,
+            events=tuple(self.events),
+            plans=tuple(self.plans),
+            detection_time=self.detection_time,
+            detection_point=self.detection_point,
+            frames=self.frame_no + 1,
+            takeovers=self.takeovers,
+            replans=self.replans,
+            solve_times=tuple(self.solve_times),
+            wall_time=time.perf_counter() - self.s.wall0,
+        )

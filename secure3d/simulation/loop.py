@@ -1,0 +1,261 @@
+"""The state of one closed-loop run and the pieces of it that do not depend on the mode.
+
+:class:`Loop` holds the true world, the camera, the collision world, the belief map, the planning
+problem and the compiled NLP; :func:`new_obstacle_voxels` tells what a frame revealed;
+:func:`observed_box` is a replan's start region in flight; :func:`scan_headings` and
+:func:`scan_control` turn a robot at rest to look around. The mode logic is in
+:mod:`secure3d.simulation.flight`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections import OrderedDict
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from secure3d.errors import SimulationError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from secure3d.simulation.recheck import Recheck
+    from secure3d.world.spec import Scenario
+
+#: Fraction of the model's yaw-rate limit used to look around at rest, and the yaw error (rad) at
+#: which a look-around heading counts as reached.
+SCAN_RATE_FRACTION = 0.8
+SCAN_TOLERANCE = 0.05
+
+#: The certificate's sampling step (s): a manoeuvre that fails at plan time t_bad leaves the robot
+#: until t_bad minus this to switch to a new plan.
+CERT_STEP = 0.02
+
+#: Obstacle slots per node in closed loop (the planner's default is 8; see ``Loop``).
+CLOSED_LOOP_OBSTACLE_SLOTS = 12
+
+
+class Loop:
+    """State of one closed-loop run (kept out of SimResult so the result stays plain data)."""
+
+    def __init__(
+        self, scenario: Scenario, planner: str, seed: int, options: dict, cache: object
+    ) -> None:
+        from secure3d.planning.problem import problem_from_scenario
+        from secure3d.planning.solve import DEFAULT_CACHE
+        from secure3d.reactive.controllers import BrakingController
+        from secure3d.simulation.camera import DepthCamera
+        from secure3d.simulation.collision import CollisionWorld
+        from secure3d.simulation.scene import world_trimesh
+        from secure3d.simulation.tracking import make_tracker
+        from secure3d.world.attacks import belief_map, true_obstacles
+
+        self.scenario = scenario
+        self.planner = planner
+        self.truth = true_obstacles(scenario)
+        try:
+            mesh = world_trimesh(self.truth.boxes, self.truth.meshes, self.truth.voxel_boxes)
+            self.camera = DepthCamera(scenario.camera, mesh, rng=np.random.default_rng(seed))
+            self.collision = CollisionWorld(
+                self.truth.boxes, self.truth.meshes, self.truth.voxel_boxes
+            )
+        except (ValueError, RuntimeError) as exc:
+            raise SimulationError(f"{scenario.name}: cannot build the true world: {exc}") from exc
+        self.belief = belief_map(scenario)
+        # every replan brings a new look-back assignment: one compiled NLP for all of them
+        options.setdefault("lookback_encoding", "parameter")
+        # Sensed surfaces reach the planner as many small boxes: with 8 slots per node most
+        # replans in flight re-selected slots and re-solved 3 times (8 hidden-obstacle variants:
+        # 0.44x real time with 8 slots, 0.52x with 10, 0.54x with 12, 0.26x with 16).
+        options.setdefault("obstacle_slots", CLOSED_LOOP_OBSTACLE_SLOTS)
+        # no obstacle boxes yet: the first frame goes into the map before the first plan, which
+        # merges them (:meth:`refresh_obstacles`)
+        no_boxes = (np.empty((0, 3)), np.empty((0, 3)))
+        self.problem = problem_from_scenario(
+            scenario, belief=self.belief, obstacle_boxes=no_boxes, **options
+        )
+        self.model = self.problem.model
+        self.brake = BrakingController(self.model)
+        self.tracker = make_tracker(self.model)
+        # the planner's module-wide cache by default: runs in one process share compiled NLPs
+        self.cache = cache if cache is not None else DEFAULT_CACHE
+        # Compile the NLP before take-off, as a robot would (part of the set-up; see simulate). A
+        # look-back assignment compiled into the structure is known only at plan time: then the
+        # first plan compiles it, in flight.
+        self.cache.prepare(self.problem, planner)
+        self.hidden = set(scenario.hidden_obstacles)
+        self.start_problem = self.problem
+        self.first_problem = self.problem  # its start region was observed before take-off
+        #: per plan re-certified in flight (by id, the last few): its sampled manoeuvres, the boxes
+        #: it last passed against and what observed its manoeuvre points then (:func:`plan_unsafe`)
+        self.rechecks: OrderedDict[int, Recheck] = OrderedDict()
+        # obstacle boxes the plan being followed was last planned or certified against
+        self.judged_lo: np.ndarray | None = None
+        self.judged_hi: np.ndarray | None = None
+
+    def refresh_obstacles(self) -> None:
+        lo, hi = self.belief.known_obstacle_boxes(close_gaps=self.problem.options.close_gaps)
+        self.problem = dataclasses.replace(self.problem, boxes_lo=lo, boxes_hi=hi)
+
+    def judged_against_current(self) -> None:
+        """The plan being followed is now known safe against the current obstacle boxes."""
+        self.judged_lo, self.judged_hi = self.problem.boxes_lo, self.problem.boxes_hi
+
+    def judged_plus(self, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The judged boxes plus the voxels at ``centres`` (merged into few boxes): a superset of
+        the known obstacles when ``centres`` are all the known obstacle voxels found outside the
+        judged boxes since they were set (see :func:`new_obstacle_voxels`). Certifying against it
+        is sound (more obstacles never help a plan) and needs no re-merge of the whole map."""
+        from secure3d.mapping.boxes import merge_cells
+
+        res = self.belief.resolution
+        klo, khi = merge_cells(np.floor(centres / res).astype(np.int64))
+        return (
+            np.concatenate([self.judged_lo, klo * res]),
+            np.concatenate([self.judged_hi, (khi + 1) * res]),
+        )
+
+
+def voxel_colors(scenario: Scenario) -> np.ndarray | None:
+    """r, g, b of ``world.octomap``'s voxels for a colour tree, else None."""
+    from secure3d.world.attacks import octomap_voxel_colors
+
+    w = scenario.world
+    return None if w.octomap is None else octomap_voxel_colors(w.octomap, "world.octomap")
+
+
+def voxel_drawing(scenario: Scenario, loop: Loop) -> dict:
+    """Keyword arguments drawing ``world.octomap``'s voxels (in a colour tree's colours) and the
+    server map's claimed voxels when it is a file or is attacked by region."""
+    from secure3d.world.attacks import server_claim
+
+    claim = server_claim(scenario)
+    file_claim = claim.bt is not None or claim.cloud is not None or claim.mesh is not None
+    claimed = None
+    if file_claim or claim.regions:
+        from secure3d.world.attacks import belief_map
+
+        claimed = belief_map(scenario).claimed_voxels(True)
+    return {
+        "voxel_boxes": loop.truth.voxel_boxes,
+        "voxel_colors": voxel_colors(scenario),
+        "claimed_voxels": claimed,
+        "voxel_size": scenario.server_map.resolution,
+    }
+
+
+def new_obstacle_voxels(loop: Loop, occupied_codes: np.ndarray) -> np.ndarray:
+    """Centres ``(n, 3)`` of the known obstacle voxels among those a frame (already inserted)
+    updated as occupied (``occupied_codes``, Morton codes) that the boxes the current plan was last
+    judged against do not cover.
+
+    Only a hit can make a voxel a known obstacle (misses only ever free voxels, which shrinks the
+    obstacle set and so cannot break a plan: fewer obstacles never block a view or a manoeuvre). So
+    if every known obstacle voxel this frame hit is covered, the obstacle set is still inside the
+    judged boxes and the plan stays certified; otherwise the frame revealed something new. Voxels
+    that merely flicker (hit, then carved by grazing rays) are not news unless they end up occupied.
+    """
+    if loop.judged_lo is None or not len(occupied_codes):
+        return np.empty((0, 3))
+    from secure3d.geometry.polytope import inside_any_box
+    from secure3d.mapping.keys import codes_to_coords
+
+    known = occupied_codes[loop.belief.is_known_obstacle_sensed(occupied_codes)]
+    centres = codes_to_coords(known, loop.belief.resolution)
+    if not len(centres):
+        return centres
+    return centres[~inside_any_box(centres, loop.judged_lo, loop.judged_hi)]
+
+
+def observed_box(
+    belief: object,
+    centre: np.ndarray,
+    half_max: float,
+    assumed: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The largest box of whole voxels around ``centre`` (each face at most ``half_max`` from it) in
+    which every voxel was seen by the camera or is a known obstacle: the start region of a replan
+    in flight. Unknown and merely *claimed* free space never counts as observed (the server may
+    lie). Faces grow one voxel layer at a time, in turn, while the new layer is all observed, so the
+    box stretches along a corridor even when the floor and ceiling near the robot were never in
+    view. Voxels inside ``assumed`` (lo, hi) count as observed too: the start region of the flight,
+    observed before take-off by the paper's premise. None if the voxel holding ``centre`` itself is
+    unobserved.
+    """
+    from secure3d.mapping.occupancy import Trust
+
+    centre = np.asarray(centre, dtype=float)
+    if centre.shape != (3,) or not np.all(np.isfinite(centre)):
+        raise SimulationError(f"observed_box: centre must be 3 finite numbers, got {centre!r}")
+    if not (np.isfinite(half_max) and half_max >= 0):
+        raise SimulationError(f"observed_box: half_max must be a number >= 0, got {half_max!r}")
+    res = belief.resolution
+    allowed = np.array([Trust.SENSED_FREE, Trust.SENSED_OCCUPIED, Trust.CLAIMED_OCCUPIED])
+
+    def observed(a: np.ndarray, b: np.ndarray) -> bool:  # every voxel a..b (inclusive indices)
+        axes = [np.arange(a[d], b[d] + 1) for d in range(3)]
+        cells = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        pts = (cells + 0.5) * res
+        ok = np.isin(belief.trust(pts), allowed)
+        if assumed is not None:
+            ok |= np.all((pts >= assumed[0]) & (pts <= assumed[1]), axis=1)
+        return bool(ok.all())
+
+    k = np.floor(centre / res).astype(np.int64)
+    a, b = k.copy(), k.copy()
+    if not observed(a, b):
+        return None
+    growing = {(d, side) for d in range(3) for side in (-1, 1)}
+    while growing:
+        for d, side in sorted(growing):
+            na, nb = a.copy(), b.copy()
+            if side < 0:
+                na[d] -= 1
+                slab_a, slab_b, reach = na.copy(), b.copy(), centre[d] - na[d] * res
+                slab_b[d] = na[d]
+            else:
+                nb[d] += 1
+                slab_a, slab_b, reach = a.copy(), nb.copy(), (nb[d] + 1) * res - centre[d]
+                slab_a[d] = nb[d]
+            if reach > half_max + 1e-9 or not observed(slab_a, slab_b):
+                growing.discard((d, side))
+            else:
+                a, b = na, nb
+    return a * res, (b + 1) * res
+
+
+def scan_headings(yaw: float, hfov: float) -> list[float]:
+    """Headings a stopped robot turns through before it replans: half a field of view to either
+    side and back, so that it has seen a field of view and a half around where it was looking.
+
+    A take-over happens because the camera revealed part of an obstacle the plan did not know; the
+    rest of it often lies just outside the frame. Looking around at rest costs a second or two but
+    lets the replan see that rest instead of planning into it and taking over again (the paper's
+    Algorithm 1 replans at once; this is a liveness addition that never moves the robot)."""
+    if not (np.isfinite(yaw) and np.isfinite(hfov) and 0 < hfov < 2 * np.pi):
+        raise SimulationError(
+            f"scan_headings: need a finite yaw and 0 < hfov < 2 pi, got {yaw!r}, {hfov!r}"
+        )
+    half = 0.5 * hfov
+    return [yaw + half, yaw - half, yaw]
+
+
+def heading_error(target: float, yaw: float) -> float:
+    """``target - yaw`` wrapped to (-pi, pi] (rad)."""
+    return float(np.angle(np.exp(1j * (target - yaw))))
+
+
+def scan_control(
+    model: object, brake: object, x: np.ndarray, target: float, dt: float
+) -> np.ndarray:
+    """Hold still (the braking law) while turning the heading towards ``target``."""
+    u = np.array(brake.control(x), dtype=float)
+    err = heading_error(target, float(model.yaw(x)))
+    name = getattr(model, "name", "")
+    if name == "diff_drive":
+        lim = model.limits
+        rate = float(np.clip(3.0 * err, -1, 1)) * SCAN_RATE_FRACTION * lim.max_ang_speed
+        u[1] = np.clip((rate - float(x[4])) / dt, -lim.max_ang_accel, lim.max_ang_accel)
+    else:  # point mass (yaw rate) and quadrotor (body z rate, level at rest)
+        w = SCAN_RATE_FRACTION * model.limits.max_yaw_rate
+        u[3] = float(np.clip(3.0 * err, -w, w))
+    return u

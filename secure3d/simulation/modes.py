@@ -1,0 +1,113 @@
+"""The closed loop's vocabulary: its modes, what changes them (one table), and its settings.
+
+The state machine that uses them is :class:`secure3d.simulation.flight.Flight`.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from secure3d.planning.result import PlanResult
+
+#: Hits are inserted this far (m) in front of the surface they were measured on.
+SURFACE_BIAS = 1e-4
+#: The robot counts as stopped below this speed (m/s) before it replans.
+STOP_SPEED = 0.05
+#: Goal reached: within the goal tolerance and slower than this (m/s).
+ARRIVAL_SPEED = 0.25
+#: Wall-clock seconds between the INFO lines ``simulate`` logs while it flies (logger
+#: ``secure3d.simulation``), so a long run always says where it is.
+HEARTBEAT_SECONDS = 10.0
+#: Events go out at DEBUG, the heartbeat at INFO.
+log = logging.getLogger("secure3d.simulation")
+#: Points sampled along a colliding step for the clearance it reached (a 0.01 s step at 5 m/s is
+#: 5 cm long: 11 points sample it every 5 mm).
+CONTACT_SAMPLES = 11
+#: Seconds between retries of a failed replan (the robot holds still meanwhile).
+REPLAN_RETRY = 0.5
+#: Cruise-speed fractions of the initial guess for successive failed replans at rest: the map and
+#: the state are unchanged between retries, so the same guess would fail the same way.
+RETRY_SPEEDS = (0.8, 0.4, 1.0, 0.2)
+#: Failed replans in a row at rest after which the robot, having tried every retry start, turns
+#: to look around once (new views can change the problem; the same problem fails the same way),
+#: and twice that many after which it stops replanning and holds still. (A hidden-obstacle
+#: variant cycled through the same four failures 25 times, 80 s of wall time, before.)
+STUCK_RETRIES = len(RETRY_SPEEDS)
+#: A replan is refused (counted as a failed plan) when its path is longer than DETOUR_FACTOR times
+#: the straight line to the goal plus DETOUR_SLACK_M, or it takes longer than DETOUR_FACTOR times
+#: that line at the vehicle's top speed plus DETOUR_SLACK_S: a diff drive's certified replan of
+#: 42.8 s for 5 m, reversing again and again, was one its tracker could not follow.
+DETOUR_FACTOR = 4.0
+DETOUR_SLACK_M = 3.0
+DETOUR_SLACK_S = 10.0
+
+
+class Mode(enum.Enum):
+    """What the robot is doing."""
+
+    FOLLOW = "follow"  # line 3: tracking a certified plan
+    BRAKE = "brake"  # lines 5-6: the reactive (evasive) manoeuvre, until at rest
+    SCAN = "scan"  # at rest, turning to look around before replanning
+    HOLD = "hold"  # at rest, replanning every REPLAN_RETRY s (line 7: go to line 1)
+
+
+class Trigger(enum.Enum):
+    """Why the mode changes."""
+
+    PLANNED = "a certified plan"  # line 1 succeeded
+    UNSAFE = "the plan is no longer safe and no certified replan"  # line 4
+    OFF_TUBE = "the state left the certified tube"  # the tracking guard
+    STOPPED = "at rest"  # line 7
+    STOPPED_LOOK = "at rest, look around"
+    LOOKED = "looked around"
+    STUCK = "replans at rest keep failing"
+
+
+#: Every mode change there is: (mode, trigger) -> next mode. Anything else is a bug and raises.
+TRANSITIONS: dict[tuple[Mode, Trigger], Mode] = {
+    (Mode.HOLD, Trigger.PLANNED): Mode.FOLLOW,
+    (Mode.FOLLOW, Trigger.UNSAFE): Mode.BRAKE,
+    (Mode.FOLLOW, Trigger.OFF_TUBE): Mode.BRAKE,
+    (Mode.BRAKE, Trigger.STOPPED): Mode.HOLD,
+    (Mode.BRAKE, Trigger.STOPPED_LOOK): Mode.SCAN,
+    (Mode.SCAN, Trigger.LOOKED): Mode.HOLD,
+    (Mode.HOLD, Trigger.STUCK): Mode.SCAN,
+}
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """How one closed-loop run is flown (see :func:`secure3d.simulation.closed_loop.simulate`)."""
+
+    dt: float
+    frame_period: float
+    goal: np.ndarray
+    time_limit: float
+    max_replans: int
+    look_around: bool
+    replan_in_flight: bool
+    replan_latency: float
+    replan_defer: float
+    frame_log_every: int
+    belief_log_every: int
+    seed: int
+    wall0: float
+    disturbance: Callable[[float, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = (
+        None
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class Followed:
+    """A plan and what it was certified on: the simulation time it started and its problem."""
+
+    plan: PlanResult
+    start: float
+    problem: object

@@ -1,0 +1,149 @@
+"""What a closed-loop run reports: :class:`SimResult` and its :class:`SimEvent` log."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from secure3d.planning.result import finite_or_none
+
+if TYPE_CHECKING:  # pragma: no cover
+    from secure3d.planning.result import PlanResult
+
+__all__ = ["SimEvent", "SimResult"]
+
+
+@dataclass(frozen=True)
+class SimEvent:
+    """Something that happened during a run, at simulation time ``time`` (s)."""
+
+    time: float
+    kind: str
+    detail: str = ""
+
+    def __str__(self) -> str:
+        return f"[{self.time:6.2f}s] {self.kind}: {self.detail}"
+
+
+@dataclass(frozen=True, eq=False)
+class SimResult:
+    """Outcome of one closed-loop run.
+
+    Attributes
+    ----------
+    collided, collision_time, collision_obstacles : whether and when the body touched the true world.
+    reached_goal, time_to_goal : arrival at rest within the goal tolerance.
+    min_clearance : smallest body-to-world distance over the run (m), the colliding step included
+        (then <= 0: minus the deepest penetration sampled along that step).
+    times (T,), states (T, nx), positions (T, 3), speeds (T,) : the realised motion.
+    events : frames with detections, take-overs, replans, failures, in order.
+    plans : (time, PlanResult) of every plan followed.
+    detection_time, detection_point : first frame that saw a hidden obstacle, and where the robot was.
+    frames, takeovers, replans : counts. solve_times : wall time of every plan call (s).
+    wall_time : the whole run's wall time (s), set-up included.
+    setup_time : the part of it spent before take-off: building the true world, the camera, the
+        collision world and the belief map, compiling the NLP (unless already cached), and opening
+        the recording (``rrd``).
+    flight_time : the rest: every frame, map update, plan (the first one included), re-certification,
+        tracking step and collision check. real_time_factor = simulated time / flight_time.
+    """
+
+    scenario: str
+    planner: str
+    seed: int
+    collided: bool
+    collision_time: float | None
+    collision_obstacles: tuple[str, ...]
+    reached_goal: bool
+    time_to_goal: float | None
+    min_clearance: float
+    times: np.ndarray
+    states: np.ndarray
+    positions: np.ndarray
+    speeds: np.ndarray
+    events: tuple[SimEvent, ...]
+    plans: tuple[tuple[float, PlanResult], ...]
+    detection_time: float | None
+    detection_point: np.ndarray | None
+    frames: int
+    takeovers: int
+    replans: int
+    solve_times: tuple[float, ...]
+    wall_time: float
+    setup_time: float = 0.0
+    outputs: dict[str, Path] = field(default_factory=dict)
+
+    @property
+    def sim_time(self) -> float:
+        return float(self.times[-1]) if len(self.times) else 0.0
+
+    @property
+    def flight_time(self) -> float:
+        return self.wall_time - self.setup_time
+
+    def to_dict(self) -> dict[str, object]:
+        """The run as JSON-ready data for scripts (``secure3d simulate --json``): outcome, times,
+        clearance, counts, events and each followed plan's :meth:`PlanResult.to_dict`; no arrays."""
+        num = finite_or_none
+        return {
+            "scenario": self.scenario,
+            "planner": self.planner,
+            "seed": int(self.seed),
+            "outcome": self.outcome,
+            "collided": bool(self.collided),
+            "collision_time": None if self.collision_time is None else num(self.collision_time),
+            "collision_obstacles": list(self.collision_obstacles),
+            "reached_goal": bool(self.reached_goal),
+            "time_to_goal": None if self.time_to_goal is None else num(self.time_to_goal),
+            "min_clearance": num(self.min_clearance),
+            "detection_time": None if self.detection_time is None else num(self.detection_time),
+            "sim_time": num(self.sim_time),
+            "frames": int(self.frames),
+            "takeovers": int(self.takeovers),
+            "replans": int(self.replans),
+            "wall_time": num(self.wall_time),
+            "setup_time": num(self.setup_time),
+            "real_time_factor": num(self.real_time_factor),
+            "events": [
+                {"time": num(e.time), "kind": e.kind, "detail": e.detail} for e in self.events
+            ],
+            "plans": [{"time": num(t), **p.to_dict()} for t, p in self.plans],
+            "outputs": {k: str(v) for k, v in self.outputs.items()},
+        }
+
+    @property
+    def real_time_factor(self) -> float:
+        """Simulated seconds per wall-clock second of flight (set-up apart, as a robot compiles its
+        planner before take-off; see ``setup_time``)."""
+        return self.sim_time / max(self.flight_time, 1e-9)
+
+    @property
+    def outcome(self) -> str:
+        if self.collided:
+            return "collided"
+        if self.reached_goal:
+            return "reached goal"
+        if not self.plans:
+            return "no plan"
+        return "did not arrive"
+
+    def summary(self) -> str:
+        """A few readable lines."""
+        goal = f"{self.time_to_goal:.2f} s" if self.time_to_goal is not None else "-"
+        det = f"{self.detection_time:.2f} s" if self.detection_time is not None else "never"
+        solve = f"{1e3 * np.median(self.solve_times):.0f} ms median" if self.solve_times else "-"
+        return (
+            f"{self.scenario} / {self.planner}: {self.outcome.upper()}"
+            + (
+                f" with {', '.join(self.collision_obstacles)} at t={self.collision_time:.2f} s"
+                if self.collided
+                else ""
+            )
+            + f"\n  time to goal {goal}, min clearance {self.min_clearance:.3f} m, hidden obstacle seen {det}"
+            + f"\n  frames {self.frames}, take-overs {self.takeovers}, replans {self.replans}, solves {solve}"
+            + f"\n  simulated {self.sim_time:.2f} s in {self.flight_time:.2f} s of flight"
+            + f" ({self.real_time_factor:.1f}x real time), after {self.setup_time:.2f} s of set-up"
+        )

@@ -1,0 +1,128 @@
+"""The closed loop's state machine (Algorithm 1), its tracking guard and its replan cap."""
+
+from __future__ import annotations
+
+import types
+
+import numpy as np
+import pytest
+
+import secure3d
+from secure3d.errors import SimulationError
+from secure3d.simulation.closed_loop import simulate
+from secure3d.simulation.flight import Flight
+from secure3d.simulation.modes import TRANSITIONS, Mode, Trigger
+from secure3d.simulation.tracking import make_tracker
+
+
+def test_every_mode_is_reachable_and_every_other_change_is_refused():
+    reach, frontier = {Mode.HOLD}, [Mode.HOLD]
+    while frontier:
+        mode = frontier.pop()
+        for (src, _), dst in TRANSITIONS.items():
+            if src is mode and dst not in reach:
+                reach.add(dst)
+                frontier.append(dst)
+    assert reach == set(Mode)
+    state = types.SimpleNamespace(mode=Mode.FOLLOW)
+    assert Flight.go(state, Trigger.OFF_TUBE) is Mode.BRAKE and state.mode is Mode.BRAKE
+    with pytest.raises(SimulationError, match="no transition from BRAKE on PLANNED"):
+        Flight.go(state, Trigger.PLANNED)  # a braking robot finishes its manoeuvre first
+
+
+class _FaultyTracker:
+    """Follows the plan until the robot passes ``x >= x0``, then coasts or pushes sideways."""
+
+    def __init__(self, model, x0: float, fault: str):
+        self.inner, self.x0, self.fault = make_tracker(model), x0, fault
+
+    def control(self, x, x_ref, u_ref):
+        u = np.array(self.inner.control(x, x_ref, u_ref), dtype=float)
+        if x[0] >= self.x0:
+            if self.fault == "coast":
+                u[:] = 0.0
+            else:
+                u[1] -= 3.0  # towards the south wall
+        return u
+
+
+@pytest.mark.parametrize(("x0", "fault"), [(3.0, "coast"), (2.0, "push")])
+def test_the_tracking_guard_brakes_a_robot_whose_tracker_fails(maps_dir, x0, fault):
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    from secure3d.planning.problem import problem_from_scenario
+
+    model = problem_from_scenario(scenario).model
+    unguarded = simulate(scenario, tracker=_FaultyTracker(model, x0, fault), tracking_guard=False)
+    assert unguarded.collided, "without the guard the fault must end in a wall"
+    guarded = simulate(scenario, tracker=_FaultyTracker(model, x0, fault))
+    assert not guarded.collided and guarded.min_clearance > 0.0
+    takeovers = [e for e in guarded.events if e.kind == "take-over"]
+    assert takeovers and takeovers[0].detail.startswith("tracking guard")
+    assert takeovers[0].time < unguarded.collision_time
+
+
+def test_a_healthy_flight_is_not_stopped_by_the_guard(maps_dir):
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    run = simulate(scenario, "secure")
+    assert run.reached_goal and run.takeovers == 0
+    assert not any("tracking guard" in e.detail for e in run.events)
+
+
+def test_state_margin_passes_every_sampled_state_of_a_certified_plan(maps_dir):
+    """The guard's test of one state is the certificate's: a certified plan's sampled states pass
+    it with the views the certificate had before each of them."""
+    from secure3d.planning.certificate import state_margin
+    from secure3d.planning.problem import problem_from_scenario
+    from secure3d.planning.trajectory import interpolate
+
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    plan = secure3d.plan(scenario, "secure")
+    assert plan.certificate.ok
+    problem = problem_from_scenario(scenario)
+    sampled = plan.certificate.sampled
+    for k in (5, len(sampled.times) // 3, 2 * len(sampled.times) // 3):
+        x, _ = interpolate(problem.model, plan.times, plan.states, plan.controls, sampled.times[[k]])
+        margin, _ = state_margin(x[0], problem, sampled.rotations[:k], sampled.origins[:k])
+        assert margin >= -1e-6, (k, margin)
+    # the same state seen by no camera at all, and outside the start box, is not observed
+    far = interpolate(problem.model, plan.times, plan.states, plan.controls, sampled.times[[-5]])[0]
+    margin, what = state_margin(far[0], problem, np.zeros((0, 3, 3)), np.zeros((0, 3)))
+    assert margin < 0 and "not observed" in what
+
+
+def test_the_quick_ellipsoid_test_never_passes_an_ellipsoid_that_meets_a_box(rng):
+    from secure3d.geometry.polytope import inside_any_box
+    from secure3d.simulation.guard import _clear_of_boxes
+
+    passed = 0
+    for _ in range(300):
+        c = rng.uniform(-1, 1, 3)
+        Q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        M = Q @ np.diag(rng.uniform(0.05, 0.8, 3)) @ Q.T  # symmetric, as the families give
+        lo = rng.uniform(-2, 2, (6, 3))
+        hi = lo + rng.uniform(0.05, 1.0, (6, 3))
+        z = rng.normal(size=(4000, 3))
+        z *= (rng.uniform(0, 1, 4000) ** (1 / 3) / np.linalg.norm(z, axis=1))[:, None]
+        hit = inside_any_box(c + z @ M.T, lo, hi).any()
+        if _clear_of_boxes(c, M, lo, hi):
+            passed += 1
+            assert not hit
+    assert passed > 30  # the test is not vacuous
+
+
+def test_a_replan_that_detours_too_far_is_refused():
+    model = types.SimpleNamespace(
+        position=lambda X: np.asarray(X)[..., :3], limits=types.SimpleNamespace(max_speed=2.0)
+    )
+    flight = types.SimpleNamespace(model=model, s=types.SimpleNamespace(goal=np.array([5.0, 0, 0])))
+    x = np.zeros(6)
+    straight = types.SimpleNamespace(
+        states=np.column_stack([np.linspace(0, 5, 11), np.zeros((11, 5))]), final_time=3.0
+    )
+    assert Flight.detour(flight, straight, x) is None
+    zigzag = np.zeros((41, 6))
+    zigzag[:, 0] = np.tile([0.0, 5.0], 21)[:41]
+    long_path = types.SimpleNamespace(states=zigzag, final_time=20.0)
+    assert "path 200.0 m for 5.0 m" in Flight.detour(flight, long_path, x)
+    slow = types.SimpleNamespace(states=straight.states, final_time=42.8)
+    assert "42.8 s for 5.0 m" in Flight.detour(flight, slow, x)
