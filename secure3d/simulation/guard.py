@@ -38,8 +38,8 @@ from secure3d.geometry.frustum import frustum_halfspaces
 from secure3d.planning.certificate import state_margin
 
 if TYPE_CHECKING:  # pragma: no cover
-    from secure3d.simulation.modes import Followed
     from secure3d.simulation.loop import Loop
+    from secure3d.simulation.modes import Followed
 
 __all__ = ["GuardSettings", "TrackingGuard", "ellipsoid_shown_safe"]
 
