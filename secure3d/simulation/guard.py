@@ -43,7 +43,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["GuardSettings", "TrackingGuard", "ellipsoid_shown_safe"]
 
-#: Views tried per check for the quick test, best frustum margin first.
+#: Views tried per check for the quick test, the latest first.
 _QUICK_VIEWS = 8
 
 
@@ -114,8 +114,8 @@ def ellipsoid_shown_safe(
         return False
     A, b = frustum_halfspaces(rotations, origins, frustum)  # (k, F, 3), (k, F)
     inside = (b - A @ c - _support(M, A)).min(axis=1)  # (k,)
-    candidates = np.argsort(-inside)[:_QUICK_VIEWS]
-    candidates = candidates[inside[candidates] >= 0.0]
+    # the latest frames first: a view from near the robot is the least likely to be occluded
+    candidates = np.flatnonzero(inside >= 0.0)[::-1][:_QUICK_VIEWS]
     if not len(candidates):
         return False
     return any(_sight_clear(origins[j], c, M, lo, hi) for j in candidates)
