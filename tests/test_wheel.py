@@ -61,6 +61,10 @@ def test_the_wheel_installs_into_a_fresh_venv_and_flies_the_demo(tmp_path, origi
     assert "blind_corner" in _run([cli, "show", "blind_corner"], env, elsewhere, 120)
     out = _run([cli, "demo", "--quick", "--out", "demo"], env, elsewhere, 900)
     assert "secure" in out and "reached goal" in out, out[-2000:]
-    for name in ("blind_corner_secure.rrd", "blind_corner_baseline.rrd", "blind_corner_top_down.png"):
+    for name in (
+        "blind_corner_secure.rrd",
+        "blind_corner_baseline.rrd",
+        "blind_corner_top_down.png",
+    ):
         assert (elsewhere / "demo" / name).stat().st_size > 0, name
     assert not list((elsewhere / "demo").glob("*.part"))

@@ -129,6 +129,7 @@ def simulate(
     max_replans: int = 25,
     look_around: bool = False,
     tracking_guard: bool = True,
+    explore: bool = True,
     tracker: object | None = None,
     disturbance: Callable[[float, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
     | None = None,
@@ -170,6 +171,9 @@ def simulate(
     frame_log_every, belief_log_every : decimation of camera frames and belief voxels in the recording.
     tracking_guard : secure planner only: check that the real state stays in the certified tube
         and brake at once when it leaves it (:mod:`secure3d.simulation.guard`).
+    explore : when the map shows no route because of claims the camera has not checked, fly
+        certified plans to look at the claim that blocks the shortest route
+        (:mod:`secure3d.simulation.explore`) instead of holding.
     tracker : the plan-following controller, an object with ``control(x, x_ref, u_ref) -> u``
         (default :func:`~secure3d.simulation.tracking.make_tracker` for the vehicle); a seam for
         studies of tracker faults.
@@ -205,6 +209,7 @@ def simulate(
         seed=seed,
         wall0=wall0,
         disturbance=disturbance,
+        explore=explore,
     )
 
     recorder = None

@@ -24,12 +24,14 @@ against the truth.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from secure3d.errors import SimulationError
+from secure3d.simulation.explore import viewpoint_for_denial
 from secure3d.simulation.loop import (
     CERT_STEP,
     SCAN_TOLERANCE,
@@ -46,7 +48,9 @@ from secure3d.simulation.modes import (
     DETOUR_FACTOR,
     DETOUR_SLACK_M,
     DETOUR_SLACK_S,
+    FLYING,
     HEARTBEAT_SECONDS,
+    MAX_EXPLORATIONS,
     REPLAN_RETRY,
     RETRY_SPEEDS,
     STOP_SPEED,
@@ -66,6 +70,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.result import PlanResult
     from secure3d.simulation.guard import TrackingGuard
     from secure3d.simulation.loop import Loop
+
 
 class Flight:
     """One closed-loop run: the state (time, state, mode, plans, counts, logs) and the steps."""
@@ -97,6 +102,9 @@ class Flight:
         self.hfov = loop.problem.frustum.hfov
         self.replans = self.takeovers = 0
         self.held_failures = 0  # failed replans in a row at rest (see STUCK_RETRIES)
+        self.explorations = 0
+        self.explore_goal: np.ndarray | None = None  # the point to look from while exploring
+        self.explore_block: np.ndarray | None = None  # the claim it looks at
         self.detection_time: float | None = None
         self.detection_point: np.ndarray | None = None
         self.collided = self.reached = False
@@ -204,20 +212,16 @@ class Flight:
                 self.detection_time = self.t
                 self.detection_point = np.asarray(self.model.position(self.x), float).copy()
                 self.event("hidden obstacle seen", ", ".join(sorted(hidden_seen)), "WARN")
-            if len(new) and self.mode is Mode.FOLLOW and self.current is not None:
+            if len(new) and self.mode in FLYING and self.current is not None:
                 unsafe = self.recheck(new)
-        if (
-            self.deferred is not None
-            and self.mode is Mode.FOLLOW
-            and self.t + 1e-9 >= self.deferred[0]
-        ):
+        if self.deferred is not None and self.mode in FLYING and self.t + 1e-9 >= self.deferred[0]:
             unsafe, self.deferred = self.deferred[1], None  # the deferred replan is due
         return unsafe
 
     def guard_check(self, u: np.ndarray) -> tuple[str, float] | None:
         """The tracking guard (beyond the paper): will the state, one check interval ahead under
         the control ``u`` about to be applied, still be in the certified tube?"""
-        if self.guard is None or self.mode is not Mode.FOLLOW or self.current is None:
+        if self.guard is None or self.mode not in FLYING or self.current is None:
             return None
         return self.guard.check(self.t, self.x, u, self.current, self.reference_state()[0])
 
@@ -300,7 +304,7 @@ class Flight:
                 p = cur.plan
                 t_pred = np.array([t_rel + s.replan_latency])
                 x_from = interpolate(self.model, p.times, p.states, p.controls, t_pred)[0][0]
-            replanned = self.make_plan(x_from)
+            replanned = self.make_plan(x_from, goal=self.aim())
         if replanned is not None and s.replan_latency > 0.0:
             switch = self.t + s.replan_latency
             self.pending = Followed(replanned, switch, self.loop.start_problem)
@@ -320,20 +324,20 @@ class Flight:
         self.event("take-over", why, "WARN")
 
     def switch_to_pending(self) -> None:
-        if (
-            self.pending is not None
-            and self.mode is Mode.FOLLOW
-            and self.t + 1e-9 >= self.pending.start
-        ):
+        if self.pending is not None and self.mode in FLYING and self.t + 1e-9 >= self.pending.start:
             self.current, self.pending = self.pending, None
             self.event("plan takes over", f"T={self.current.plan.final_time:.2f}s")
 
     # ---- line 1: plan ---------------------------------------------------------------------------
 
-    def make_plan(self, x: np.ndarray) -> PlanResult | None:
-        """Plan from state ``x`` now (line 1): the take-off plan from the start region observed
-        before take-off (the paper's premise), a replan from the box the camera has observed
-        around the robot. None (and an event) if no certified plan was found."""
+    def aim(self) -> np.ndarray | None:
+        """Where plans go now: the point to look from while exploring, else None (the goal)."""
+        return self.explore_goal if self.mode is Mode.EXPLORE else None
+
+    def make_plan(self, x: np.ndarray, goal: np.ndarray | None = None) -> PlanResult | None:
+        """Plan from state ``x`` now (line 1) to the goal (or to ``goal``): the take-off plan from
+        the start region observed before take-off (the paper's premise), a replan from the box the
+        camera has observed around the robot. None (and an event) if no certified plan was found."""
         from secure3d.planning.solve import plan_problem
 
         loop, model = self.loop, self.model
@@ -356,11 +360,13 @@ class Flight:
         if self.failures:
             speed = RETRY_SPEEDS[self.failures % len(RETRY_SPEEDS)]
             problem = problem.with_options(guess_speed_fraction=speed)
+        if goal is not None:
+            problem = dataclasses.replace(problem, goal=np.asarray(goal, dtype=float))
         loop.start_problem = problem
         t0 = time.perf_counter()
         result = plan_problem(problem, loop.planner, cache=loop.cache)
         self.solve_times.append(time.perf_counter() - t0)
-        why = None if not result.ok or self.t == 0.0 else self.detour(result, x)
+        why = None if not result.ok or self.t == 0.0 else self.detour(result, x, problem.goal)
         if not result.ok or why is not None:
             self.failures += 1
             what = why or f"{result.status.value}: {result.message}"
@@ -374,11 +380,12 @@ class Flight:
             self.rec.log_scalar(self.t, "solve_time_ms", 1e3 * self.solve_times[-1])
         return result
 
-    def detour(self, plan: PlanResult, x: np.ndarray) -> str | None:
-        """Why a replan from ``x`` is too long a detour to fly (see DETOUR_FACTOR), or None."""
+    def detour(self, plan: PlanResult, x: np.ndarray, goal: np.ndarray) -> str | None:
+        """Why a replan from ``x`` to ``goal`` is too long a detour to fly (see DETOUR_FACTOR),
+        or None."""
         P = np.asarray(self.model.position(plan.states), dtype=float)
         p0 = np.asarray(self.model.position(x), dtype=float).ravel()
-        line = float(np.linalg.norm(self.s.goal - p0))
+        line = float(np.linalg.norm(np.asarray(goal, dtype=float) - p0))
         length = float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum())
         if length > DETOUR_FACTOR * line + DETOUR_SLACK_M:
             return f"replan refused: path {length:.1f} m for {line:.1f} m to the goal"
@@ -404,6 +411,7 @@ class Flight:
             Mode.BRAKE: self.act_brake,
             Mode.SCAN: self.act_scan,
             Mode.HOLD: self.act_hold,
+            Mode.EXPLORE: self.act_explore,
         }[self.mode]()
 
     def reference_state(self) -> tuple[np.ndarray, np.ndarray]:
@@ -462,6 +470,8 @@ class Flight:
             self.held_failures = 0
             self.deferred = None
             return u
+        if self.explore():
+            return u
         self.held_failures += 1
         if self.held_failures == 2 * STUCK_RETRIES:
             self.event(
@@ -479,6 +489,49 @@ class Flight:
                     f" {np.degrees(0.5 * self.hfov):.0f} deg either way for new views",
                 )
         return u
+
+    def explore(self) -> bool:
+        """At rest, the replan failed: if the map shows no route because of a claim the camera has
+        not checked, plan to a point to look at it from and fly there (HOLD -> EXPLORE)."""
+        if not self.s.explore or self.explorations >= MAX_EXPLORATIONS:
+            return False
+        found = viewpoint_for_denial(self.loop.start_problem, self.loop.belief)
+        if found is None:
+            return False
+        view, block = found
+        self.explorations += 1
+        self.event(
+            "explore",
+            f"the map shows no route: looking at the claim at {np.round(block, 2).tolist()}"
+            f" from {np.round(view, 2).tolist()}",
+            "WARN",
+        )
+        plan = self.make_plan(self.x, goal=view)
+        if plan is None:
+            return False
+        self.explore_goal, self.explore_block = view, block
+        self.start_following(plan, Trigger.DENIED)
+        self.held_failures = 0
+        self.deferred = None
+        return True
+
+    def act_explore(self) -> np.ndarray:
+        """Fly to the point to look from; once there (the plan ends at rest), turn to face the
+        claim (EXPLORE -> SCAN), then replan (SCAN -> HOLD)."""
+        if self.t - self.current.start < self.current.plan.final_time - 1e-9:
+            return self.act_follow()
+        p = np.asarray(self.model.position(self.x), dtype=float).ravel()
+        towards = self.explore_block - p
+        self.event(
+            "looking",
+            f"at the point to look from: turning towards {np.round(self.explore_block, 2).tolist()}",
+        )
+        self.go(Trigger.ARRIVED)
+        self.headings = [float(np.arctan2(towards[1], towards[0]))]
+        self.explore_goal = None
+        self.last_attempt = -np.inf
+        self.held_failures = 0
+        return self.act_scan()
 
     # ---- integrate and check against the truth --------------------------------------------------
 

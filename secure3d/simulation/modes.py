@@ -56,6 +56,7 @@ class Mode(enum.Enum):
     BRAKE = "brake"  # lines 5-6: the reactive (evasive) manoeuvre, until at rest
     SCAN = "scan"  # at rest, turning to look around before replanning
     HOLD = "hold"  # at rest, replanning every REPLAN_RETRY s (line 7: go to line 1)
+    EXPLORE = "explore"  # the map denies every route: following a plan to a point to look from
 
 
 class Trigger(enum.Enum):
@@ -68,6 +69,8 @@ class Trigger(enum.Enum):
     STOPPED_LOOK = "at rest, look around"
     LOOKED = "looked around"
     STUCK = "replans at rest keep failing"
+    DENIED = "the map shows no route: go and look at the claim that closes it"
+    ARRIVED = "at the point to look from"
 
 
 #: Every mode change there is: (mode, trigger) -> next mode. Anything else is a bug and raises.
@@ -79,7 +82,15 @@ TRANSITIONS: dict[tuple[Mode, Trigger], Mode] = {
     (Mode.BRAKE, Trigger.STOPPED_LOOK): Mode.SCAN,
     (Mode.SCAN, Trigger.LOOKED): Mode.HOLD,
     (Mode.HOLD, Trigger.STUCK): Mode.SCAN,
+    (Mode.HOLD, Trigger.DENIED): Mode.EXPLORE,
+    (Mode.EXPLORE, Trigger.ARRIVED): Mode.SCAN,  # turn to face the claim, then replan
+    (Mode.EXPLORE, Trigger.UNSAFE): Mode.BRAKE,
+    (Mode.EXPLORE, Trigger.OFF_TUBE): Mode.BRAKE,
 }
+#: The modes in which the robot flies a certified plan (re-certified and guarded).
+FLYING = (Mode.FOLLOW, Mode.EXPLORE)
+#: Explorations one run may make (each flies to a point to look from, then replans).
+MAX_EXPLORATIONS = 3
 
 
 @dataclass(frozen=True)
@@ -102,6 +113,7 @@ class RunSettings:
     disturbance: Callable[[float, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = (
         None
     )
+    explore: bool = True
 
 
 @dataclass(frozen=True, eq=False)

@@ -81,7 +81,9 @@ def test_state_margin_passes_every_sampled_state_of_a_certified_plan(maps_dir):
     problem = problem_from_scenario(scenario)
     sampled = plan.certificate.sampled
     for k in (5, len(sampled.times) // 3, 2 * len(sampled.times) // 3):
-        x, _ = interpolate(problem.model, plan.times, plan.states, plan.controls, sampled.times[[k]])
+        x, _ = interpolate(
+            problem.model, plan.times, plan.states, plan.controls, sampled.times[[k]]
+        )
         margin, _ = state_margin(x[0], problem, sampled.rotations[:k], sampled.origins[:k])
         assert margin >= -1e-6, (k, margin)
     # the same state seen by no camera at all, and outside the start box, is not observed

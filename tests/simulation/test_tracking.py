@@ -183,5 +183,9 @@ def test_diff_drive_tracker_follows_a_plan_that_reverses():
     err = np.linalg.norm(model.position(Xs) - model.position(truth), axis=1)
     heading = np.abs(np.angle(np.exp(1j * (Xs[:, 2] - truth[:, 2]))))
     reversing = ts >= 3.0
-    assert err[reversing].max() < 0.05, f"position error while reversing {err[reversing].max():.3f} m"
-    assert heading[reversing].max() < 0.1, f"heading error while reversing {heading[reversing].max():.3f}"
+    assert err[reversing].max() < 0.05, (
+        f"position error while reversing {err[reversing].max():.3f} m"
+    )
+    assert heading[reversing].max() < 0.1, (
+        f"heading error while reversing {heading[reversing].max():.3f}"
+    )

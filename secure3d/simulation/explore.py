@@ -1,0 +1,178 @@
+"""Exploration when the map denies every route: go and look at the claim that blocks the way.
+
+A server can stop a secure robot without hurting it: claim a wall across the only corridor, out of
+the camera's sight, and the belief map shows no route, so the robot holds at the start forever.
+The secure planner is right not to fly through space it has not seen; it is wrong to stop looking.
+
+:func:`viewpoint_for_denial` finds what to look at. It asks whether the belief (sensed evidence
+over the server's claims) has a route to the goal; if not, it searches the route that crosses as
+little claimed-only space as it can (sensed obstacles block; every metre through a claim the
+camera has not checked costs :data:`CLAIM_COST` metres), so the route follows real corridors and
+crosses the thin claim that closes one rather than a thick block the server told the truth about.
+It walks that route to the first point where the body would touch a claimed-only voxel and returns
+a point on the route before it, in space the belief holds clear, from which to look. The closed loop plans a certified
+plan to that point (the goal replaced, nothing else), flies it, and replans to the real goal from
+there; if the claim was a lie, what the camera saw on the way has overridden it.
+
+Nothing here is trusted for safety: the flight to the viewpoint is a secure plan like any other,
+certified, re-certified and guarded.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from secure3d.geometry.polytope import min_box_distance
+from secure3d.mapping.boxes import merge_cells
+from secure3d.planning.guess import NoPathError, _clearance_grid, _planar, graph_path
+
+__all__ = ["CLAIM_COST", "LOOK_FROM", "viewpoint_for_denial"]
+
+#: How far before the blocking claim (m, along the route) the robot goes to look at it.
+LOOK_FROM = 1.5
+#: Cost of a metre through claimed-only space, in metres of free space.
+CLAIM_COST = 25.0
+
+
+def _least_claimed_route(
+    problem: object, sensed: tuple[np.ndarray, np.ndarray], claimed: tuple[np.ndarray, np.ndarray]
+) -> np.ndarray:
+    """Polyline (n, 3) from the start to the goal that sensed obstacles do not block and that
+    crosses as little claimed-only space as it can (Dijkstra on the planner's guess grid)."""
+    r = problem.model.body_radius
+    height = _planar(problem)
+    res = problem.options.grid_resolution
+    grid = dataclasses.replace(problem, boxes_lo=sensed[0], boxes_hi=sensed[1])
+    centres, clear, res = _clearance_grid(grid, res, height)
+    shape = clear.shape
+    claim = dataclasses.replace(problem, boxes_lo=claimed[0], boxes_hi=claimed[1])
+    in_claim = (_clearance_grid(claim, res, height)[1] <= r).ravel()
+    free = clear.ravel() > r
+    lo = problem.bounds_lo.copy()
+    if height is not None:
+        lo[2] = height
+
+    def cell(p: np.ndarray) -> int:
+        idx = np.clip(np.round((p - lo) / res).astype(int), 0, np.array(shape) - 1)
+        return int(np.ravel_multi_index(tuple(idx), shape))
+
+    s_cell, g_cell = cell(problem.start_position), cell(problem.goal)
+    free[[s_cell, g_cell]] = True
+    idx = np.arange(free.size).reshape(shape)
+    rows, cols, weights = [], [], []
+    for o in (np.array(o) - 1 for o in np.ndindex(3, 3, 3) if o != (1, 1, 1)):
+        if any(o[d] != 0 and shape[d] == 1 for d in range(3)):
+            continue
+        src = idx[
+            max(0, -o[0]) : shape[0] - max(0, o[0]),
+            max(0, -o[1]) : shape[1] - max(0, o[1]),
+            max(0, -o[2]) : shape[2] - max(0, o[2]),
+        ].ravel()
+        dst = src + int(o @ np.array([shape[1] * shape[2], shape[2], 1]))
+        ok = free[src] & free[dst]
+        step = res * float(np.linalg.norm(o))
+        claimed_step = in_claim[src[ok]] | in_claim[dst[ok]]
+        rows.append(src[ok])
+        cols.append(dst[ok])
+        weights.append(step * np.where(claimed_step, CLAIM_COST, 1.0))
+    graph = coo_matrix(
+        (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(free.size, free.size),
+    ).tocsr()
+    dist, pred = dijkstra(graph, indices=s_cell, return_predecessors=True)
+    if not np.isfinite(dist[g_cell]):
+        raise NoPathError("the sensed obstacles alone close every route")
+    cells = [g_cell]
+    while cells[-1] != s_cell:
+        cells.append(int(pred[cells[-1]]))
+    pts = centres[np.array(cells[::-1])]
+    pts[0], pts[-1] = problem.start_position, problem.goal
+    return pts
+
+
+def _voxel_boxes(centres: np.ndarray, res: float) -> tuple[np.ndarray, np.ndarray]:
+    """Voxels at ``centres`` (n, 3) merged into boxes (lo, hi)."""
+    if not len(centres):
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    lo, hi = merge_cells(np.floor(centres / res).astype(np.int64))
+    return lo * res, (hi + 1) * res
+
+
+def _dense(path: np.ndarray, step: float) -> np.ndarray:
+    """The polyline ``path`` (n, 3) resampled every ``step`` metres or less."""
+    out = [path[:1]]
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        k = max(1, int(np.ceil(np.linalg.norm(b - a) / step)))
+        out.append(a + np.linspace(0.0, 1.0, k + 1)[1:, None] * (b - a))
+    return np.vstack(out)
+
+
+def viewpoint_for_denial(
+    problem: object, belief: object, look_from: float = LOOK_FROM
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where to go to look at the claim that closes every route, or None.
+
+    Parameters
+    ----------
+    problem : the :class:`~secure3d.planning.problem.PlanningProblem` of a replan from the robot's
+        state (its boxes are the belief's known obstacles, claims included).
+    belief : the robot's :class:`~secure3d.mapping.occupancy.OccupancyMap`.
+    look_from : distance along the route before the blocking claim to look from (m).
+
+    Returns
+    -------
+    (viewpoint (3,), blocking point (3,)), or None when the belief has a route (no denial), when
+    the sensed obstacles alone close the way too (nothing to look at), or when no point before
+    the claim is clear.
+    """
+    from secure3d.mapping.occupancy import Trust
+
+    try:
+        graph_path(problem)
+        return None  # the belief has a route: not a denial
+    except NoPathError:
+        pass
+    occ, trust = belief.known_obstacles()
+    res = belief.resolution
+    claimed = occ[trust == Trust.CLAIMED_OCCUPIED]
+    if not len(claimed):
+        return None
+    sensed = _voxel_boxes(occ[trust == Trust.SENSED_OCCUPIED], res)
+    claim_lo, claim_hi = _voxel_boxes(claimed, res)
+    try:
+        route = _dense(_least_claimed_route(problem, sensed, (claim_lo, claim_hi)), 0.5 * res)
+    except NoPathError:
+        return None  # what the camera saw closes the way by itself
+    r = problem.model.body_radius
+    touching = np.flatnonzero(min_box_distance(route, claim_lo, claim_hi) <= r)
+    if not len(touching):
+        return None
+    block = int(touching[0])
+    view = _look_from(route, block, problem, look_from, 3 * res, r + res)
+    return None if view is None else (view, route[block].copy())
+
+
+def _look_from(
+    route: np.ndarray, block: int, problem: object, near: float, start: float, clearance: float
+) -> np.ndarray | None:
+    """The point of ``route`` (n, 3) to look at ``route[block]`` from: at least ``near`` metres
+    before it along the route and ``start`` metres after the route's start, with the body
+    ``clearance`` from every known obstacle; among those, the first (nearest the robot) whose sight
+    line to the blocking point is clear and shorter than 0.8 of the observed range, else the one
+    nearest the claim."""
+    from secure3d.geometry.polytope import segments_blocked
+
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))])
+    before = np.flatnonzero((arc <= arc[block] - near) & (arc >= start))
+    before = before[min_box_distance(route[before], problem.boxes_lo, problem.boxes_hi) > clearance]
+    if not len(before):
+        return None
+    target = np.repeat(route[block][None], len(before), axis=0)
+    in_reach = np.linalg.norm(target - route[before], axis=1) <= 0.8 * problem.frustum.far
+    sight = in_reach & ~segments_blocked(route[before], target, problem.boxes_lo, problem.boxes_hi)
+    pick = before[np.argmax(sight)] if np.any(sight) else before[-1]
+    return route[pick].copy()
