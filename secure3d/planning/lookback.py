@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from secure3d.geometry.frustum import frustum_halfspaces
-from secure3d.geometry.polytope import box_pair_distances, segments_blocked
+from secure3d.geometry.polytope import box_pair_distances
 from secure3d.planning.problem import PlanningProblem
 
 #: Penalty (m) on a candidate camera whose line of sight to the reactive set crosses a known obstacle.
@@ -60,7 +60,7 @@ def occluded(problem: PlanningProblem, geo: dict[str, np.ndarray]) -> np.ndarray
     tips = np.stack(tips, axis=1)  # (K, 7, 3)
     p0 = np.broadcast_to(geo["o"][None, :, None, :], (K, n_cam, 7, 3)).reshape(-1, 3)
     p1 = np.broadcast_to(tips[:, None, :, :], (K, n_cam, 7, 3)).reshape(-1, 3)
-    hit = segments_blocked(p0, p1, problem.boxes_lo, problem.boxes_hi)
+    hit = problem.box_index.segments_blocked(p0, p1)
     return hit.reshape(K, n_cam, 7).any(axis=2)
 
 
@@ -121,13 +121,22 @@ def refine_assignment(
 
 
 def _hull_box_distances(
-    problem: PlanningProblem, planner: str, states: np.ndarray, assignment: tuple[int, ...]
-) -> np.ndarray:
-    """(K, n_boxes) screening distance from what node k constrains to every known box: the body
-    (baseline) or samples of the line-of-sight hull from camera j to E_k minus its largest
-    semi-axis (secure)."""
+    problem: PlanningProblem,
+    planner: str,
+    states: np.ndarray,
+    assignment: tuple[int, ...],
+    within: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Screening distance from what node k constrains to the known boxes: the body (baseline) or
+    samples of the line-of-sight hull from camera j to E_k minus its largest semi-axis (secure).
+
+    Returns ``(d, boxes)``: ``d`` (K, c) for the boxes ``boxes`` (c,) (ascending indices) that the
+    spatial index finds within ``within`` of some node by this measure; every other box is farther
+    than ``within`` from every node (its column of the full (K, n_boxes) matrix would be
+    ``> within`` throughout), so callers that only act on distances ``<= within`` see no
+    difference."""
     o = problem.options
-    K, n = len(states), len(problem.boxes_lo)
+    K = len(states)
     geo = node_geometry(problem, states)
     if planner == "secure":
         reach = np.linalg.norm(geo["M"], ord=2, axis=(1, 2))
@@ -142,8 +151,10 @@ def _hull_box_distances(
     else:
         reach = np.full(K, problem.model.body_radius)
         pts = geo["P"][:, None, :]
-    d = min_box_distance_all(pts.reshape(-1, 3), problem.boxes_lo, problem.boxes_hi)
-    return d.reshape(K, -1, n).min(axis=1) - reach[:, None]
+    flat = pts.reshape(-1, 3)
+    boxes = problem.box_index.near(flat, np.repeat(reach + within, pts.shape[1]))
+    d = min_box_distance_all(flat, problem.boxes_lo[boxes], problem.boxes_hi[boxes])
+    return d.reshape(K, pts.shape[1], len(boxes)).min(axis=1) - reach[:, None], boxes
 
 
 def _constrained_sets(
@@ -189,18 +200,20 @@ def _refine_distances(
     states: np.ndarray,
     assignment: tuple[int, ...],
     screen: np.ndarray,
+    boxes: np.ndarray,
     keep: int,
 ) -> np.ndarray:
-    """Replace the screening distances of each node's ``keep`` nearest boxes by exact ones (the
-    screening subtracts the largest semi-axis, which ranks boxes poorly beside long reactive sets)."""
+    """Replace the screening distances ``screen`` (K, c) of the boxes ``boxes`` (c,) by exact ones
+    for each node's ``keep`` nearest boxes, +inf elsewhere (the screening subtracts the largest
+    semi-axis, which ranks boxes poorly beside long reactive sets)."""
     sets = _constrained_sets(problem, "secure", states, assignment)
     out = np.full_like(screen, np.inf)
-    order = np.argsort(screen, axis=1)[:, :keep]
+    order = np.argsort(screen, axis=1, kind="stable")[:, :keep]
     k_idx = np.repeat(np.arange(len(states)), order.shape[1])
-    b_idx = order.ravel()
-    near = screen[k_idx, b_idx] <= problem.options.obstacle_radius
-    k_idx, b_idx = k_idx[near], b_idx[near]
-    out[k_idx, b_idx] = _exact_distances(problem, sets, k_idx, b_idx)
+    c_idx = order.ravel()
+    near = screen[k_idx, c_idx] <= problem.options.obstacle_radius
+    k_idx, c_idx = k_idx[near], c_idx[near]
+    out[k_idx, c_idx] = _exact_distances(problem, sets, k_idx, boxes[c_idx])
     return out
 
 
@@ -217,17 +230,17 @@ def slots_missing(
     ``slack`` 0: whether ``states`` violate a row of the NLP with every box."""
     if len(problem.boxes_lo) == 0:
         return False
-    d = _hull_box_distances(problem, planner, states, assignment)
-    boxes = np.concatenate([problem.boxes_lo, problem.boxes_hi], axis=1)  # (n, 6)
+    limit = problem.options.margin + slack
+    d, near = _hull_box_distances(problem, planner, states, assignment, limit)
+    boxes = np.concatenate([problem.boxes_lo[near], problem.boxes_hi[near]], axis=1)  # (c, 6)
     in_slot = np.all(np.isclose(slots[:, :, None, :], boxes[None, None, :, :]), axis=-1).any(axis=1)
     d = np.where(in_slot, np.inf, d)
-    limit = problem.options.margin + slack
     flagged = np.argwhere(d < limit)
     if len(flagged) == 0 or planner != "secure":
         return bool(len(flagged))
     # the screening bound is loose for elongated reactive sets: confirm with exact distances
     sets = _constrained_sets(problem, planner, states, assignment)
-    d = _exact_distances(problem, sets, flagged[:, 0], flagged[:, 1])
+    d = _exact_distances(problem, sets, flagged[:, 0], near[flagged[:, 1]])
     return bool(np.any(d < limit))
 
 
@@ -251,15 +264,15 @@ def select_slots(
     n = len(problem.boxes_lo)
     if n == 0:
         return slots
-    d = _hull_box_distances(problem, planner, states, assignment)
+    d, near = _hull_box_distances(problem, planner, states, assignment, o.obstacle_radius)
     if planner == "secure":
-        d = _refine_distances(problem, states, assignment, d, 2 * S)
-    order = np.argsort(d, axis=1)[:, :S]
+        d = _refine_distances(problem, states, assignment, d, near, 2 * S)
+    order = np.argsort(d, axis=1, kind="stable")[:, :S]
     for k in range(K):
-        for s, idx in enumerate(order[k]):
-            if d[k, idx] <= o.obstacle_radius:
-                slots[k, s, 0:3] = problem.boxes_lo[idx]
-                slots[k, s, 3:6] = problem.boxes_hi[idx]
+        for s, col in enumerate(order[k]):
+            if d[k, col] <= o.obstacle_radius:
+                slots[k, s, 0:3] = problem.boxes_lo[near[col]]
+                slots[k, s, 3:6] = problem.boxes_hi[near[col]]
     return slots
 
 

@@ -277,14 +277,15 @@ class _Loop:
         the known obstacles when ``centres`` are all the known obstacle voxels found outside the
         judged boxes since they were set (see :func:`_new_obstacle_voxels`). Certifying against it
         is sound (more obstacles never help a plan) and needs no re-merge of the whole map."""
+        from secure3d.geometry.box_index import BoxIndex
         from secure3d.mapping.boxes import merge_cells
 
         res = self.belief.resolution
         klo, khi = merge_cells(np.floor(centres / res).astype(np.int64))
-        return (
-            np.concatenate([self.judged_lo, klo * res]),
-            np.concatenate([self.judged_hi, (khi + 1) * res]),
-        )
+        # the spatial index of the judged boxes, extended by the new ones (no rebuild); problems on
+        # these boxes find it by content (BoxIndex.of)
+        index = BoxIndex.of(self.judged_lo, self.judged_hi).extended(klo * res, (khi + 1) * res)
+        return index.lo, index.hi
 
 
 def _voxel_colors(scenario: Scenario) -> np.ndarray | None:
@@ -437,7 +438,7 @@ def _path_clearance(
     loop: _Loop, plan: PlanResult, t_rel: float, lo: np.ndarray, hi: np.ndarray
 ) -> float:
     """Smallest distance from the rest of the planned body path to the boxes, minus the body radius."""
-    from secure3d.geometry.polytope import min_box_distance
+    from secure3d.geometry.box_index import BoxIndex
     from secure3d.planning.trajectory import interpolate
 
     t = np.arange(t_rel, plan.final_time, 0.02)
@@ -446,7 +447,8 @@ def _path_clearance(
     X, _ = interpolate(loop.model, plan.times, plan.states, plan.controls, t)
     P = np.asarray(loop.model.position(X), dtype=float)
     # 0 inside a box, as the body is then simply in contact
-    return float(np.maximum(min_box_distance(P, lo, hi), 0.0).min() - loop.model.body_radius)
+    dist = BoxIndex.of(lo, hi).min_distance(P)
+    return float(np.maximum(dist, 0.0).min() - loop.model.body_radius)
 
 
 @dataclass(eq=False)
