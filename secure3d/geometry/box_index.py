@@ -47,7 +47,9 @@ def _corners(lo: object, hi: object) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _points(p: object) -> np.ndarray:
-    return np.ascontiguousarray(np.asarray(p, dtype=float).reshape(-1, 3))
+    """(n, 3) C-contiguous writable float: one compiled specialisation per kernel (numba compiles
+    read-only arrays separately)."""
+    return np.require(np.asarray(p, dtype=float).reshape(-1, 3), requirements=["C", "W"])
 
 
 class BoxIndex:
@@ -120,7 +122,7 @@ class BoxIndex:
         ``np.minimum(upper, polytope.min_box_distance(points, lo, hi))``."""
         p = _points(points)
         cap = np.full(len(p), np.inf) if upper is None else np.broadcast_to(upper, len(p))
-        cap = np.ascontiguousarray(cap, dtype=float)
+        cap = np.array(cap, dtype=float)  # writable (see _points)
         return _kern().min_signed_distance(p, cap, self.lo, self.hi, *self.tree)
 
     def segments_blocked(self, p0: object, p1: object) -> np.ndarray:
