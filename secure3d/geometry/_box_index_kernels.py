@@ -21,6 +21,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
 from secure3d.geometry._box_kernels import _cone_gap, _hits, _point_box_distance
 
 #: Boxes per leaf: small leaves prune more, large ones walk fewer nodes.
@@ -99,9 +100,14 @@ def build(lo, hi, leaf_size):  # pragma: no cover - compiled
         stack[top + 1, 2], stack[top + 1, 3] = e, depth + 1
         top += 2
         n_nodes += 2
-    return perm, nlo[:n_nodes].copy(), nhi[:n_nodes].copy(), child[:n_nodes].copy(), start[
-        :n_nodes
-    ].copy(), count[:n_nodes].copy()
+    return (
+        perm,
+        nlo[:n_nodes].copy(),
+        nhi[:n_nodes].copy(),
+        child[:n_nodes].copy(),
+        start[:n_nodes].copy(),
+        count[:n_nodes].copy(),
+    )
 
 
 @numba.njit(cache=True, inline="always")
@@ -121,7 +127,9 @@ def _signed(x, y, z, lo, hi) -> float:  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def min_signed_distance(points, upper, lo, hi, perm, nlo, nhi, child, start, count):  # pragma: no cover
+def min_signed_distance(
+    points, upper, lo, hi, perm, nlo, nhi, child, start, count
+):  # pragma: no cover
     """(n,) min(upper[i], smallest signed distance from points[i] to any box): branch and bound,
     nearer child first, a node skipped when its bounds' signed distance (a lower bound for every
     box below) is >= the best so far."""

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
+
 
 @numba.njit(cache=True)
 def _hits(a0, a1, a2, d0, d1, d2, lo, hi) -> bool:  # pragma: no cover - compiled

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
 from secure3d.geometry._box_index_kernels import _STACK, cone_blocked
 
 #: Cameras found by repeated maximum scans before a point's remaining cameras are sorted instead.
@@ -82,8 +83,20 @@ def best_clear_views(  # pragma: no cover - compiled
                 break
             used[cam] = True
             if not cone_blocked(
-                o[cam], points[i], radius, lo, hi, perm, nlo, nhi, child, start, count, stack,
-                grow_lo, grow_hi,
+                o[cam],
+                points[i],
+                radius,
+                lo,
+                hi,
+                perm,
+                nlo,
+                nhi,
+                child,
+                start,
+                count,
+                stack,
+                grow_lo,
+                grow_hi,
             ):
                 found[i] = True
                 best[i] = cand
