@@ -26,7 +26,9 @@ def test_kernels_use_the_user_cache_keyed_by_source_digest():
     locator = _box_index_kernels.build._cache._impl.locator
     assert type(locator).__name__ == "Secure3dCacheLocator"
     path = Path(locator.get_cache_path())
-    assert path == _numba_cache.cache_root() / _numba_cache.kernel_digest() / "secure3d" / "geometry"
+    assert (
+        path == _numba_cache.cache_root() / _numba_cache.kernel_digest() / "secure3d" / "geometry"
+    )
     assert locator.get_source_stamp() == _numba_cache.kernel_digest()
 
 
