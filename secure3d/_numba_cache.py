@@ -46,7 +46,7 @@ def kernel_digest() -> str:
     h = hashlib.sha256(f"{sys.version_info[:2]}{numba.__version__}".encode())
     for path in sorted(_PACKAGE.rglob("*.py")):
         text = path.read_bytes()
-        if b"numba" in text:
+        if b"import numba" in text or b"from numba" in text:
             h.update(str(path.relative_to(_PACKAGE)).encode())
             h.update(text)
     return h.hexdigest()[:16]

@@ -125,6 +125,13 @@ class BoxIndex:
         cap = np.array(cap, dtype=float)  # writable (see _points)
         return _kern().min_signed_distance(p, cap, self.lo, self.hi, *self.tree)
 
+    def inside_any(self, points: object) -> np.ndarray:
+        """(n,) whether each point lies strictly inside some box; equal to
+        ``polytope.inside_any_box(points, lo, hi)`` (a signed distance < 0 is exactly
+        lo < p < hi on every axis; the search is capped at 0, which prunes every box the point is
+        not inside)."""
+        return self.min_distance(points, 0.0) < 0.0
+
     def segments_blocked(self, p0: object, p1: object) -> np.ndarray:
         """(n,) whether each segment [p0_i, p1_i] touches some closed box; equal to
         ``polytope.segments_blocked(p0, p1, lo, hi)``."""

@@ -217,6 +217,10 @@ def _refine_distances(
     return out
 
 
+#: Pairs whose exact distance :func:`slots_missing` computes per batch before checking for a miss.
+_EXACT_CHUNK = 256
+
+
 def slots_missing(
     problem: PlanningProblem,
     planner: str,
@@ -238,10 +242,15 @@ def slots_missing(
     flagged = np.argwhere(d < limit)
     if len(flagged) == 0 or planner != "secure":
         return bool(len(flagged))
-    # the screening bound is loose for elongated reactive sets: confirm with exact distances
+    # the screening bound is loose for elongated reactive sets: confirm with exact distances,
+    # nearest screened pairs first, stopping at the first pair below the limit (same answer)
     sets = _constrained_sets(problem, planner, states, assignment)
-    d = _exact_distances(problem, sets, flagged[:, 0], near[flagged[:, 1]])
-    return bool(np.any(d < limit))
+    flagged = flagged[np.argsort(d[flagged[:, 0], flagged[:, 1]], kind="stable")]
+    for start in range(0, len(flagged), _EXACT_CHUNK):
+        part = flagged[start : start + _EXACT_CHUNK]
+        if np.any(_exact_distances(problem, sets, part[:, 0], near[part[:, 1]]) < limit):
+            return True
+    return False
 
 
 def _empty_slot_lo(problem: PlanningProblem) -> np.ndarray:

@@ -329,14 +329,14 @@ def _new_obstacle_voxels(loop: _Loop, occupied_codes: np.ndarray) -> np.ndarray:
     """
     if loop.judged_lo is None or not len(occupied_codes):
         return np.empty((0, 3))
-    from secure3d.geometry.polytope import inside_any_box
+    from secure3d.geometry.box_index import BoxIndex
     from secure3d.mapping.keys import codes_to_coords
 
     known = occupied_codes[loop.belief.is_known_obstacle_sensed(occupied_codes)]
     centres = codes_to_coords(known, loop.belief.resolution)
     if not len(centres):
         return centres
-    return centres[~inside_any_box(centres, loop.judged_lo, loop.judged_hi)]
+    return centres[~BoxIndex.of(loop.judged_lo, loop.judged_hi).inside_any(centres)]
 
 
 def observed_box(

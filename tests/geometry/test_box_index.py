@@ -6,7 +6,12 @@ import numpy as np
 import pytest
 
 from secure3d.geometry.box_index import BoxIndex
-from secure3d.geometry.polytope import cones_blocked, min_box_distance, segments_blocked
+from secure3d.geometry.polytope import (
+    cones_blocked,
+    inside_any_box,
+    min_box_distance,
+    segments_blocked,
+)
 from secure3d.planning.lookback import min_box_distance_all
 
 
@@ -37,6 +42,7 @@ def test_index_queries_equal_brute_force(rng, m):
     index = BoxIndex(lo, hi)
     pts = _queries(rng, lo, 3000)
     assert np.array_equal(index.min_distance(pts), min_box_distance(pts, lo, hi))
+    assert np.array_equal(index.inside_any(pts), inside_any_box(pts, lo, hi))
     cap = rng.uniform(0.0, 0.5, len(pts))
     assert np.array_equal(
         index.min_distance(pts, cap), np.minimum(cap, min_box_distance(pts, lo, hi))
