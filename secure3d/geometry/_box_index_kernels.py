@@ -136,17 +136,19 @@ def min_signed_distance(
     n = points.shape[0]
     out = upper.copy()
     stack = np.empty(_STACK, dtype=np.int64)
+    bound = np.empty(_STACK)  # each stacked node's lower bound, computed when it was pushed
     if lo.shape[0] == 0:
         return out
     for i in range(n):
         x, y, z = points[i, 0], points[i, 1], points[i, 2]
         best = out[i]
         stack[0] = 0
+        bound[0] = _signed(x, y, z, nlo[0], nhi[0])
         top = 1
         while top > 0:
             top -= 1
             node = stack[top]
-            if _signed(x, y, z, nlo[node], nhi[node]) >= best:
+            if bound[top] >= best:
                 continue
             c = child[node]
             if c < 0:
@@ -158,9 +160,9 @@ def min_signed_distance(
             da = _signed(x, y, z, nlo[c], nhi[c])
             db = _signed(x, y, z, nlo[c + 1], nhi[c + 1])
             if da <= db:  # push the nearer last: it is visited first
-                stack[top], stack[top + 1] = c + 1, c
+                stack[top], bound[top], stack[top + 1], bound[top + 1] = c + 1, db, c, da
             else:
-                stack[top], stack[top + 1] = c, c + 1
+                stack[top], bound[top], stack[top + 1], bound[top + 1] = c, da, c + 1, db
             top += 2
         out[i] = best
     return out
