@@ -5,7 +5,8 @@ beside each source file, so every new clone, virtual environment or wheel instal
 its first plan. Importing this module (every kernel module does, before its decorators run)
 registers a cache locator that keeps the compiled code in
 
-    $SECURE3D_NUMBA_CACHE_DIR, else $XDG_CACHE_HOME/secure3d/numba, else ~/.cache/secure3d/numba
+    $SECURE3D_NUMBA_CACHE_DIR, else $SECURE3D_CACHE_DIR/numba, else $XDG_CACHE_HOME/secure3d/numba,
+    else ~/.cache/secure3d/numba
 
 under a folder named by a digest of *all* of secure3d's kernel sources (the ``.py`` files that use
 numba) and the Python and numba versions. So a checkout anywhere of the same kernel sources reuses
@@ -33,6 +34,9 @@ def cache_root() -> Path:
     explicit = os.environ.get("SECURE3D_NUMBA_CACHE_DIR")
     if explicit:
         return Path(explicit)
+    shared = os.environ.get("SECURE3D_CACHE_DIR")  # the reactive-set families' cache root too
+    if shared:
+        return Path(shared) / "numba"
     xdg = os.environ.get("XDG_CACHE_HOME")
     base = Path(xdg) if xdg else Path.home() / ".cache"
     return base / "secure3d" / "numba"

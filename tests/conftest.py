@@ -8,10 +8,9 @@ from pathlib import Path
 
 # numba's compiled kernels stay in the user's cache (where `make venv` compiled them), not in the
 # sandbox: a sandboxed cache would recompile every kernel (10-20 s) in every test session.
-os.environ.setdefault(
-    "SECURE3D_NUMBA_CACHE_DIR",
-    str(Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "secure3d" / "numba"),
-)
+from secure3d._numba_cache import cache_root  # noqa: E402
+
+os.environ.setdefault("SECURE3D_NUMBA_CACHE_DIR", str(cache_root()))
 _SANDBOX_HOME = Path(tempfile.mkdtemp(prefix="secure3d-test-home-"))
 for _var in ("HOME", "XDG_CONFIG_HOME", "XDG_DATA_HOME", "XDG_CACHE_HOME", "MPLCONFIGDIR"):
     os.environ[_var] = str(_SANDBOX_HOME / _var.lower())

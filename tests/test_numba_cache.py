@@ -34,10 +34,14 @@ def test_kernels_use_the_user_cache_keyed_by_source_digest():
 
 def test_cache_root_respects_the_environment(tmp_path):
     code = "from secure3d._numba_cache import cache_root; print(cache_root())"
-    env = {k: v for k, v in os.environ.items() if k != "SECURE3D_NUMBA_CACHE_DIR"}
+    drop = ("SECURE3D_NUMBA_CACHE_DIR", "SECURE3D_CACHE_DIR")
+    env = {k: v for k, v in os.environ.items() if k not in drop}
     env["XDG_CACHE_HOME"] = str(tmp_path / "xdg")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert Path(out.stdout.strip()) == tmp_path / "xdg" / "secure3d" / "numba"
+    env["SECURE3D_CACHE_DIR"] = str(tmp_path / "shared")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert Path(out.stdout.strip()) == tmp_path / "shared" / "numba"
     env["SECURE3D_NUMBA_CACHE_DIR"] = str(tmp_path / "explicit")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert Path(out.stdout.strip()) == tmp_path / "explicit"

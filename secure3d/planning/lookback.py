@@ -121,20 +121,11 @@ def refine_assignment(
 
 
 def _hull_box_distances(
-    problem: PlanningProblem,
-    planner: str,
-    states: np.ndarray,
-    assignment: tuple[int, ...],
-    within: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Screening distance from what node k constrains to the known boxes: the body (baseline) or
-    samples of the line-of-sight hull from camera j to E_k minus its largest semi-axis (secure).
-
-    Returns ``(d, boxes)``: ``d`` (K, c) for the boxes ``boxes`` (c,) (ascending indices) that the
-    spatial index finds within ``within`` of some node by this measure; every other box is farther
-    than ``within`` from every node (its column of the full (K, n_boxes) matrix would be
-    ``> within`` throughout), so callers that only act on distances ``<= within`` see no
-    difference."""
+    problem: PlanningProblem, planner: str, states: np.ndarray, assignment: tuple[int, ...]
+) -> np.ndarray:
+    """(K, n_boxes) screening distance from what node k constrains to every known box: the body
+    (baseline) or samples of the line-of-sight hull from camera j to E_k minus its largest
+    semi-axis (secure)."""
     o = problem.options
     K = len(states)
     geo = node_geometry(problem, states)
@@ -151,10 +142,12 @@ def _hull_box_distances(
     else:
         reach = np.full(K, problem.model.body_radius)
         pts = geo["P"][:, None, :]
-    flat = pts.reshape(-1, 3)
-    boxes = problem.box_index.near(flat, np.repeat(reach + within, pts.shape[1]))
-    d = min_box_distance_all(flat, problem.boxes_lo[boxes], problem.boxes_hi[boxes])
-    return d.reshape(K, pts.shape[1], len(boxes)).min(axis=1) - reach[:, None], boxes
+    # compiled, bit for bit min_box_distance_all(...).reshape(K, -1, n).min(axis=1) - reach: the
+    # full rows, as select_slots' argsort breaks ties by them
+    from secure3d.geometry._box_kernels import hull_screen
+
+    lo, hi = problem.box_index.lo, problem.box_index.hi
+    return hull_screen(np.ascontiguousarray(pts, dtype=float), np.asarray(reach, float), lo, hi)
 
 
 def _constrained_sets(
@@ -200,20 +193,18 @@ def _refine_distances(
     states: np.ndarray,
     assignment: tuple[int, ...],
     screen: np.ndarray,
-    boxes: np.ndarray,
     keep: int,
 ) -> np.ndarray:
-    """Replace the screening distances ``screen`` (K, c) of the boxes ``boxes`` (c,) by exact ones
-    for each node's ``keep`` nearest boxes, +inf elsewhere (the screening subtracts the largest
-    semi-axis, which ranks boxes poorly beside long reactive sets)."""
+    """Replace the screening distances of each node's ``keep`` nearest boxes by exact ones (the
+    screening subtracts the largest semi-axis, which ranks boxes poorly beside long reactive sets)."""
     sets = _constrained_sets(problem, "secure", states, assignment)
     out = np.full_like(screen, np.inf)
-    order = np.argsort(screen, axis=1, kind="stable")[:, :keep]
+    order = np.argsort(screen, axis=1)[:, :keep]
     k_idx = np.repeat(np.arange(len(states)), order.shape[1])
-    c_idx = order.ravel()
-    near = screen[k_idx, c_idx] <= problem.options.obstacle_radius
-    k_idx, c_idx = k_idx[near], c_idx[near]
-    out[k_idx, c_idx] = _exact_distances(problem, sets, k_idx, boxes[c_idx])
+    b_idx = order.ravel()
+    near = screen[k_idx, b_idx] <= problem.options.obstacle_radius
+    k_idx, b_idx = k_idx[near], b_idx[near]
+    out[k_idx, b_idx] = _exact_distances(problem, sets, k_idx, b_idx)
     return out
 
 
@@ -234,21 +225,22 @@ def slots_missing(
     ``slack`` 0: whether ``states`` violate a row of the NLP with every box."""
     if len(problem.boxes_lo) == 0:
         return False
+    d = _hull_box_distances(problem, planner, states, assignment)
     limit = problem.options.margin + slack
-    d, near = _hull_box_distances(problem, planner, states, assignment, limit)
-    boxes = np.concatenate([problem.boxes_lo[near], problem.boxes_hi[near]], axis=1)  # (c, 6)
-    in_slot = np.all(np.isclose(slots[:, :, None, :], boxes[None, None, :, :]), axis=-1).any(axis=1)
-    d = np.where(in_slot, np.inf, d)
     flagged = np.argwhere(d < limit)
+    # boxes already in the node's slots do not count (compared only where flagged)
+    boxes = np.concatenate([problem.boxes_lo, problem.boxes_hi], axis=1)[flagged[:, 1]]  # (f, 6)
+    slotted = np.isclose(slots[flagged[:, 0]], boxes[:, None, :]).all(axis=-1).any(axis=1)
+    flagged = flagged[~slotted]
     if len(flagged) == 0 or planner != "secure":
         return bool(len(flagged))
     # the screening bound is loose for elongated reactive sets: confirm with exact distances,
-    # nearest screened pairs first, stopping at the first pair below the limit (same answer)
+    # nearest screened pairs first, stopping at the first pair below the limit (the same answer)
     sets = _constrained_sets(problem, planner, states, assignment)
     flagged = flagged[np.argsort(d[flagged[:, 0], flagged[:, 1]], kind="stable")]
     for start in range(0, len(flagged), _EXACT_CHUNK):
         part = flagged[start : start + _EXACT_CHUNK]
-        if np.any(_exact_distances(problem, sets, part[:, 0], near[part[:, 1]]) < limit):
+        if np.any(_exact_distances(problem, sets, part[:, 0], part[:, 1]) < limit):
             return True
     return False
 
@@ -273,15 +265,15 @@ def select_slots(
     n = len(problem.boxes_lo)
     if n == 0:
         return slots
-    d, near = _hull_box_distances(problem, planner, states, assignment, o.obstacle_radius)
+    d = _hull_box_distances(problem, planner, states, assignment)
     if planner == "secure":
-        d = _refine_distances(problem, states, assignment, d, near, 2 * S)
-    order = np.argsort(d, axis=1, kind="stable")[:, :S]
+        d = _refine_distances(problem, states, assignment, d, 2 * S)
+    order = np.argsort(d, axis=1)[:, :S]
     for k in range(K):
-        for s, col in enumerate(order[k]):
-            if d[k, col] <= o.obstacle_radius:
-                slots[k, s, 0:3] = problem.boxes_lo[near[col]]
-                slots[k, s, 3:6] = problem.boxes_hi[near[col]]
+        for s, idx in enumerate(order[k]):
+            if d[k, idx] <= o.obstacle_radius:
+                slots[k, s, 0:3] = problem.boxes_lo[idx]
+                slots[k, s, 3:6] = problem.boxes_hi[idx]
     return slots
 
 

@@ -104,3 +104,15 @@ def test_degenerate_centres_build_a_shallow_tree():
     index = BoxIndex(lo, hi)
     pts = np.random.default_rng(1).uniform(-10, 10, (200, 3))
     assert np.array_equal(index.min_distance(pts), min_box_distance(pts, lo, hi))
+
+
+def test_hull_screen_is_the_numpy_screen_bit_for_bit(rng):
+    from secure3d.geometry._box_kernels import hull_screen
+
+    lo, hi = _voxel_boxes(rng, 700)
+    for P in (1, 6):
+        pts = rng.uniform(-1.0, 7.0, size=(30, P, 3))
+        pts[:5] = lo[:5, None, :]  # on box corners
+        reach = rng.uniform(0.0, 1.0, 30)
+        want = min_box_distance_all(pts.reshape(-1, 3), lo, hi).reshape(30, P, -1).min(axis=1)
+        assert np.array_equal(hull_screen(pts, reach, lo, hi), want - reach[:, None])
