@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[dev]'
-	$(MAKE) --no-print-directory warm
+	$(MAKE) --no-print-directory warm || echo "secure3d: warming numba's kernels failed; they compile on first use"
 	touch $(STAMP)
 
 venv: $(STAMP)

@@ -120,7 +120,14 @@ def warm() -> float:
     from secure3d.simulation.closed_loop import simulate
     from secure3d.world import load_scenario
 
+    import numpy as np
+
+    from secure3d.mapping.keys import morton_decode, morton_encode
+
     t0 = time.perf_counter()
+    # array forms of the key kernels, which a flight over an OctoMap calls (observed regions)
+    for n in (1, 4):  # one point (contiguous columns) and several (strided columns)
+        morton_decode(morton_encode(np.zeros((n, 3), np.int64)))
     maps = _PACKAGE.parent / "maps"
     if (maps / "office_bt.yaml").exists():  # a source checkout: its shipped scenarios
         plan(load_scenario(maps / "office_bt.yaml"), "secure", cache=NLPCache())
