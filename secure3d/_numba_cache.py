@@ -8,8 +8,8 @@ registers a cache locator that keeps the compiled code in
     $SECURE3D_NUMBA_CACHE_DIR, else $SECURE3D_CACHE_DIR/numba, else $XDG_CACHE_HOME/secure3d/numba,
     else ~/.cache/secure3d/numba
 
-under a folder named by a digest of *all* of secure3d's kernel sources (the ``.py`` files that use
-numba) and the Python and numba versions. So a checkout anywhere of the same kernel sources reuses
+under a folder named by a digest of *all* of secure3d's kernel sources (the ``.py`` files that
+define ``njit`` kernels) and the Python and numba versions. So a checkout anywhere of the same kernel sources reuses
 them, and a change to any kernel file (a kernel may inline another file's kernel, which numba's
 per-file freshness check would not see) compiles afresh into a new folder. numba's own
 ``NUMBA_CACHE_DIR``, when set, still wins; if the directory cannot be written, numba's default
@@ -23,10 +23,13 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
+import re
 import sys
 from pathlib import Path
 
 _PACKAGE = Path(__file__).resolve().parent
+#: A numba decorator at the start of a line: the file defines kernels.
+_KERNEL_MARK = re.compile(rb"^@(numba\.)?n" rb"jit\b", re.MULTILINE)
 
 
 def cache_root() -> Path:
@@ -44,13 +47,14 @@ def cache_root() -> Path:
 
 @functools.cache
 def kernel_digest() -> str:
-    """Digest of every secure3d source file that uses numba, with the Python and numba versions."""
+    """Digest of every secure3d source file that defines numba kernels, with the Python and numba
+    versions."""
     import numba
 
     h = hashlib.sha256(f"{sys.version_info[:2]}{numba.__version__}".encode())
     for path in sorted(_PACKAGE.rglob("*.py")):
         text = path.read_bytes()
-        if b"import numba" in text or b"from numba" in text:
+        if _KERNEL_MARK.search(text):
             h.update(str(path.relative_to(_PACKAGE)).encode())
             h.update(text)
     return h.hexdigest()[:16]
@@ -115,14 +119,13 @@ def warm() -> float:
     flight over a voxel map, so that the first real run does not pay for it. Returns seconds."""
     import time
 
+    import numpy as np
+
+    from secure3d.mapping.keys import morton_decode, morton_encode
     from secure3d.planning import NLPCache
     from secure3d.planning.solve import plan
     from secure3d.simulation.closed_loop import simulate
     from secure3d.world import load_scenario
-
-    import numpy as np
-
-    from secure3d.mapping.keys import morton_decode, morton_encode
 
     t0 = time.perf_counter()
     # array forms of the key kernels, which a flight over an OctoMap calls (observed regions)
