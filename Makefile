@@ -7,15 +7,21 @@ STAMP := $(VENV)/.installed
 export RERUN_ANALYTICS := 0
 export MPLBACKEND := Agg
 
-.PHONY: venv demo test lint bench clean
+.PHONY: venv warm demo test lint bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[dev]'
+	$(MAKE) --no-print-directory warm || echo "secure3d: warming numba's kernels failed; they compile on first use"
 	touch $(STAMP)
 
 venv: $(STAMP)
+
+# Compile numba's kernels once into the user's cache (~/.cache/secure3d/numba), so that the first
+# plan or flight does not pay 10-20 s of compilation (issue 17); a no-op once they are cached.
+warm:
+	$(PY) -c "from secure3d._numba_cache import warm; print(f'secure3d: numba kernels ready ({warm():.1f} s)')"
 
 demo: $(STAMP)
 	$(PY) -m secure3d demo

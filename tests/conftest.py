@@ -9,6 +9,11 @@ from pathlib import Path
 #: The environment as pytest was started, before the sandbox below (the wheel test reuses pip's
 #: real cache from it).
 ORIGINAL_ENV = dict(os.environ)
+# numba's compiled kernels stay in the user's cache (where `make venv` compiled them), not in the
+# sandbox: a sandboxed cache would recompile every kernel (10-20 s) in every test session.
+from secure3d._numba_cache import cache_root  # noqa: E402
+
+os.environ.setdefault("SECURE3D_NUMBA_CACHE_DIR", str(cache_root()))
 _SANDBOX_HOME = Path(tempfile.mkdtemp(prefix="secure3d-test-home-"))
 for _var in ("HOME", "XDG_CONFIG_HOME", "XDG_DATA_HOME", "XDG_CACHE_HOME", "MPLCONFIGDIR"):
     os.environ[_var] = str(_SANDBOX_HOME / _var.lower())

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
+
 
 @numba.njit(cache=True)
 def _hits(a0, a1, a2, d0, d1, d2, lo, hi) -> bool:  # pragma: no cover - compiled
@@ -154,4 +156,29 @@ def cone_box_blocked_any(apex, centre, lo, hi, radius):  # pragma: no cover - co
     grow_hi = np.empty(3)
     for i in range(n):
         out[i] = _cone_blocked(apex[i], centre[i], lo, hi, radius, grow_lo, grow_hi)
+    return out
+
+
+@numba.njit(cache=True)
+def hull_screen(points, reach, lo, hi):  # pragma: no cover - compiled
+    """(K, m): for each node k, min over its samples ``points[k]`` (K, P, 3) of the distance to box
+    j (0 inside), minus ``reach[k]``. Bit for bit ``lookback.min_box_distance_all(points.reshape(
+    -1, 3), lo, hi).reshape(K, P, m).min(axis=1) - reach[:, None]`` (the same clip, differences,
+    squares summed in axis order and square root), without its (K P, m, 3) temporaries."""
+    K, P, m = points.shape[0], points.shape[1], lo.shape[0]
+    out = np.empty((K, m))
+    for k in range(K):
+        for j in range(m):
+            best = np.inf
+            for p in range(P):
+                s = 0.0
+                for a in range(3):
+                    x = points[k, p, a]
+                    q = min(max(x, lo[j, a]), hi[j, a])
+                    d = x - q
+                    s += d * d
+                dist = np.sqrt(s)
+                if dist < best:
+                    best = dist
+            out[k, j] = best - reach[k]
     return out

@@ -24,6 +24,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
+
 # Barrier parameter growth per outer iteration; 100 with loose centring measured fastest at equal
 # accuracy (30 / 1e-9 took twice the Newton steps).
 _T_GROWTH = 100.0
@@ -246,9 +248,12 @@ def solve_separation(o, c, M, A, b, los, tol):
 
     # f = 1/2 |e|^2 with e = J v + o, J = [M | d | -I]: its Hessian J^T J is constant.
     J = np.zeros((3, 7))
-    J[:, 0:3] = M
-    J[:, 3] = d
+    # element by element: array slice assignments make numba compile its shape-mismatch message
+    # formatting (seconds of first-run compilation)
     for j in range(3):
+        for q in range(3):
+            J[j, q] = M[j, q]
+        J[j, 3] = d[j]
         J[j, 4 + j] = -1.0
     JTJ = J.T @ J
     if not los:
@@ -361,8 +366,10 @@ def solve_separation(o, c, M, A, b, los, tol):
                 alpha *= 0.5
             if not accepted:
                 break
-            v[:] = v_try
-            s[:] = s_try
+            for p in range(7):
+                v[p] = v_try[p]
+            for i in range(k):
+                s[i] = s_try[i]
             if feasible and 0.5 * decrement < _CENTERING_TOL:
                 break
         # Bounds at this point of the central path.
@@ -389,7 +396,8 @@ def solve_separation(o, c, M, A, b, los, tol):
             bound = _dual_bound(o, c, M, A, b, mu, los)
             if bound > lower:
                 lower = bound
-                lam_best[:] = mu
+                for i in range(k):
+                    lam_best[i] = mu[i]
         if upper - max(lower, 0.0) <= tol or nu / t < gap_floor:
             break
         t *= _T_GROWTH
@@ -437,5 +445,6 @@ def box_distances(O, C, M, lo, hi, los, rel_tol):
         status[i] = st
         if st == OK and upper > tol and lower > 0.0:
             dist[i] = lower
-            lams[i] = lam
+            for j in range(6):  # not lams[i] = lam: see solve_separation's J
+                lams[i, j] = lam[j]
     return status, dist, lams

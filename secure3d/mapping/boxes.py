@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
 from secure3d.errors import GeometryError
 
 #: Block edge (cells) of the dense grids the greedy merge works on (256**3 bytes = 16 MB).
@@ -66,7 +67,11 @@ def _greedy_boxes(grid: np.ndarray) -> np.ndarray:
                 grid[z : z1 + 1, y : y1 + 1, x : x1 + 1] = 2
                 if m == out.shape[0]:
                     bigger = np.empty((2 * m, 6), np.int64)
-                    bigger[:m] = out
+                    # element by element: an array slice assignment makes numba compile its
+                    # shape-mismatch message formatting (~3 s of first-run compilation)
+                    for r in range(m):
+                        for q in range(6):
+                            bigger[r, q] = out[r, q]
                     out = bigger
                 out[m, 0] = x
                 out[m, 1] = y

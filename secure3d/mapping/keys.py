@@ -32,6 +32,7 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
 from secure3d.errors import GeometryError
 
 #: OctoMap's tree depth and key offset (``tree_max_val``): keys are in ``[0, 2 * TREE_MAX_VAL)``.
@@ -261,7 +262,11 @@ def _dir_rehash(keys: np.ndarray, vals: np.ndarray) -> tuple[np.ndarray, np.ndar
 def _grow_to(a: np.ndarray, need: int) -> np.ndarray:
     """A zero-padded copy of ``a`` with at least ``need`` rows (at least doubled)."""
     out = np.zeros((max(2 * a.shape[0], need),) + a.shape[1:], a.dtype)
-    out[: a.shape[0]] = a
+    # element by element (both C-contiguous): an array slice assignment makes numba compile its
+    # shape-mismatch message formatting (~3 s of first-run compilation)
+    flat_out, flat_a = out.reshape(-1), a.reshape(-1)
+    for i in range(flat_a.size):
+        flat_out[i] = flat_a[i]
     return out
 
 

@@ -37,6 +37,7 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
 from secure3d.errors import ConfigError, GeometryError, MapFormatError
 from secure3d.mapping import octomap_io
 from secure3d.mapping.boxes import boxes_near_points, merge_cells_budget, merge_grid

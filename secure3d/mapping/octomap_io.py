@@ -40,6 +40,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
 from secure3d.errors import MapFormatError
 from secure3d.mapping.keys import TREE_DEPTH, unique_sorted
 from secure3d.mapping.octomap_header import (

@@ -12,21 +12,22 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from secure3d.geometry._box_kernels import _cone_blocked
+import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
+from secure3d.geometry._box_index_kernels import _STACK, cone_blocked
 
 #: Cameras found by repeated maximum scans before a point's remaining cameras are sorted instead.
 _SCANS = 16
 
 
 @numba.njit(cache=True)
-def best_clear_views(
-    points, owner, R, o, sin_h, cos_h, sin_v, cos_v, far, far_range, radius, lo, hi, tol, top
-):  # pragma: no cover - compiled
+def best_clear_views(  # pragma: no cover - compiled
+    points, owner, R, o, sin_h, cos_h, sin_v, cos_v, far, far_range, radius, lo, hi, tree, tol, top
+):
     """For each ball B(points[i], radius) and the cameras (R, o) of samples 0 .. owner[i] - 1:
 
     - ``raw[i]``: the best view margin min(horizontal side, vertical side, far) - radius;
     - ``found[i]``, ``best[i]``: the best margin among cameras whose sight cone is clear of the boxes
-      (lo, hi), trying cameras by decreasing margin and giving up past the ``top`` best once margins
+      (lo, hi) (their spatial index ``tree``: :attr:`BoxIndex.tree`, exact), trying cameras by decreasing margin and giving up past the ``top`` best once margins
       are <= -tol (then no camera can pass);
     - ``view[i]``: that camera (-1 if none was found).
 
@@ -41,6 +42,8 @@ def best_clear_views(
     used = np.zeros(c, dtype=np.bool_)
     grow_lo = np.empty(3)
     grow_hi = np.empty(3)
+    stack = np.empty(_STACK, dtype=np.int64)
+    perm, nlo, nhi, child, start, count = tree
     for i in range(n):
         k = min(owner[i], c)
         if k <= 0:
@@ -79,7 +82,22 @@ def best_clear_views(
             if rank >= top and cand <= -tol:
                 break
             used[cam] = True
-            if not _cone_blocked(o[cam], points[i], lo, hi, radius, grow_lo, grow_hi):
+            if not cone_blocked(
+                o[cam],
+                points[i],
+                radius,
+                lo,
+                hi,
+                perm,
+                nlo,
+                nhi,
+                child,
+                start,
+                count,
+                stack,
+                grow_lo,
+                grow_hi,
+            ):
                 found[i] = True
                 best[i] = cand
                 view[i] = cam

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from secure3d.errors import PlanningError
+from secure3d.geometry.box_index import BoxIndex
 from secure3d.geometry.polytope import min_box_distance
 from secure3d.planning.result import Certificate, PlanResult, Violation
 from secure3d.planning.trajectory import interpolate
@@ -59,6 +60,12 @@ class CertificateSettings:
             )
 
 
+def _box_index(problem: object) -> BoxIndex:
+    """The spatial index of the problem's known boxes (exact: the same answers as scanning them)."""
+    index = getattr(problem, "box_index", None)
+    return index if index is not None else BoxIndex.of(problem.boxes_lo, problem.boxes_hi)
+
+
 def _manoeuvres(controller: object, model: object, X: np.ndarray, dt: float, m: int) -> np.ndarray:
     """(N, m, 3) positions along the reactive manoeuvre started from each state in X."""
     out = controller.rollout_batch(X, dt=dt)
@@ -81,6 +88,7 @@ def _clear_views(
     lo: np.ndarray,
     hi: np.ndarray,
     tol: float,
+    index: BoxIndex | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For each ball of ``radius`` at ``points[i]``, seen from the cameras (R, o) of the samples
     before ``owner[i]``: whether one sees the whole ball with a sight cone clear of the boxes, that
@@ -91,6 +99,9 @@ def _clear_views(
     inside the horizontal and vertical sides and the far limit, minus the radius. Positive: the
     whole ball is inside the field of view."""
     from secure3d.planning._certificate_kernel import best_clear_views
+
+    if index is None:
+        index = BoxIndex.of(lo, hi)
 
     ah, av = 0.5 * frustum.hfov, 0.5 * frustum.vfov
     return best_clear_views(
@@ -105,8 +116,9 @@ def _clear_views(
         float(frustum.far),
         frustum.far_kind == "range",
         float(radius),
-        np.ascontiguousarray(np.asarray(lo, dtype=float).reshape(-1, 3)),
-        np.ascontiguousarray(np.asarray(hi, dtype=float).reshape(-1, 3)),
+        index.lo,
+        index.hi,
+        index.tree,
         float(tol),
         TOP_VIEWS,
     )
@@ -163,8 +175,8 @@ def _judge_points(
     each point (-1: the start region), the points that needed a view, and which of those were
     inside an earlier field of view but occluded)."""
     # ---- clear of known obstacles and inside the map -------------------------------------------
-    lo_b, hi_b = problem.boxes_lo, problem.boxes_hi
-    dist = np.maximum(min_box_distance(flat, lo_b, hi_b), 0.0)  # 0 inside a box
+    index = _box_index(problem)
+    dist = np.maximum(index.min_distance(flat), 0.0)  # 0 inside a box
     in_map = np.minimum(flat - problem.bounds_lo, problem.bounds_hi - flat).min(axis=1)
     obstacle_margin = np.minimum(dist, in_map) - r
 
@@ -179,7 +191,16 @@ def _judge_points(
     view = np.full(len(flat), -1, dtype=np.int64)  # -1: the start region
     if len(unresolved):
         found, best, raw, view[unresolved] = _clear_views(
-            flat[unresolved], owner[unresolved], R, o, problem.frustum, r, lo_b, hi_b, tol
+            flat[unresolved],
+            owner[unresolved],
+            R,
+            o,
+            problem.frustum,
+            r,
+            index.lo,
+            index.hi,
+            tol,
+            index,
         )
         occluded_only = ~found & (raw > -tol)
         # never seen with a clear line of sight: 1 cm worse than the best (blocked) view, or -1 m
@@ -377,6 +398,7 @@ def views_after_adding(
         problem.boxes_lo,
         problem.boxes_hi,
         tol,
+        _box_index(problem),
     )
     if not np.all(found & (best >= -tol)):
         return None

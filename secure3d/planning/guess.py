@@ -12,7 +12,6 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from secure3d.geometry.polytope import min_box_distance
 from secure3d.planning.problem import PlanningProblem
 
 #: Largest number of grid cells the graph search uses; the grid is coarsened to stay below it.
@@ -68,12 +67,9 @@ def _clearance_grid(
         if shape[d] > 1:
             clearance = np.minimum(clearance, centres[:, d] - problem.bounds_lo[d])
             clearance = np.minimum(clearance, problem.bounds_hi[d] - centres[:, d])
-    n = len(problem.boxes_lo)
-    for start in range(0, n, 256):
-        sl = slice(start, start + 256)
-        clearance = np.minimum(
-            clearance, min_box_distance(centres, problem.boxes_lo[sl], problem.boxes_hi[sl])
-        )
+    if len(problem.boxes_lo):
+        # the distance to the bounds caps each search: min(bounds, boxes), exactly
+        clearance = problem.box_index.min_distance(centres, clearance)
     return centres, clearance.reshape(shape), res
 
 
@@ -213,7 +209,6 @@ def secure_speed_caps(
     """Largest speed at each path point whose reactive set is already observed: inside the start
     ball, or inside the frustum of an earlier path point with a clear line of sight (the paper's
     eq. FullConstraint along a geometric path, before any optimisation)."""
-    from secure3d.geometry.polytope import segments_blocked
     from secure3d.planning.lookback import frustum_margins, start_margins
 
     model, o = problem.model, problem.options
@@ -241,7 +236,7 @@ def secure_speed_caps(
                 tips.append(geo["C"][rows] + sign * 0.9 * geo["M"][rows, :, a])
         p1 = np.concatenate(tips)
         p0 = np.tile(geo["o"][cols], (7, 1))
-        hit = segments_blocked(p0, p1, problem.boxes_lo, problem.boxes_hi)
+        hit = problem.box_index.segments_blocked(p0, p1)
         blocked = hit.reshape(7, -1).any(axis=0)
         seen[rows[blocked], cols[blocked]] = False
     ok = seen.any(axis=1) | (start_margins(problem, geo) >= o.margin)
@@ -317,7 +312,7 @@ def centre_path(
     def clearance(q: np.ndarray) -> np.ndarray:
         c = np.minimum(q - lo_b, hi_b - q)[:, :dims].min(axis=1)
         if len(problem.boxes_lo):
-            c = np.minimum(c, min_box_distance(q, problem.boxes_lo, problem.boxes_hi))
+            c = problem.box_index.min_distance(q, c)  # min(bounds, boxes), exactly
         return c
 
     eps = 1e-3

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from secure3d.geometry.frustum import frustum_halfspaces
-from secure3d.geometry.polytope import box_pair_distances, segments_blocked
+from secure3d.geometry.polytope import box_pair_distances
 from secure3d.planning.problem import PlanningProblem
 
 #: Penalty (m) on a candidate camera whose line of sight to the reactive set crosses a known obstacle.
@@ -60,7 +60,7 @@ def occluded(problem: PlanningProblem, geo: dict[str, np.ndarray]) -> np.ndarray
     tips = np.stack(tips, axis=1)  # (K, 7, 3)
     p0 = np.broadcast_to(geo["o"][None, :, None, :], (K, n_cam, 7, 3)).reshape(-1, 3)
     p1 = np.broadcast_to(tips[:, None, :, :], (K, n_cam, 7, 3)).reshape(-1, 3)
-    hit = segments_blocked(p0, p1, problem.boxes_lo, problem.boxes_hi)
+    hit = problem.box_index.segments_blocked(p0, p1)
     return hit.reshape(K, n_cam, 7).any(axis=2)
 
 
@@ -127,7 +127,7 @@ def _hull_box_distances(
     (baseline) or samples of the line-of-sight hull from camera j to E_k minus its largest
     semi-axis (secure)."""
     o = problem.options
-    K, n = len(states), len(problem.boxes_lo)
+    K = len(states)
     geo = node_geometry(problem, states)
     if planner == "secure":
         reach = np.linalg.norm(geo["M"], ord=2, axis=(1, 2))
@@ -142,8 +142,12 @@ def _hull_box_distances(
     else:
         reach = np.full(K, problem.model.body_radius)
         pts = geo["P"][:, None, :]
-    d = min_box_distance_all(pts.reshape(-1, 3), problem.boxes_lo, problem.boxes_hi)
-    return d.reshape(K, -1, n).min(axis=1) - reach[:, None]
+    # compiled, bit for bit min_box_distance_all(...).reshape(K, -1, n).min(axis=1) - reach: the
+    # full rows, as select_slots' argsort breaks ties by them
+    from secure3d.geometry._box_kernels import hull_screen
+
+    lo, hi = problem.box_index.lo, problem.box_index.hi
+    return hull_screen(np.ascontiguousarray(pts, dtype=float), np.asarray(reach, float), lo, hi)
 
 
 def _constrained_sets(
@@ -204,6 +208,10 @@ def _refine_distances(
     return out
 
 
+#: Pairs whose exact distance :func:`slots_missing` computes per batch before checking for a miss.
+_EXACT_CHUNK = 256
+
+
 def slots_missing(
     problem: PlanningProblem,
     planner: str,
@@ -218,17 +226,23 @@ def slots_missing(
     if len(problem.boxes_lo) == 0:
         return False
     d = _hull_box_distances(problem, planner, states, assignment)
-    boxes = np.concatenate([problem.boxes_lo, problem.boxes_hi], axis=1)  # (n, 6)
-    in_slot = np.all(np.isclose(slots[:, :, None, :], boxes[None, None, :, :]), axis=-1).any(axis=1)
-    d = np.where(in_slot, np.inf, d)
     limit = problem.options.margin + slack
     flagged = np.argwhere(d < limit)
+    # boxes already in the node's slots do not count (compared only where flagged)
+    boxes = np.concatenate([problem.boxes_lo, problem.boxes_hi], axis=1)[flagged[:, 1]]  # (f, 6)
+    slotted = np.isclose(slots[flagged[:, 0]], boxes[:, None, :]).all(axis=-1).any(axis=1)
+    flagged = flagged[~slotted]
     if len(flagged) == 0 or planner != "secure":
         return bool(len(flagged))
-    # the screening bound is loose for elongated reactive sets: confirm with exact distances
+    # the screening bound is loose for elongated reactive sets: confirm with exact distances,
+    # nearest screened pairs first, stopping at the first pair below the limit (the same answer)
     sets = _constrained_sets(problem, planner, states, assignment)
-    d = _exact_distances(problem, sets, flagged[:, 0], flagged[:, 1])
-    return bool(np.any(d < limit))
+    flagged = flagged[np.argsort(d[flagged[:, 0], flagged[:, 1]], kind="stable")]
+    for start in range(0, len(flagged), _EXACT_CHUNK):
+        part = flagged[start : start + _EXACT_CHUNK]
+        if np.any(_exact_distances(problem, sets, part[:, 0], part[:, 1]) < limit):
+            return True
+    return False
 
 
 def _empty_slot_lo(problem: PlanningProblem) -> np.ndarray:

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 from secure3d.errors import ConfigError
+from secure3d.geometry.box_index import BoxIndex
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.dynamics.base import VehicleModel
@@ -271,6 +272,17 @@ class PlanningProblem:
             raise ConfigError(
                 f"boxes: lo/hi shapes differ or are not (n, 3): {self.boxes_lo.shape}"
             )
+
+    @property
+    def box_index(self) -> BoxIndex:
+        """Spatial index over the known obstacle boxes (built on first use, shared by problems
+        with equal boxes): every distance, segment and sight-line query of the planner and the
+        certificate goes through it."""
+        index = self.__dict__.get("_box_index")
+        if index is None:
+            index = BoxIndex.of(self.boxes_lo, self.boxes_hi)
+            object.__setattr__(self, "_box_index", index)
+        return index
 
     @property
     def start_position(self) -> np.ndarray:

@@ -22,6 +22,8 @@ import math
 import numba
 import numpy as np
 
+import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
+
 _ITER = 48
 
 

@@ -105,14 +105,15 @@ class Loop:
         the known obstacles when ``centres`` are all the known obstacle voxels found outside the
         judged boxes since they were set (see :func:`new_obstacle_voxels`). Certifying against it
         is sound (more obstacles never help a plan) and needs no re-merge of the whole map."""
+        from secure3d.geometry.box_index import BoxIndex
         from secure3d.mapping.boxes import merge_cells
 
         res = self.belief.resolution
         klo, khi = merge_cells(np.floor(centres / res).astype(np.int64))
-        return (
-            np.concatenate([self.judged_lo, klo * res]),
-            np.concatenate([self.judged_hi, (khi + 1) * res]),
-        )
+        # the spatial index of the judged boxes, extended by the new ones (no rebuild); problems on
+        # these boxes find it by content (BoxIndex.of)
+        index = BoxIndex.of(self.judged_lo, self.judged_hi).extended(klo * res, (khi + 1) * res)
+        return index.lo, index.hi
 
 
 def voxel_colors(scenario: Scenario) -> np.ndarray | None:
@@ -156,14 +157,14 @@ def new_obstacle_voxels(loop: Loop, occupied_codes: np.ndarray) -> np.ndarray:
     """
     if loop.judged_lo is None or not len(occupied_codes):
         return np.empty((0, 3))
-    from secure3d.geometry.polytope import inside_any_box
+    from secure3d.geometry.box_index import BoxIndex
     from secure3d.mapping.keys import codes_to_coords
 
     known = occupied_codes[loop.belief.is_known_obstacle_sensed(occupied_codes)]
     centres = codes_to_coords(known, loop.belief.resolution)
     if not len(centres):
         return centres
-    return centres[~inside_any_box(centres, loop.judged_lo, loop.judged_hi)]
+    return centres[~BoxIndex.of(loop.judged_lo, loop.judged_hi).inside_any(centres)]
 
 
 def observed_box(

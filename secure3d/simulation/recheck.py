@@ -19,7 +19,7 @@ def path_clearance(
     loop: Loop, plan: PlanResult, t_rel: float, lo: np.ndarray, hi: np.ndarray
 ) -> float:
     """Smallest distance from the rest of the planned body path to the boxes, minus the body radius."""
-    from secure3d.geometry.polytope import min_box_distance
+    from secure3d.geometry.box_index import BoxIndex
     from secure3d.planning.trajectory import interpolate
 
     t = np.arange(t_rel, plan.final_time, 0.02)
@@ -28,7 +28,8 @@ def path_clearance(
     X, _ = interpolate(loop.model, plan.times, plan.states, plan.controls, t)
     P = np.asarray(loop.model.position(X), dtype=float)
     # 0 inside a box, as the body is then simply in contact
-    return float(np.maximum(min_box_distance(P, lo, hi), 0.0).min() - loop.model.body_radius)
+    dist = BoxIndex.of(lo, hi).min_distance(P)
+    return float(np.maximum(dist, 0.0).min() - loop.model.body_radius)
 
 
 @dataclass(eq=False)

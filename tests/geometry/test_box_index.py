@@ -1,0 +1,118 @@
+"""The spatial index over boxes answers every query exactly as the brute-force loops do."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from secure3d.geometry.box_index import BoxIndex
+from secure3d.geometry.polytope import (
+    cones_blocked,
+    inside_any_box,
+    min_box_distance,
+    segments_blocked,
+)
+from secure3d.planning.lookback import min_box_distance_all
+
+
+def _voxel_boxes(rng: np.random.Generator, m: int, res: float = 0.1) -> tuple:
+    """Boxes on a voxel lattice (shared faces, duplicates, long walls and single voxels), as merged
+    voxel maps give them."""
+    lo_k = rng.integers(0, 60, size=(m, 3))
+    size = rng.integers(1, 4, size=(m, 3))
+    walls = rng.random(m) < 0.2
+    size[walls, rng.integers(0, 3, walls.sum())] = rng.integers(10, 40, walls.sum())
+    lo = lo_k * res
+    hi = (lo_k + size) * res
+    dup = rng.integers(0, m, m // 20)
+    return np.concatenate([lo, lo[dup]]), np.concatenate([hi, hi[dup]])
+
+
+def _queries(rng: np.random.Generator, lo: np.ndarray, n: int) -> np.ndarray:
+    """Points over and around the map: random, on box corners and faces (ties), inside boxes."""
+    pts = rng.uniform(-1.0, 7.0, size=(n, 3))
+    k = rng.integers(0, len(lo), n // 4)
+    pts[: n // 4] = lo[k] + rng.integers(0, 3, size=(n // 4, 3)) * 0.05
+    return pts
+
+
+@pytest.mark.parametrize("m", [1, 3, 50, 2000])
+def test_index_queries_equal_brute_force(rng, m):
+    lo, hi = _voxel_boxes(rng, m)
+    index = BoxIndex(lo, hi)
+    pts = _queries(rng, lo, 3000)
+    assert np.array_equal(index.min_distance(pts), min_box_distance(pts, lo, hi))
+    assert np.array_equal(index.inside_any(pts), inside_any_box(pts, lo, hi))
+    cap = rng.uniform(0.0, 0.5, len(pts))
+    assert np.array_equal(
+        index.min_distance(pts, cap), np.minimum(cap, min_box_distance(pts, lo, hi))
+    )
+    p1 = pts + rng.normal(0.0, 1.5, pts.shape)
+    p1[::5, rng.integers(0, 3)] = pts[::5, rng.integers(0, 3)]  # axis-parallel segments
+    p1[::7] = pts[::7]  # points as segments
+    assert np.array_equal(index.segments_blocked(pts, p1), segments_blocked(pts, p1, lo, hi))
+    for r in (0.0, 0.05, 0.3):
+        got = index.cones_blocked(pts[:800], p1[:800], r)
+        assert np.array_equal(got, cones_blocked(pts[:800], p1[:800], lo, hi, r))
+    radius = rng.uniform(0.0, 0.6, 40)
+    near = index.near(pts[:40], radius)
+    d = min_box_distance_all(pts[:40], lo, hi)
+    assert set(np.flatnonzero((d <= radius[:, None]).any(axis=0))) <= set(near)
+    # only rounding may add a box: every extra one is within 1e-6 of the radius
+    extra = np.setdiff1d(near, np.flatnonzero((d <= radius[:, None]).any(axis=0)))
+    assert np.all((d[:, extra] - radius[:, None]).min(axis=0) <= 1e-6) if len(extra) else True
+
+
+def test_empty_index(rng):
+    index = BoxIndex(np.zeros((0, 3)), np.zeros((0, 3)))
+    pts = rng.uniform(0, 1, (5, 3))
+    assert np.all(np.isinf(index.min_distance(pts)))
+    assert not index.segments_blocked(pts, pts + 1).any()
+    assert not index.cones_blocked(pts, pts + 1, 0.2).any()
+    assert len(index.near(pts, 10.0)) == 0
+
+
+def test_extended_index_equals_a_fresh_one(rng):
+    lo, hi = _voxel_boxes(rng, 500)
+    index = BoxIndex(lo[:300], hi[:300])
+    for s, e in ((300, 301), (301, 420), (420, len(lo))):
+        index = index.extended(lo[s:e], hi[s:e])
+    assert np.array_equal(index.lo, lo) and np.array_equal(index.hi, hi)
+    pts = _queries(rng, lo, 2000)
+    p1 = pts + rng.normal(0.0, 1.0, pts.shape)
+    assert np.array_equal(index.min_distance(pts), min_box_distance(pts, lo, hi))
+    assert np.array_equal(index.segments_blocked(pts, p1), segments_blocked(pts, p1, lo, hi))
+    assert np.array_equal(index.cones_blocked(pts, p1, 0.2), cones_blocked(pts, p1, lo, hi, 0.2))
+    assert BoxIndex.of(lo, hi) is index
+
+
+def test_of_reuses_by_content(rng):
+    lo, hi = _voxel_boxes(rng, 100)
+    a = BoxIndex.of(lo, hi)
+    assert BoxIndex.of(lo.copy(), hi.copy()) is a
+    assert BoxIndex.of(lo + 0.5, hi + 0.5) is not a
+
+
+def test_degenerate_centres_build_a_shallow_tree():
+    # many boxes with one centre (nested) and exponentially spaced ones: the build must not recurse
+    # past the traversal stack
+    k = np.arange(3000, dtype=float)
+    lo = np.stack([-k, -k, -k], axis=1)
+    hi = -lo
+    lo2 = np.stack([2.0 ** (k[:60] / 2), np.zeros(60), np.zeros(60)], axis=1)
+    lo, hi = np.concatenate([lo, lo2]), np.concatenate([hi, lo2 + 0.1])
+    index = BoxIndex(lo, hi)
+    pts = np.random.default_rng(1).uniform(-10, 10, (200, 3))
+    assert np.array_equal(index.min_distance(pts), min_box_distance(pts, lo, hi))
+
+
+def test_hull_screen_is_the_numpy_screen_bit_for_bit(rng):
+    from secure3d.geometry._box_kernels import hull_screen
+
+    lo, hi = _voxel_boxes(rng, 700)
+    for P in (1, 6):
+        pts = rng.uniform(-1.0, 7.0, size=(30, P, 3))
+        pts[:5] = lo[:5, None, :]  # on box corners
+        reach = rng.uniform(0.0, 1.0, 30)
+        want = min_box_distance_all(pts.reshape(-1, 3), lo, hi).reshape(30, P, -1).min(axis=1)
+        assert np.array_equal(hull_screen(pts, reach, lo, hi), want - reach[:, None])
