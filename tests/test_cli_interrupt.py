@@ -66,14 +66,20 @@ print("finished", flush=True)
 """
 
 
-def test_a_swallowed_ctrl_c_still_ends_the_process_and_removes_unfinished_files(tmp_path):
+def _swallower(tmp_path: Path, program: str = _SWALLOWER) -> subprocess.Popen:
+    """A process that swallows Ctrl-C with an unfinished write open, once it is ready."""
     child = subprocess.Popen(
-        [sys.executable, "-c", _SWALLOWER, str(tmp_path / "out.png")],
+        [sys.executable, "-c", program, str(tmp_path / "out.png")],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
     assert child.stdout.readline().strip() == "ready"
+    return child
+
+
+def test_a_swallowed_ctrl_c_still_ends_the_process_and_removes_unfinished_files(tmp_path):
+    child = _swallower(tmp_path)
     assert len(list(tmp_path.glob(".out.png.*.part"))) == 1
     sent = time.perf_counter()
     child.send_signal(signal.SIGINT)
@@ -86,14 +92,7 @@ def test_a_swallowed_ctrl_c_still_ends_the_process_and_removes_unfinished_files(
 
 
 def test_a_second_ctrl_c_ends_the_process_at_once(tmp_path):
-    program = _SWALLOWER.replace("grace=0.3", "grace=60")
-    child = subprocess.Popen(
-        [sys.executable, "-c", program, str(tmp_path / "out.png")],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    assert child.stdout.readline().strip() == "ready"
+    child = _swallower(tmp_path, _SWALLOWER.replace("grace=0.3", "grace=60"))
     child.send_signal(signal.SIGINT)
     time.sleep(0.3)
     child.send_signal(signal.SIGINT)

@@ -6,6 +6,7 @@ flown at a moderate speed with a trapezoidal speed profile, is a good start for 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,7 +95,6 @@ def _graph_path(problem: PlanningProblem, resolution: float, clearance_pad: floa
     """
     height = _planar(problem)
     centres, clearance, res = _clearance_grid(problem, resolution, height)
-    shape = clearance.shape
     r = problem.model.body_radius
     free = clearance > r
     start, goal = problem.start_position, problem.goal
@@ -102,14 +102,50 @@ def _graph_path(problem: PlanningProblem, resolution: float, clearance_pad: floa
     if height is not None:
         lo[2] = height
 
+    flat_clear = clearance.ravel()
+
+    def cost(src: np.ndarray, dst: np.ndarray, length: float) -> np.ndarray:
+        near = np.minimum(flat_clear[src], flat_clear[dst])
+        return length * (1.0 + 1.0 / (0.25 + np.maximum(near - r, 0.0) / max(clearance_pad, 1e-3)))
+
+    pts = grid_route(centres, lo, res, free, cost, start, goal)
+    return _shortcut(pts, lambda p: _clear_at(p, clearance, lo, res) > r + 0.5 * clearance_pad)
+
+
+def grid_route(
+    centres: np.ndarray,
+    lo: np.ndarray,
+    res: float,
+    free: np.ndarray,
+    edge_cost: Callable[[np.ndarray, np.ndarray, float], np.ndarray],
+    start: np.ndarray,
+    goal: np.ndarray,
+) -> np.ndarray:
+    """Cheapest 26-connected route over a grid, by Dijkstra: the cell centres (n, 3) from the
+    start's cell to the goal's, with the exact start and goal as its ends.
+
+    Parameters
+    ----------
+    centres : (N, 3) cell centres of a grid of shape ``free.shape`` whose cell (0, 0, 0) is at
+        ``lo``, spaced ``res``.
+    free : (a, b, c) bool, the cells a route may use (the start's and goal's cells always may).
+    edge_cost : ``(src, dst, length) -> (k,)`` cost of the edges between flat cells ``src`` and
+        ``dst`` (k,), ``length`` metres long.
+
+    Raises
+    ------
+    NoPathError
+        No route of free cells joins them.
+    """
+    shape = free.shape
+
     def cell_of(p: np.ndarray) -> int:
         idx = np.clip(np.round((p - lo) / res).astype(int), 0, np.array(shape) - 1)
         return int(np.ravel_multi_index(tuple(idx), shape))
 
-    flat_free = free.ravel()
-    flat_clear = clearance.ravel()
+    flat_free = free.ravel().copy()
     s_cell, g_cell = cell_of(start), cell_of(goal)
-    # The start/goal cells may be blocked by discretisation: free them and their neighbours.
+    # The start/goal cells may be blocked by discretisation: free them.
     for c in (s_cell, g_cell):
         flat_free[c] = True
     idx = np.arange(flat_free.size).reshape(shape)
@@ -127,12 +163,9 @@ def _graph_path(problem: PlanningProblem, resolution: float, clearance_pad: floa
         ].ravel()
         dst = src + int(o @ strides)  # the neighbour's cell: the slices keep it inside the grid
         ok = flat_free[src] & flat_free[dst]
-        length = res * float(np.linalg.norm(o))
-        near = np.minimum(flat_clear[src[ok]], flat_clear[dst[ok]])
-        cost = length * (1.0 + 1.0 / (0.25 + np.maximum(near - r, 0.0) / max(clearance_pad, 1e-3)))
         rows.append(src[ok])
         cols.append(dst[ok])
-        weights.append(cost)
+        weights.append(edge_cost(src[ok], dst[ok], res * float(np.linalg.norm(o))))
     graph = coo_matrix(
         (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))),
         shape=(flat_free.size, flat_free.size),
@@ -147,7 +180,7 @@ def _graph_path(problem: PlanningProblem, resolution: float, clearance_pad: floa
         cells.append(int(pred[cells[-1]]))
     pts = centres[np.array(cells[::-1])]
     pts[0], pts[-1] = start, goal
-    return _shortcut(pts, lambda p: _clear_at(p, clearance, lo, res) > r + 0.5 * clearance_pad)
+    return pts
 
 
 def _clear_at(points: np.ndarray, clearance: np.ndarray, lo: np.ndarray, res: float) -> np.ndarray:

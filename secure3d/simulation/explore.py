@@ -23,12 +23,16 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import dijkstra
 
 from secure3d.geometry.polytope import min_box_distance
 from secure3d.mapping.boxes import merge_cells
-from secure3d.planning.guess import NoPathError, _clearance_grid, _planar, graph_path
+from secure3d.planning.guess import (
+    NoPathError,
+    _clearance_grid,
+    _planar,
+    graph_path,
+    grid_route,
+)
 
 __all__ = ["CLAIM_COST", "LOOK_FROM", "viewpoint_for_denial"]
 
@@ -45,53 +49,21 @@ def _least_claimed_route(
     crosses as little claimed-only space as it can (Dijkstra on the planner's guess grid)."""
     r = problem.model.body_radius
     height = _planar(problem)
-    res = problem.options.grid_resolution
     grid = dataclasses.replace(problem, boxes_lo=sensed[0], boxes_hi=sensed[1])
-    centres, clear, res = _clearance_grid(grid, res, height)
-    shape = clear.shape
+    centres, clear, res = _clearance_grid(grid, problem.options.grid_resolution, height)
     claim = dataclasses.replace(problem, boxes_lo=claimed[0], boxes_hi=claimed[1])
     in_claim = (_clearance_grid(claim, res, height)[1] <= r).ravel()
-    free = clear.ravel() > r
     lo = problem.bounds_lo.copy()
     if height is not None:
         lo[2] = height
 
-    def cell(p: np.ndarray) -> int:
-        idx = np.clip(np.round((p - lo) / res).astype(int), 0, np.array(shape) - 1)
-        return int(np.ravel_multi_index(tuple(idx), shape))
+    def cost(src: np.ndarray, dst: np.ndarray, length: float) -> np.ndarray:
+        return length * np.where(in_claim[src] | in_claim[dst], CLAIM_COST, 1.0)
 
-    s_cell, g_cell = cell(problem.start_position), cell(problem.goal)
-    free[[s_cell, g_cell]] = True
-    idx = np.arange(free.size).reshape(shape)
-    rows, cols, weights = [], [], []
-    for o in (np.array(o) - 1 for o in np.ndindex(3, 3, 3) if o != (1, 1, 1)):
-        if any(o[d] != 0 and shape[d] == 1 for d in range(3)):
-            continue
-        src = idx[
-            max(0, -o[0]) : shape[0] - max(0, o[0]),
-            max(0, -o[1]) : shape[1] - max(0, o[1]),
-            max(0, -o[2]) : shape[2] - max(0, o[2]),
-        ].ravel()
-        dst = src + int(o @ np.array([shape[1] * shape[2], shape[2], 1]))
-        ok = free[src] & free[dst]
-        step = res * float(np.linalg.norm(o))
-        claimed_step = in_claim[src[ok]] | in_claim[dst[ok]]
-        rows.append(src[ok])
-        cols.append(dst[ok])
-        weights.append(step * np.where(claimed_step, CLAIM_COST, 1.0))
-    graph = coo_matrix(
-        (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))),
-        shape=(free.size, free.size),
-    ).tocsr()
-    dist, pred = dijkstra(graph, indices=s_cell, return_predecessors=True)
-    if not np.isfinite(dist[g_cell]):
-        raise NoPathError("the sensed obstacles alone close every route")
-    cells = [g_cell]
-    while cells[-1] != s_cell:
-        cells.append(int(pred[cells[-1]]))
-    pts = centres[np.array(cells[::-1])]
-    pts[0], pts[-1] = problem.start_position, problem.goal
-    return pts
+    try:
+        return grid_route(centres, lo, res, clear > r, cost, problem.start_position, problem.goal)
+    except NoPathError:
+        raise NoPathError("the sensed obstacles alone close every route") from None
 
 
 def _voxel_boxes(centres: np.ndarray, res: float) -> tuple[np.ndarray, np.ndarray]:

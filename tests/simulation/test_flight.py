@@ -116,15 +116,15 @@ def test_a_replan_that_detours_too_far_is_refused():
     model = types.SimpleNamespace(
         position=lambda X: np.asarray(X)[..., :3], limits=types.SimpleNamespace(max_speed=2.0)
     )
-    flight = types.SimpleNamespace(model=model, s=types.SimpleNamespace(goal=np.array([5.0, 0, 0])))
-    x = np.zeros(6)
+    flight = types.SimpleNamespace(model=model)
+    x, goal = np.zeros(6), np.array([5.0, 0, 0])
     straight = types.SimpleNamespace(
         states=np.column_stack([np.linspace(0, 5, 11), np.zeros((11, 5))]), final_time=3.0
     )
-    assert Flight.detour(flight, straight, x) is None
+    assert Flight.detour(flight, straight, x, goal) is None
     zigzag = np.zeros((41, 6))
     zigzag[:, 0] = np.tile([0.0, 5.0], 21)[:41]
     long_path = types.SimpleNamespace(states=zigzag, final_time=20.0)
-    assert "path 200.0 m for 5.0 m" in Flight.detour(flight, long_path, x)
+    assert "path 200.0 m for 5.0 m" in Flight.detour(flight, long_path, x, goal)
     slow = types.SimpleNamespace(states=straight.states, final_time=42.8)
-    assert "42.8 s for 5.0 m" in Flight.detour(flight, slow, x)
+    assert "42.8 s for 5.0 m" in Flight.detour(flight, slow, x, goal)
