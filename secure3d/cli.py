@@ -385,6 +385,42 @@ def _campaign_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     _add_replan_defer(parser)
     _add_planner_options(parser)
+    group = parser.add_argument_group("scale and faults")
+    group.add_argument(
+        "--backend",
+        choices=("process", "ray"),
+        default="process",
+        help="process: worker processes here; ray: Ray actors (pip install 'secure3d[ray]')",
+    )
+    group.add_argument(
+        "--address",
+        metavar="ADDR",
+        help="with --backend ray: join this Ray cluster (auto, ray://host:10001) instead of a"
+        " local Ray",
+    )
+    group.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the campaign in --out: fly only the runs missing from its runs.csv",
+    )
+    group.add_argument(
+        "--shard",
+        metavar="K/N",
+        help="fly only variants i with i %% N == K-1 (combine shards with campaign-merge)",
+    )
+    group.add_argument(
+        "--run-timeout",
+        type=float,
+        metavar="S",
+        help="stop a run after S wall seconds (set-up included): an error row",
+    )
+    group.add_argument(
+        "--retries",
+        type=int,
+        default=1,
+        metavar="R",
+        help="fly a run again up to R times when its worker dies (1)",
+    )
 
 
 def _campaign(args: argparse.Namespace) -> int:
@@ -401,10 +437,32 @@ def _campaign(args: argparse.Namespace) -> int:
         kind=args.kind,
         count=args.count,
         replan_defer=args.replan_defer,
+        backend=args.backend,
+        address=args.address,
+        resume=args.resume,
+        shard=args.shard,
+        run_timeout=args.run_timeout,
+        retries=args.retries,
         **_planner_options(args),
     )
     print(result.summary_markdown().rstrip())
-    print(f"\nwrote {result.csv_path} and {result.summary_path}")
+    print(f"\nwrote {result.csv_path} and {result.summary_path} (every run: runs.csv)")
+    return 0
+
+
+def _merge_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("folders", type=Path, nargs="+", metavar="OUT", help="campaign folders")
+    parser.add_argument(
+        "--out", type=Path, required=True, metavar="DIR", help="folder for the merged campaign"
+    )
+
+
+def _merge(args: argparse.Namespace) -> int:
+    from secure3d.simulation.campaign_store import merge_campaigns
+
+    result = merge_campaigns(args.folders, args.out)
+    print(result.summary_markdown().rstrip())
+    print(f"\nwrote {result.csv_path} and {result.summary_path} (every run: runs.csv)")
     return 0
 
 
@@ -542,6 +600,12 @@ COMMANDS: tuple[Command, ...] = (
         "fly randomised hidden-obstacle variants with each planner",
         _campaign_arguments,
         _campaign,
+    ),
+    Command(
+        "campaign-merge",
+        "combine campaign folders (shards) and recompute the statistics",
+        _merge_arguments,
+        _merge,
     ),
     Command(
         "bench",
