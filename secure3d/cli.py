@@ -234,9 +234,16 @@ def _plan(args: argparse.Namespace) -> int:
 def _simulate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", type=Path, help="scenario YAML file")
     parser.add_argument(
-        "--planner", choices=PLANNER_CHOICES, default="both", help="planner(s) to fly (both)"
+        "--planner",
+        choices=PLANNER_CHOICES,
+        help="planner(s) to fly (both; a campaign's failure file: its run's planner)",
     )
-    parser.add_argument("--seed", type=int, default=0, metavar="N", help="camera noise seed (0)")
+    parser.add_argument(
+        "--seed",
+        type=int,
+        metavar="N",
+        help="camera noise seed (0; a campaign's failure file: its run's seed)",
+    )
     _add_planner_options(parser)
     parser.add_argument(
         "--rrd",
@@ -298,11 +305,25 @@ def _print_run(result: SimResult, events: bool = False) -> None:
         print(f"  wrote {path}")
 
 
+def _failure_defaults(args: argparse.Namespace) -> None:
+    """Planner, seed and replan deferral of a campaign's failure file, unless given."""
+    from secure3d.simulation.campaign_store import failure_defaults
+
+    found = failure_defaults(args.scenario)
+    if args.planner is None:
+        args.planner = found.get("planner", "both")
+    if args.seed is None:
+        args.seed = int(found.get("seed", 0))
+    if args.replan_defer is None and "replan_defer" in found and not args.replan_latency:
+        args.replan_defer = float(found["replan_defer"])
+
+
 def _simulate(args: argparse.Namespace) -> int:
     from secure3d.simulation.campaign import comparison_figures, comparison_table, fly_planners
     from secure3d.world.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
+    _failure_defaults(args)
     _check_seed(args.seed)
     planners = _planners(args.planner)
     rrd, png, speed = (

@@ -280,10 +280,12 @@ def schedule(
                     continue
                 job, attempt = item, 0
             slot = min(set(range(pool.size)) - set(running))
+            # The pid first: a Ray actor answers only after the run it is flying.
+            pid = pool.pid(slot) if on_start is not None else 0
             pool.start(slot, job)
             running[slot] = _Running(job, time.monotonic(), attempt)
             if on_start is not None:
-                on_start(job, pool.pid(slot))
+                on_start(job, pid)
         if not running:
             return
         yield from _collect(pool, running, retry, run_timeout, retries)

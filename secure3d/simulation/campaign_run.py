@@ -152,14 +152,13 @@ def _job_stream(
             yield _Job(i, scenario, plan.seed + i, p, options)
 
 
-def _make_pool(
-    backend: str, workers: int, address: str | None, run_timeout: float | None
-) -> Pool:
+def _make_pool(backend: str, workers: int, address: str | None, inline: bool) -> Pool:
+    """Ray actors, this process (one worker asked for, no timeout), or worker processes."""
     if backend == "ray":
         from secure3d.simulation.campaign_ray import RayPool
 
         return RayPool(workers, address)
-    if workers == 1 and run_timeout is None:
+    if inline:
         return InlinePool()
     return ProcessPool(workers)
 
@@ -256,11 +255,12 @@ def execute(plan: CampaignPlan, ex: Execution) -> CampaignResult:
     runs, old = open_runs(plan.out, plan.params(), ex.resume)
     done = {(r.variant, r.planner) for r in old}
     todo = sum(1 for i in plan.variants() for p in plan.planners if (i, p) not in done)
+    inline = ex.backend == "process" and workers == 1 and ex.run_timeout is None
     workers = max(1, min(workers, todo or 1))
     new: list[RunRecord] = []
     try:
         if todo:
-            pool = _make_pool(ex.backend, workers, ex.address, ex.run_timeout)
+            pool = _make_pool(ex.backend, workers, ex.address, inline)
             try:
                 new = _fly_all(plan, ex, pool, runs, done, todo)
             finally:

@@ -400,6 +400,25 @@ def _failure_data(scenario: Scenario, folder: Path) -> dict[str, Any]:
     return data
 
 
+#: Second line of a failure file, before its ``simulate`` options.
+_FLY_AGAIN = "# Fly it again: secure3d simulate "
+
+
+def failure_defaults(path: str | os.PathLike[str]) -> dict[str, str]:
+    """The ``simulate`` options a failure file names (``planner``, ``seed``, ``replan_defer``);
+    empty for any other scenario file."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            lines = [fh.readline(), fh.readline()]
+    except (OSError, UnicodeDecodeError):
+        return {}
+    if not lines[0].startswith("# Campaign failure:") or not lines[1].startswith(_FLY_AGAIN):
+        return {}
+    words = lines[1][len(_FLY_AGAIN) :].split()[1:]
+    pairs = zip(words[::2], words[1::2], strict=False)
+    return {k[2:].replace("-", "_"): v for k, v in pairs if k.startswith("--")}
+
+
 def save_failure(
     out: Path,
     scenario: Scenario,
@@ -408,8 +427,9 @@ def save_failure(
     replan_defer: float,
 ) -> Path:
     """Write ``OUT/failures/<variant>_<planner>.yaml``: the variant's scenario with the campaign's
-    planner options in its ``planner`` section, and a first comment giving the command that flies
-    the run again (planner, seed and replan deferral are not part of a scenario)."""
+    planner options in its ``planner`` section, and a comment giving the command that flies the run
+    again (planner, seed and replan deferral are not part of a scenario; ``secure3d simulate FILE``
+    reads them from it, :func:`failure_defaults`)."""
     import yaml
 
     from secure3d.world.spec import PlannerSpec
@@ -428,7 +448,7 @@ def save_failure(
     lines = [
         f"# Campaign failure: variant {record.variant}, planner {record.planner}, outcome"
         f" {record.outcome}{': ' + record.error if record.error else ''}",
-        f"# Fly it again: secure3d simulate {path.name} --planner {record.planner}"
+        f"{_FLY_AGAIN}{path.name} --planner {record.planner}"
         f" --seed {record.seed} --replan-defer {replan_defer:g}{extra}",
     ]
     text = "\n".join(" ".join(line.split()) for line in lines) + "\n"
