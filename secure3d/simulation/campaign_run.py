@@ -62,7 +62,11 @@ def parse_shard(text: str | tuple[int, int] | None) -> tuple[int, int]:
             k, n = 0, 0
     else:
         k, n = text
-    if isinstance(k, bool) or isinstance(n, bool) or not (isinstance(k, int) and isinstance(n, int)):
+    if (
+        isinstance(k, bool)
+        or isinstance(n, bool)
+        or not (isinstance(k, int) and isinstance(n, int))
+    ):
         k, n = 0, 0
     if not 1 <= k <= n:
         raise ConfigError(f"shard: must be K/N with 1 <= K <= N (got {text!r})")
@@ -238,9 +242,7 @@ def plan_campaign(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"out_dir: cannot create {str(out)!r}: {exc.strerror or exc}") from None
-    return CampaignPlan(
-        base, n, planners, seed, kind, count, dict(options), defer, shard_kn, out
-    )
+    return CampaignPlan(base, n, planners, seed, kind, count, dict(options), defer, shard_kn, out)
 
 
 def execute(plan: CampaignPlan, ex: Execution) -> CampaignResult:
@@ -316,8 +318,8 @@ def _fly_all(
             left[record.variant] -= 1
             if left[record.variant] == 0:
                 scenarios.pop(record.variant, None)
-            bar.update(1)
             bar.set_postfix_str(tally.add(record), refresh=False)
+            bar.update(1)
     finally:
         bar.close()
     return new

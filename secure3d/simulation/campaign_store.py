@@ -161,7 +161,9 @@ def _cut_partial_line(path: Path) -> None:
         fh.truncate(size - len(tail) + cut + 1 if cut >= 0 else 0)
 
 
-def open_runs(out: Path, params: Mapping[str, Any], resume: bool) -> tuple[RunsFile, list[RunRecord]]:
+def open_runs(
+    out: Path, params: Mapping[str, Any], resume: bool
+) -> tuple[RunsFile, list[RunRecord]]:
     """Open ``OUT/runs.csv`` for this campaign and return it with the runs it already holds.
 
     Without ``resume`` an existing ``runs.csv`` is refused (one line), so no run is ever lost;
@@ -372,7 +374,12 @@ def _copy_failures(src: Path, dst: Path) -> None:
 # ---- failures ----------------------------------------------------------------------------------
 
 #: File references of the scenario schema: (section, key).
-_FILE_KEYS = (("world", "octomap"), ("server_map", "octomap"), ("server_map", "cloud"), ("server_map", "mesh"))
+_FILE_KEYS = (
+    ("world", "octomap"),
+    ("server_map", "octomap"),
+    ("server_map", "cloud"),
+    ("server_map", "mesh"),
+)
 
 
 def _failure_data(scenario: Scenario, folder: Path) -> dict[str, Any]:
@@ -444,7 +451,9 @@ def save_failure(
         )
     path = folder / f"{record.variant:06d}_{record.planner}.yaml"
     data = _failure_data(scenario, folder)
-    extra = "".join(f" --{k.replace('_', '-')} {v}" for k, v in options.items() if k not in spec_fields)
+    extra = "".join(
+        f" --{k.replace('_', '-')} {v}" for k, v in options.items() if k not in spec_fields
+    )
     lines = [
         f"# Campaign failure: variant {record.variant}, planner {record.planner}, outcome"
         f" {record.outcome}{': ' + record.error if record.error else ''}",

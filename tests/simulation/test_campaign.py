@@ -27,8 +27,8 @@ from secure3d.simulation.campaign import (
     run_campaign,
     wilson_interval,
 )
-from secure3d.simulation.closed_loop import SimEvent, simulate
 from secure3d.simulation.campaign_store import RUNS_NAME, read_runs
+from secure3d.simulation.closed_loop import SimEvent, simulate
 from secure3d.world import load_scenario
 from secure3d.world.attacks import hidden_obstacle_family
 from secure3d.world.families import family_variants
@@ -154,7 +154,9 @@ class FakeFlights:
         )
 
 
-def test_rows_are_sorted_and_appended_as_runs_finish(tiny: Path, tmp_path: Path, monkeypatch) -> None:
+def test_rows_are_sorted_and_appended_as_runs_finish(
+    tiny: Path, tmp_path: Path, monkeypatch
+) -> None:
     fake = FakeFlights(tmp_path)
     monkeypatch.setattr(campaign, "_fly", fake)
     result = run_campaign(
@@ -185,7 +187,11 @@ def test_interrupted_campaign_keeps_its_finished_runs(
     assert not (tmp_path / campaign.SUMMARY_NAME).exists()
     assert _leftovers(tmp_path) == []
     _, saved = read_runs(tmp_path / RUNS_NAME)
-    assert [(r.variant, r.planner) for r in saved] == [(0, "secure"), (0, "baseline"), (1, "secure")]
+    assert [(r.variant, r.planner) for r in saved] == [
+        (0, "secure"),
+        (0, "baseline"),
+        (1, "secure"),
+    ]
 
 
 @pytest.mark.parametrize(

@@ -98,7 +98,9 @@ def test_shards_merged_equal_the_whole_campaign(tiny: Path, on_processes: Path, 
     }
     stats = merged.stats()["baseline"]
     assert stats.runs == N and stats.goals == sum(r.reached_goal for r in whole.values())
-    assert f"| baseline | {N} | {stats.collisions} |" in (tmp_path / "all" / "summary.md").read_text()
+    assert (
+        f"| baseline | {N} | {stats.collisions} |" in (tmp_path / "all" / "summary.md").read_text()
+    )
     # A shard merged twice, or with another campaign, is refused.
     with pytest.raises(ConfigError, match="is in both"):
         merge_campaigns([tmp_path / "s1", tmp_path / "s1"], tmp_path / "twice")
@@ -209,13 +211,40 @@ def test_sigint_then_resume_flies_each_run_exactly_once(tiny: Path, tmp_path: Pa
     assert f"| baseline | {n} |" in (out / "summary.md").read_text()
 
 
+def test_workers_die_with_a_killed_parent(tiny: Path, tmp_path: Path):
+    import psutil
+
+    argv = [sys.executable, "-m", "secure3d", "campaign", str(tiny), "-n", "20", "--workers", "2"]
+    argv += ["--planners", "baseline", "--out", str(tmp_path), "--no-progress"]
+    proc = subprocess.Popen(argv, stderr=subprocess.DEVNULL)
+    workers: set[int] = set()
+    deadline = time.monotonic() + 120
+    while len(_rows(tmp_path)) < 1 and time.monotonic() < deadline and proc.poll() is None:
+        workers |= _children(proc.pid)
+        time.sleep(0.05)
+    workers |= _children(proc.pid)
+    assert proc.poll() is None and len(workers) >= 2, "two workers flying"
+    proc.kill()
+    proc.wait()
+    gone = time.monotonic() + 10
+    while any(psutil.pid_exists(p) for p in workers) and time.monotonic() < gone:
+        time.sleep(0.1)
+    assert not any(psutil.pid_exists(p) for p in workers), "no worker outlives a SIGKILLed parent"
+
+
 def test_a_failure_file_flies_the_run_again(maps_dir: Path, tmp_path: Path, capsys):
     from secure3d.simulation.closed_loop import simulate
     from secure3d.world.scenario import load_scenario
 
     result = run_campaign(
-        maps_dir / "blind_corner.yaml", 1, planners=("baseline",), seed=2, workers=1,
-        out_dir=tmp_path, progress=False, nodes=20,
+        maps_dir / "blind_corner.yaml",
+        1,
+        planners=("baseline",),
+        seed=2,
+        workers=1,
+        out_dir=tmp_path,
+        progress=False,
+        nodes=20,
     )
     (record,) = result.records
     assert record.collided, "the baseline hits the hidden obstacle"
@@ -259,3 +288,48 @@ def test_an_existing_campaign_is_not_overwritten(tiny: Path, on_processes: Path,
     assert main(["campaign", str(tiny), "-n", "1", "--out", str(on_processes)]) == 2
     assert "exists: pass --resume" in capsys.readouterr().err
     assert (on_processes / RUNS_NAME).read_bytes() == before
+
+
+# ---- the store, without flights ----------------------------------------------------------------
+
+
+def _record(variant: int, planner: str = "secure"):
+    from secure3d.simulation.campaign import RunRecord
+
+    return RunRecord(
+        variant=variant,
+        scenario=f"s_{variant}",
+        seed=variant,
+        planner=planner,
+        outcome="reached goal",
+        reached_goal=True,
+        time_to_goal=2.0 + variant,
+        min_clearance=0.25,
+        solve_times=(0.5, 0.125),
+        sim_time=2.0,
+        wall_time=3.0,
+        setup_time=1.0,
+    )
+
+
+def test_runs_csv_round_trips_and_a_cut_last_line_is_dropped(tmp_path: Path):
+    from secure3d.simulation.campaign_store import open_runs
+
+    params = {"format": 1, "n": 3}
+    runs, old = open_runs(tmp_path, params, resume=False)
+    assert old == []
+    for v in range(2):
+        runs.append(_record(v))
+    runs.close()
+    path = tmp_path / RUNS_NAME
+    with open(path, "a") as fh:
+        fh.write("2,s_2,2,secure,reached go")  # a kill in the middle of a write
+    runs, old = open_runs(tmp_path, params, resume=True)
+    assert old == [_record(0), _record(1)], "whole rows come back exactly, the cut one is gone"
+    runs.append(_record(2))
+    runs.close()
+    assert [r.variant for r in read_runs(path)[1]] == [0, 1, 2]
+    with pytest.raises(ConfigError, match="holds another campaign \\(n 3 there, 4 here\\)"):
+        open_runs(tmp_path, {"format": 1, "n": 4}, resume=True)
+    with pytest.raises(ConfigError, match="exists: pass --resume"):
+        open_runs(tmp_path, params, resume=False)
