@@ -189,7 +189,11 @@ class ProcessPool:
         return worker
 
     def start(self, slot: int, job: _Job) -> None:
-        self._worker(slot).conn.send(job)
+        try:
+            self._worker(slot).conn.send(job)
+        except OSError:  # the idle worker died since its last run: a fresh one takes the job
+            self.kill(slot)
+            self._worker(slot).conn.send(job)
 
     def pid(self, slot: int) -> int:
         return int(self._worker(slot).process.pid or 0)

@@ -32,6 +32,7 @@ from secure3d.simulation.campaign import (
 from secure3d.simulation.campaign_pool import InlinePool, Pool, ProcessPool, schedule
 from secure3d.simulation.campaign_store import (
     RUNS_NAME,
+    RunsFile,
     campaign_params,
     open_runs,
     save_failure,
@@ -295,7 +296,7 @@ def _fly_all(
     plan: CampaignPlan,
     ex: Execution,
     pool: Pool,
-    runs: object,
+    runs: RunsFile,
     done: set[tuple[int, str]],
     todo: int,
 ) -> list[RunRecord]:
@@ -310,7 +311,7 @@ def _fly_all(
     try:
         stream = _job_stream(plan, done, scenarios)
         for _job, record in schedule(pool, stream, ex.run_timeout, ex.retries, ex.on_start):
-            runs.append(record)  # type: ignore[attr-defined]
+            runs.append(record)
             new.append(record)
             scenario = scenarios.get(record.variant)
             if scenario is not None and (record.collided or record.outcome == ERROR_OUTCOME):
