@@ -496,7 +496,7 @@ def _bench_arguments(parser: argparse.ArgumentParser) -> None:
         choices=("mapping", "planner", "closed_loop", "campaign"),
         help="mapping: benchmarks/bench_mapping.py; planner: benchmarks/bench_planner.py;"
         " closed_loop: benchmarks/bench_closed_loop.py (set-up, flight and real-time factors);"
-        " campaign: a 20-variant campaign on maps/blind_corner.yaml",
+        " campaign: a 20-variant campaign on maps/blind_corner.yaml (out/bench_campaign/<time>)",
     )
     parser.add_argument(
         "args", nargs=argparse.REMAINDER, help="passed on (campaign: options of 'campaign')"
@@ -516,9 +516,13 @@ def _run_script(name: str, argv: Sequence[str]) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
+    import time
+
     if args.target == "campaign":
         scenario = _bundled_scenario("blind_corner")
-        defaults = ["-n", "20", "--out", "out/bench_campaign"]
+        # A fresh folder per benchmark: a campaign never overwrites another's runs.csv.
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        defaults = ["-n", "20", "--out", f"out/bench_campaign/{stamp}"]
         return main(["campaign", str(scenario), *defaults, *args.args])
     return _run_script(f"bench_{args.target}.py", args.args)
 
