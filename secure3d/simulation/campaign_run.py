@@ -292,6 +292,16 @@ def execute(plan: CampaignPlan, ex: Execution) -> CampaignResult:
     return result
 
 
+def _save_failure(plan: CampaignPlan, scenario: Scenario, record: RunRecord) -> None:
+    """Save a failure file; a file that cannot be written is logged, the campaign goes on."""
+    try:
+        save_failure(plan.out, scenario, record, plan.options, plan.replan_defer)
+    except (Secure3DError, OSError) as exc:
+        log.warning(
+            "variant %d / %s: failure file not saved: %s", record.variant, record.planner, exc
+        )
+
+
 def _fly_all(
     plan: CampaignPlan,
     ex: Execution,
@@ -315,7 +325,7 @@ def _fly_all(
             new.append(record)
             scenario = scenarios.get(record.variant)
             if scenario is not None and (record.collided or record.outcome == ERROR_OUTCOME):
-                save_failure(plan.out, scenario, record, plan.options, plan.replan_defer)
+                _save_failure(plan, scenario, record)
             left[record.variant] -= 1
             if left[record.variant] == 0:
                 scenarios.pop(record.variant, None)
