@@ -9,7 +9,9 @@ running it, registered in :data:`COMMANDS`. A runner imports what it needs insid
     COMMANDS = (..., Command("certify", "certify a plan", _certify_arguments, _certify))
 
 Subcommands: ``show``, ``plan``, ``simulate``, ``campaign`` (logic in
-:mod:`secure3d.simulation.campaign`), ``bench``, ``reactive fit`` and ``demo``. Every output file
+:mod:`secure3d.simulation.campaign` and :mod:`secure3d.simulation.campaign_run`),
+``campaign-merge`` (:mod:`secure3d.simulation.campaign_store`), ``bench``, ``reactive fit`` and
+``demo``. Every output file
 is written atomically (temporary file + rename), into folders created on demand.
 
 Errors that secure3d raises on purpose (:class:`~secure3d.errors.Secure3DError`) and usage errors
