@@ -3,8 +3,8 @@
 The safety theorem (Proof of Safety) says the secure planner never collides, whatever the server
 hid; a campaign tests it empirically. Each variant of the blind corner gets one more crate-sized
 obstacle, hidden from the server and placed just behind the corner across the shortest path
-(:func:`secure3d.world.random_hidden_obstacle_scenarios`); every planner flies every variant with
-the same camera-noise seed. Writes ``campaign.csv`` (one row per run) and ``summary.md``
+(:func:`secure3d.world.attacks.hidden_obstacle_family`); every planner flies every variant with
+the same camera-noise seed. Writes ``runs.csv`` and ``campaign.csv`` (one row per run) and ``summary.md``
 (collision rate with a 95 % interval, goal rate, times, solve-time percentiles) and prints the
 summary. ``secure3d campaign`` does the same for any scenario and any size.
 
@@ -37,13 +37,17 @@ def main(argv: list[str] | None = None) -> int:
     n, workers, planners, options = args.n, args.workers, ("secure", "baseline"), {}
     if args.quick:
         n, workers, planners, options = 2, 1, ("baseline",), planner_options(quick=True)
+    folder = args.out / "07_campaign"
+    # The example starts over each time; a campaign otherwise refuses a folder holding another's
+    # runs.csv (continue one with resume=True).
+    (folder / "runs.csv").unlink(missing_ok=True)
     result = run_campaign(
         MAPS / "blind_corner.yaml",
         n,
         planners,
         seed=args.seed,
         workers=workers,
-        out_dir=args.out / "07_campaign",
+        out_dir=folder,
         progress=not args.quick,
         **options,
     )

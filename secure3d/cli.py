@@ -9,7 +9,9 @@ running it, registered in :data:`COMMANDS`. A runner imports what it needs insid
     COMMANDS = (..., Command("certify", "certify a plan", _certify_arguments, _certify))
 
 Subcommands: ``show``, ``plan``, ``simulate``, ``campaign`` (logic in
-:mod:`secure3d.simulation.campaign`), ``bench``, ``reactive fit`` and ``demo``. Every output file
+:mod:`secure3d.simulation.campaign` and :mod:`secure3d.simulation.campaign_run`),
+``campaign-merge`` (:mod:`secure3d.simulation.campaign_store`), ``bench``, ``reactive fit`` and
+``demo``. Every output file
 is written atomically (temporary file + rename), into folders created on demand.
 
 Errors that secure3d raises on purpose (:class:`~secure3d.errors.Secure3DError`) and usage errors
@@ -232,9 +234,16 @@ def _plan(args: argparse.Namespace) -> int:
 def _simulate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", type=Path, help=_SCENARIO_HELP)
     parser.add_argument(
-        "--planner", choices=PLANNER_CHOICES, default="both", help="planner(s) to fly (both)"
+        "--planner",
+        choices=PLANNER_CHOICES,
+        help="planner(s) to fly (both; a campaign's failure file: its run's planner)",
     )
-    parser.add_argument("--seed", type=int, default=0, metavar="N", help="camera noise seed (0)")
+    parser.add_argument(
+        "--seed",
+        type=int,
+        metavar="N",
+        help="camera noise seed (0; a campaign's failure file: its run's seed)",
+    )
     _add_planner_options(parser)
     parser.add_argument(
         "--rrd",
@@ -296,11 +305,25 @@ def _print_run(result: SimResult, events: bool = False) -> None:
         print(f"  wrote {path}")
 
 
+def _failure_defaults(args: argparse.Namespace) -> None:
+    """Planner, seed and replan deferral of a campaign's failure file, unless given."""
+    from secure3d.simulation.campaign_store import failure_defaults
+
+    found = failure_defaults(args.scenario)
+    if args.planner is None:
+        args.planner = found.get("planner", "both")
+    if args.seed is None:
+        args.seed = int(found.get("seed", 0))
+    if args.replan_defer is None and "replan_defer" in found and not args.replan_latency:
+        args.replan_defer = float(found["replan_defer"])
+
+
 def _simulate(args: argparse.Namespace) -> int:
     from secure3d.simulation.campaign import comparison_figures, comparison_table, fly_planners
     from secure3d.world.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
+    _failure_defaults(args)
     _check_seed(args.seed)
     planners = _planners(args.planner)
     rrd, png, speed = (
@@ -383,6 +406,42 @@ def _campaign_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     _add_replan_defer(parser)
     _add_planner_options(parser)
+    group = parser.add_argument_group("scale and faults")
+    group.add_argument(
+        "--backend",
+        choices=("process", "ray"),
+        default="process",
+        help="process: worker processes here; ray: Ray actors (pip install 'secure3d[ray]')",
+    )
+    group.add_argument(
+        "--address",
+        metavar="ADDR",
+        help="with --backend ray: join this Ray cluster (auto, ray://host:10001) instead of a"
+        " local Ray",
+    )
+    group.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the campaign in --out: fly only the runs missing from its runs.csv",
+    )
+    group.add_argument(
+        "--shard",
+        metavar="K/N",
+        help="fly only variants i with i %% N == K-1 (combine shards with campaign-merge)",
+    )
+    group.add_argument(
+        "--run-timeout",
+        type=float,
+        metavar="S",
+        help="stop a run after S wall seconds (set-up included): an error row",
+    )
+    group.add_argument(
+        "--retries",
+        type=int,
+        default=1,
+        metavar="R",
+        help="fly a run again up to R times when its worker dies (1)",
+    )
 
 
 def _campaign(args: argparse.Namespace) -> int:
@@ -399,10 +458,32 @@ def _campaign(args: argparse.Namespace) -> int:
         kind=args.kind,
         count=args.count,
         replan_defer=args.replan_defer,
+        backend=args.backend,
+        address=args.address,
+        resume=args.resume,
+        shard=args.shard,
+        run_timeout=args.run_timeout,
+        retries=args.retries,
         **_planner_options(args),
     )
     print(result.summary_markdown().rstrip())
-    print(f"\nwrote {result.csv_path} and {result.summary_path}")
+    print(f"\nwrote {result.csv_path} and {result.summary_path} (every run: runs.csv)")
+    return 0
+
+
+def _merge_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("folders", type=Path, nargs="+", metavar="OUT", help="campaign folders")
+    parser.add_argument(
+        "--out", type=Path, required=True, metavar="DIR", help="folder for the merged campaign"
+    )
+
+
+def _merge(args: argparse.Namespace) -> int:
+    from secure3d.simulation.campaign_store import merge_campaigns
+
+    result = merge_campaigns(args.folders, args.out)
+    print(result.summary_markdown().rstrip())
+    print(f"\nwrote {result.csv_path} and {result.summary_path} (every run: runs.csv)")
     return 0
 
 
@@ -415,7 +496,7 @@ def _bench_arguments(parser: argparse.ArgumentParser) -> None:
         choices=("mapping", "planner", "closed_loop", "campaign"),
         help="mapping: benchmarks/bench_mapping.py; planner: benchmarks/bench_planner.py;"
         " closed_loop: benchmarks/bench_closed_loop.py (set-up, flight and real-time factors);"
-        " campaign: a 20-variant campaign on maps/blind_corner.yaml",
+        " campaign: a 20-variant campaign on maps/blind_corner.yaml (out/bench_campaign/<time>)",
     )
     parser.add_argument(
         "args", nargs=argparse.REMAINDER, help="passed on (campaign: options of 'campaign')"
@@ -435,9 +516,13 @@ def _run_script(name: str, argv: Sequence[str]) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
+    import time
+
     if args.target == "campaign":
         scenario = _bundled_scenario("blind_corner")
-        defaults = ["-n", "20", "--out", "out/bench_campaign"]
+        # A fresh folder per benchmark: a campaign never overwrites another's runs.csv.
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        defaults = ["-n", "20", "--out", f"out/bench_campaign/{stamp}"]
         return main(["campaign", str(scenario), *defaults, *args.args])
     return _run_script(f"bench_{args.target}.py", args.args)
 
@@ -540,6 +625,12 @@ COMMANDS: tuple[Command, ...] = (
         "fly randomised hidden-obstacle variants with each planner",
         _campaign_arguments,
         _campaign,
+    ),
+    Command(
+        "campaign-merge",
+        "combine campaign folders (shards) and recompute the statistics",
+        _merge_arguments,
+        _merge,
     ),
     Command(
         "bench",

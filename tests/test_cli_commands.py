@@ -179,7 +179,7 @@ def test_campaign_writes_csv_and_summary(tiny: Path, tmp_path: Path, capsys) -> 
     assert summary.rstrip() in out, "the summary is printed"
     collisions = sum(r["collided"] == "1" for r in rows)
     assert f"| baseline | 2 | {collisions} |" in summary, summary
-    assert sorted(p.name for p in out_dir.iterdir()) == ["campaign.csv", "summary.md"]
+    assert sorted(p.name for p in out_dir.iterdir()) == ["campaign.csv", "runs.csv", "summary.md"]
     assert err == "", "no progress bar with --no-progress"
 
 

@@ -3,21 +3,25 @@
 A *campaign* is the empirical side of the paper's safety theorem (Proof of Safety): the secure
 planner must never collide, whatever the server hid, while the baseline's collision rate is the
 price of trusting the map. :func:`run_campaign` derives ``n`` variants of a base scenario with
-hidden obstacles placed where they matter
-(:func:`~secure3d.world.attacks.random_hidden_obstacle_scenarios`), flies each variant with every
-planner (:func:`~secure3d.simulation.closed_loop.simulate`, the paper's Algorithm 1), optionally in
-worker processes, and writes
+hidden obstacles placed where they matter (:func:`~secure3d.world.attacks.hidden_obstacle_family`:
+variant ``i`` is a pure function of (base, seed, i)), flies each variant with every planner
+(:func:`~secure3d.simulation.closed_loop.simulate`, the paper's Algorithm 1) in worker processes
+or on Ray (:mod:`~secure3d.simulation.campaign_pool`, :mod:`~secure3d.simulation.campaign_ray`),
+and writes into its folder
 
-- ``campaign.csv``: one row per run (:data:`CSV_FIELDS`), in submission order, so the file is the
-  same for the same seed whatever the number of workers (apart from the timing columns);
+- ``runs.csv``: one row per run, appended as the run finishes, after a parameter line
+  (:mod:`~secure3d.simulation.campaign_store`): the record ``--resume`` and ``campaign-merge``
+  read back;
+- ``campaign.csv``: the same rows sorted variant-major (:data:`CSV_FIELDS`), so the file is the
+  same for the same seed whatever the backend or the number of workers (apart from the timing
+  columns);
 - ``summary.md``: per planner the collision rate (with a 95 % Wilson interval), the goal rate, the
   time to goal, solve-time percentiles and the real-time factor, plus the price of security
-  (DESIGN.md §6).
+  (DESIGN.md §6);
+- ``failures/<variant>_<planner>.yaml``: the scenario of every collided or errored run.
 
-Both files are written once, at the end, atomically (temporary file + ``os.replace``). Every
-:data:`FLUSH_EVERY` runs, and when the campaign is interrupted, the runs finished so far are
-written atomically to ``campaign.in_progress.csv`` (removed on completion), so a long campaign is
-never lost and no file is ever half-written.
+This module holds the records, statistics and reports; the machinery lives in
+:mod:`~secure3d.simulation.campaign_run`.
 
 :func:`fly_planners` flies one scenario with each planner; :func:`comparison_table` and
 :func:`comparison_figures` present those runs side by side (``secure3d simulate``, ``secure3d
@@ -30,11 +34,9 @@ import csv
 import functools
 import io
 import math
-import multiprocessing
 import os
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -74,9 +76,8 @@ CSV_FIELDS = (
     "error",
 )
 CSV_NAME = "campaign.csv"
-IN_PROGRESS_NAME = "campaign.in_progress.csv"
 SUMMARY_NAME = "summary.md"
-#: Finished runs between two intermediate copies of the CSV.
+#: Kept for compatibility (``run_campaign``'s ``flush_every``): rows are now appended as runs end.
 FLUSH_EVERY = 10
 #: Outcome recorded for a run whose scenario or simulation raised a secure3d error.
 ERROR_OUTCOME = "error"
@@ -402,58 +403,6 @@ def _fly(job: _Job) -> RunRecord:
     return RunRecord.from_result(job.variant, result)
 
 
-def _init_worker() -> None:
-    """Worker initialiser: Ctrl-C is the parent's to handle (it stops the workers itself), and the
-    BLAS under IPOPT's linear solver runs on the worker's own thread (unless the user chose
-    otherwise): the workers already fill the cores. CasADi loads its OpenBLAS with the IPOPT plugin,
-    after this runs. Measured: 12 blind-corner variants on 2 workers, 51.5 s -> 45.7 s wall and
-    13.7 s -> 1.3 s of system time (BLAS threads spinning); one process flying 8 variants, the same
-    wall time either way."""
-    import os
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
-
-def _completed(jobs: Sequence[_Job], workers: int) -> Iterator[tuple[int, RunRecord]]:
-    """Yield ``(job index, record)`` as runs finish; on any exit, leave no worker behind."""
-    if workers == 1:
-        for i, job in enumerate(jobs):
-            yield i, _fly(job)
-        return
-    # Forking a parent that already runs OpenMP/TBB threads (Open3D, numba) can deadlock the
-    # child: start clean interpreters instead.
-    context = multiprocessing.get_context("spawn")
-    before = set(multiprocessing.active_children())
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker)
-    try:
-        futures = {pool.submit(_fly, job): i for i, job in enumerate(jobs)}
-        for future in as_completed(futures):
-            yield futures[future], future.result()
-    except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)
-        # Workers ignore SIGINT and a running simulation cannot be cancelled: stop ours now
-        # instead of waiting for their current runs.
-        for process in set(multiprocessing.active_children()) - before:
-            process.terminate()
-        raise
-    pool.shutdown()
-
-
-def _variants(base: Scenario, n: int, seed: int, kind: str, count: int) -> list[Scenario]:
-    """The campaign's variants: a hidden-obstacle kind, or a registered family."""
-    from secure3d.world.attacks import random_hidden_obstacle_scenarios
-    from secure3d.world.families import family_variants
-    from secure3d.world.family_registry import FAMILIES
-
-    if kind in FAMILIES:
-        if count != 1:
-            raise ConfigError(f"count: family {kind!r} places its own obstacles (got {count!r})")
-        return family_variants(FAMILIES[kind], base, n, seed)
-    return random_hidden_obstacle_scenarios(base, n, seed, kind=kind, count=count)
-
-
 def run_campaign(
     base: Scenario | str | os.PathLike[str],
     n: int,
@@ -467,6 +416,13 @@ def run_campaign(
     count: int = 1,
     flush_every: int = FLUSH_EVERY,
     replan_defer: float | None = None,
+    backend: str = "process",
+    address: str | None = None,
+    resume: bool = False,
+    shard: str | tuple[int, int] | None = None,
+    run_timeout: float | None = None,
+    retries: int = 1,
+    on_start: Callable[[_Job, int], object] | None = None,
     **options: object,
 ) -> CampaignResult:
     """Fly ``n`` randomised hidden-obstacle variants of ``base`` with each planner.
@@ -475,122 +431,67 @@ def run_campaign(
     ----------
     base : Scenario or path of a scenario YAML file.
     n : number of variants (each flown once per planner).
-    planners : subset of ``("secure", "baseline")``, in the order rows are written.
-    seed : seeds the variants; variant ``i`` is simulated with seed ``seed + i`` by every planner,
-        so the planners are compared on the same world and the same camera noise.
-    workers : worker processes (default ``os.cpu_count()``, at most one per run); 1 runs in this
-        process. Each worker keeps one NLP cache for all its runs.
-    out_dir : folder for ``campaign.csv`` and ``summary.md`` (created if missing).
-    progress : show a tqdm progress bar on stderr.
-    kind, count : placement and number of hidden obstacles per variant (see
-        :func:`~secure3d.world.attacks.random_hidden_obstacle_scenarios`), or the name of a family
-        in :data:`~secure3d.world.family_registry.FAMILIES` (``thin``, ``occlusion3d``: variant
-        ``i`` is a pure function of (base, seed, i); ``count`` must then be 1).
-    flush_every : finished runs between intermediate copies (``campaign.in_progress.csv``).
+    planners : subset of ``("secure", "baseline")``, in the order rows are sorted.
+    seed : seeds the variants: variant ``i`` is a pure function of (base, seed, i)
+        (:func:`~secure3d.world.families.variant_rng`) and is simulated with seed ``seed + i`` by
+        every planner, so the planners are compared on the same world and the same camera noise.
+    workers : workers (default: the CPUs, or the Ray cluster's; at most one per run). With the
+        process backend, 1 worker and no ``run_timeout`` fly in this process. Each worker keeps
+        one NLP cache for all its runs.
+    out_dir : folder for ``runs.csv``, ``campaign.csv``, ``summary.md`` and ``failures/``.
+    progress : show a tqdm progress bar on stderr (runs/s, collisions so far, ETA).
+    kind, count : placement and number of hidden obstacles per variant (``auto``, ``corner``,
+        ``forest``: :func:`~secure3d.world.attacks.hidden_obstacle_family`), or the name of a
+        family in :data:`~secure3d.world.family_registry.FAMILIES` (``count`` must then be 1).
+    flush_every : kept for compatibility; every run is now appended to ``runs.csv`` as it ends.
     replan_defer : :func:`~secure3d.simulation.closed_loop.simulate`'s ``replan_defer`` for every
         run (s; None: its default, 0.5 s; 0: replan at once).
+    backend : ``"process"`` (worker processes on this machine) or ``"ray"`` (Ray actors; a local
+        Ray, or the cluster at ``address``).
+    resume : continue the campaign in ``out_dir``: fly exactly the (variant, planner) runs missing
+        from its ``runs.csv`` (refused if its parameters differ). Without it, an existing
+        ``runs.csv`` is refused.
+    shard : ``"k/N"``: fly only variants ``i`` with ``i % N == k - 1`` (combine the shards'
+        folders with :func:`~secure3d.simulation.campaign_store.merge_campaigns`).
+    run_timeout : wall seconds a run may take (set-up included) before its worker is killed and
+        the run becomes an error row.
+    retries : times a run whose worker died is flown again before it becomes an error row.
+    on_start : called with (job, worker pid) as each run starts.
     **options : planner options for every run (:class:`~secure3d.planning.problem.PlannerOptions`
         fields, ``reactive_family``, ``controller``).
 
     Returns
     -------
     CampaignResult
+        Over every run in ``runs.csv`` (resumed ones included).
 
     Raises
     ------
     ConfigError
-        Bad ``n``, ``planners``, ``seed``, ``workers``, ``flush_every`` or planner options (checked
-        before any run), or ``out_dir`` cannot be created.
+        Bad arguments or planner options (checked before any run), ``out_dir`` cannot be created,
+        ``runs.csv`` exists without ``resume`` or holds another campaign.
     ScenarioError
-        The base scenario is invalid or no variant could be placed.
+        The base scenario is invalid or has no path to place obstacles on.
     """
-    from tqdm import tqdm
+    from secure3d.simulation.campaign_run import Execution, execute, plan_campaign
 
-    from secure3d.planning.problem import problem_from_scenario
-
-    planners = tuple(planners)
     _check_args(n, planners, seed, workers)
     if isinstance(flush_every, bool) or not isinstance(flush_every, int) or flush_every < 1:
         raise ConfigError(f"flush_every: must be a positive integer (got {flush_every!r})")
-    from secure3d.simulation.closed_loop import replan_defer_for
-
-    replan_defer = replan_defer_for(replan_defer, 0.0, ConfigError)
-    if isinstance(base, (str, os.PathLike)):
-        from secure3d.world.scenario import load_scenario
-
-        base = load_scenario(base)
-    wall0 = time.perf_counter()
-    # Bad planner options would otherwise surface as one error row per run, after the workers start.
-    problem_from_scenario(base, **options)
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ConfigError(f"out_dir: cannot create {str(out)!r}: {exc.strerror or exc}") from None
-    variants = _variants(base, n, seed, kind, count)
-    jobs = [
-        _Job(i, scenario, seed + i, planner, dict(options, replan_defer=replan_defer))
-        for i, scenario in enumerate(variants)
-        for planner in planners
-    ]
-    if workers is None:
-        workers = os.cpu_count() or 1
-    workers = min(workers, len(jobs))
-    done: dict[int, RunRecord] = {}
-    in_progress = out / IN_PROGRESS_NAME
-
-    def finished() -> list[RunRecord]:
-        return [done[i] for i in sorted(done)]
-
-    bar = tqdm(total=len(jobs), desc=base.name, unit="run", disable=not progress, leave=False)
-    runs = _completed(jobs, workers)
-    try:
-        for index, record in runs:
-            done[index] = record
-            bar.update(1)
-            bar.set_postfix_str(_collision_tally(done.values(), planners))
-            if len(done) % flush_every == 0 and len(done) < len(jobs):
-                atomic_write_text(in_progress, _csv_text(finished()))
-    except BaseException:
-        runs.close()
-        if done:
-            atomic_write_text(in_progress, _csv_text(finished()))
-        raise
-    finally:
-        bar.close()
-
-    records = tuple(finished())
-    settings = {
-        "kind": kind,
-        "count": count,
-        "workers": workers,
-        "options": dict(options),
-        "replan_defer": replan_defer,
-    }
-    result = CampaignResult(
-        base=base.name,
-        n=n,
-        planners=planners,
-        seed=seed,
-        records=records,
-        csv_path=out / CSV_NAME,
-        summary_path=out / SUMMARY_NAME,
-        wall_time=time.perf_counter() - wall0,
-        settings=settings,
+    plan = plan_campaign(
+        base, n, planners, seed, out_dir, kind, count, replan_defer, shard, options
     )
-    atomic_write_text(result.csv_path, _csv_text(records))
-    atomic_write_text(result.summary_path, result.summary_markdown())
-    in_progress.unlink(missing_ok=True)
-    return result
-
-
-def _collision_tally(records: object, planners: Sequence[str]) -> str:
-    records = list(records)
-    parts = []
-    for p in planners:
-        mine = [r for r in records if r.planner == p]
-        parts.append(f"{p} {sum(r.collided for r in mine)}/{len(mine)} collided")
-    return ", ".join(parts)
+    execution = Execution(
+        backend=backend,
+        workers=workers,
+        address=address,
+        run_timeout=run_timeout,
+        retries=retries,
+        resume=resume,
+        progress=progress,
+        on_start=on_start,
+    )
+    return execute(plan, execution)
 
 
 def _csv_text(records: Sequence[RunRecord]) -> str:
@@ -628,14 +529,17 @@ def _pct(value: float) -> str:
 def _summary_markdown(result: CampaignResult) -> str:
     s = result.settings
     opts = ", ".join(f"{k}={v}" for k, v in sorted(dict(s.get("options", {})).items()))
+    shard = s.get("shard")
+    part = f", shard {shard[0]}/{shard[1]}" if shard and tuple(shard) != (1, 1) else ""
+    merged = f", merged from {s['merged']} folders" if s.get("merged") else ""
     lines = [
         f"# Campaign: {result.base}, {result.n} hidden-obstacle"
-        f" variant{'' if result.n == 1 else 's'}",
+        f" variant{'' if result.n == 1 else 's'}{part}{merged}",
         "",
         f"Seed {result.seed} (variant i simulated with seed {result.seed} + i), placement"
         f" `{s.get('kind')}`, {s.get('count')} hidden obstacle(s) per variant, planner options:"
         f" {opts or 'scenario defaults'}; replans deferred by {s.get('replan_defer', 0.0)} s"
-        f" (0: off); {s.get('workers')} worker(s),"
+        f" (0: off); {s.get('workers')} worker(s) ({s.get('backend', 'process')}),"
         f" {result.wall_time:.1f} s wall. One row per run in `{CSV_NAME}`.",
         "",
         "| planner | runs | collisions | collision rate (95 % CI) | goal rate |"

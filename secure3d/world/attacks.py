@@ -29,11 +29,13 @@ from secure3d.world.spec import Attack, Box, MeshObstacle, Scenario, World, box_
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.mapping.occupancy import OccupancyMap
+    from secure3d.world.families import Family
 
 __all__ = [
     "ServerClaim",
     "TrueObstacles",
     "belief_map",
+    "hidden_obstacle_family",
     "random_hidden_obstacle_scenarios",
     "server_claim",
     "true_obstacles",
@@ -588,40 +590,85 @@ def random_hidden_obstacle_scenarios(
     if isinstance(count, bool) or not isinstance(count, int) or count < 1:
         raise ScenarioError(f"count: must be a positive integer (got {count!r})")
     rng = np.random.default_rng(rng)
-    obstacles = true_obstacles(base)
-    grid, path = _placement_grid(base, obstacles)
-    lo0, hi0 = obstacles.aabbs()
-    touchable0 = np.arange(len(lo0)) < len(lo0) - len(obstacles.voxel_boxes)
-    picks, used = _candidates(path, lo0, hi0, kind)
-    ends = np.array([base.start.position, base.goal.position])
-    a = _nearest_free(grid, ends[0], grid.free)
-    g = _nearest_free(grid, ends[1], grid.free)
-    r = base.vehicle.body_radius
-    b = base.world.bounds
-    half_range = (0.2, 0.6) if used == "corner" else (0.1, 0.25)
-    keep = max(r + PLACEMENT_CLEARANCE, 2 * r + 2 * base.server_map.resolution + GAP_ALLOWANCE)
+    placement = _HiddenPlacement.prepare(base, kind)
+    return [placement.variant(base, rng, i, count, max_attempts) for i in range(n)]
 
-    variants = []
-    for i in range(n):
-        lo, hi, touchable = lo0, hi0, touchable0
-        free = grid.free
+
+@dataclass(frozen=True)
+class _HiddenPlacement:
+    """The per-base work of hidden-obstacle placement (the voxel path and candidate points), done
+    once; :meth:`variant` then places one variant's obstacles from a generator."""
+
+    grid: object
+    path: np.ndarray
+    lo0: np.ndarray
+    hi0: np.ndarray
+    touchable0: np.ndarray
+    picks: np.ndarray
+    used: str
+    ends: np.ndarray
+    a: object
+    g: object
+    half_range: tuple[float, float]
+    keep: float
+
+    @classmethod
+    def prepare(cls, base: Scenario, kind: str) -> _HiddenPlacement:
+        """Find the start-goal path of ``base`` and where along it obstacles may go."""
+        obstacles = true_obstacles(base)
+        grid, path = _placement_grid(base, obstacles)
+        lo0, hi0 = obstacles.aabbs()
+        touchable0 = np.arange(len(lo0)) < len(lo0) - len(obstacles.voxel_boxes)
+        picks, used = _candidates(path, lo0, hi0, kind)
+        ends = np.array([base.start.position, base.goal.position])
+        r = base.vehicle.body_radius
+        return cls(
+            grid=grid,
+            path=path,
+            lo0=lo0,
+            hi0=hi0,
+            touchable0=touchable0,
+            picks=picks,
+            used=used,
+            ends=ends,
+            a=_nearest_free(grid, ends[0], grid.free),
+            g=_nearest_free(grid, ends[1], grid.free),
+            half_range=(0.2, 0.6) if used == "corner" else (0.1, 0.25),
+            keep=max(
+                r + PLACEMENT_CLEARANCE,
+                2 * r + 2 * base.server_map.resolution + GAP_ALLOWANCE,
+            ),
+        )
+
+    def _try_box(
+        self, base: Scenario, rng: np.random.Generator, lo: np.ndarray, hi: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        path, r, b = self.path, base.vehicle.body_radius, base.world.bounds
+        k = int(rng.choice(self.picks))
+        tangent = path[min(k + 1, len(path) - 1)] - path[max(k - 1, 0)]
+        across = np.cross(tangent, [0.0, 0.0, 1.0])
+        if np.linalg.norm(across[:2]) < 1e-9:
+            across = np.array([1.0, 0.0, 0.0])
+        across /= np.linalg.norm(across)
+        half = rng.uniform(*self.half_range, size=2)
+        reach = abs(across[0]) * half[0] + abs(across[1]) * half[1]
+        centre = path[k] + across * rng.uniform(-reach - 0.5 * r, reach + 0.5 * r)
+        return _column_box(centre, half, lo, hi, (b.lo[2], b.hi[2]))
+
+    def variant(
+        self, base: Scenario, rng: np.random.Generator, i: int, count: int, max_attempts: int = 500
+    ) -> Scenario:
+        """Variant ``i``: ``count`` obstacles placed with draws from ``rng`` only."""
+        lo, hi, touchable = self.lo0, self.hi0, self.touchable0
+        free = self.grid.free
         added: list[Box] = []
         for j in range(count):
             for _ in range(max_attempts):
-                k = int(rng.choice(picks))
-                tangent = path[min(k + 1, len(path) - 1)] - path[max(k - 1, 0)]
-                across = np.cross(tangent, [0.0, 0.0, 1.0])
-                if np.linalg.norm(across[:2]) < 1e-9:
-                    across = np.array([1.0, 0.0, 0.0])
-                across /= np.linalg.norm(across)
-                half = rng.uniform(*half_range, size=2)
-                reach = abs(across[0]) * half[0] + abs(across[1]) * half[1]
-                centre = path[k] + across * rng.uniform(-reach - 0.5 * r, reach + 0.5 * r)
-                box = _column_box(centre, half, lo, hi, (b.lo[2], b.hi[2]))
-                if box is None or not _clear(box, lo, hi, touchable, ends, keep):
+                box = self._try_box(base, rng, lo, hi)
+                if box is None or not _clear(box, lo, hi, touchable, self.ends, self.keep):
                     continue
-                trial = grid.blocked_by(box[0][None], box[1][None]) & free
-                if _connected(trial, a, g):
+                trial = self.grid.blocked_by(box[0][None], box[1][None]) & free
+                if _connected(trial, self.a, self.g):
                     break
             else:
                 raise ScenarioError(
@@ -633,8 +680,29 @@ def random_hidden_obstacle_scenarios(
             lo, hi = np.vstack([lo, box[0]]), np.vstack([hi, box[1]])
             touchable = np.append(touchable, True)
             free = trial
-        variants.append(_with_hidden(base, added, i, used))
-    return variants
+        return _with_hidden(base, added, i, self.used)
+
+
+def hidden_obstacle_family(
+    kind: Literal["corner", "forest", "auto"] = "auto", count: int = 1
+) -> Family:
+    """The hidden-obstacle placement of :func:`random_hidden_obstacle_scenarios` as a
+    :class:`~secure3d.world.families.Family`: variant ``i`` is drawn from its own generator
+    (:func:`~secure3d.world.families.variant_rng`), so it is a pure function of (base, seed, i)
+    and campaigns can be sharded. (:func:`random_hidden_obstacle_scenarios` draws every variant
+    from one stream instead, so its variants differ from these.)"""
+    from secure3d.world.families import Family
+
+    if kind not in ("corner", "forest", "auto"):
+        raise ScenarioError(f"kind: must be one of corner, forest, auto (got {kind!r})")
+    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+        raise ScenarioError(f"count: must be a positive integer (got {count!r})")
+    return Family(
+        name=kind,
+        description=f"{count} hidden obstacle(s) placed by rule {kind!r}",
+        prepare=functools.partial(_HiddenPlacement.prepare, kind=kind),
+        variant=lambda prep, base, rng, i: prep.variant(base, rng, i, count),
+    )
 
 
 def _column_box(

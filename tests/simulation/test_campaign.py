@@ -27,8 +27,11 @@ from secure3d.simulation.campaign import (
     run_campaign,
     wilson_interval,
 )
+from secure3d.simulation.campaign_store import RUNS_NAME, read_runs
 from secure3d.simulation.closed_loop import SimEvent, simulate
-from secure3d.world import load_scenario, random_hidden_obstacle_scenarios
+from secure3d.world import load_scenario
+from secure3d.world.attacks import hidden_obstacle_family
+from secure3d.world.families import family_variants
 
 TINY = """\
 name: tiny_room
@@ -74,7 +77,7 @@ def test_csv_rows_match_independent_simulations(tiny: Path, tmp_path: Path) -> N
         tiny, 2, planners=("baseline",), seed=seed, workers=1, out_dir=tmp_path, progress=False
     )
     rows = _read_csv(result.csv_path)
-    variants = random_hidden_obstacle_scenarios(load_scenario(tiny), 2, seed)
+    variants = family_variants(hidden_obstacle_family(), load_scenario(tiny), 2, seed)
     assert len(rows) == len(result.records) == 2
     for i, (row, variant) in enumerate(zip(rows, variants, strict=True)):
         sim = simulate(variant, "baseline", seed=seed + i)
@@ -99,7 +102,7 @@ def test_csv_rows_match_independent_simulations(tiny: Path, tmp_path: Path) -> N
             assert row["time_to_goal"] == "", where
     summary = result.summary_path.read_text()
     assert summary.startswith("# Campaign: tiny_room, 2 hidden-obstacle variants")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["campaign.csv", "summary.md"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["campaign.csv", "runs.csv", "summary.md"]
 
 
 @pytest.mark.slow
@@ -121,18 +124,18 @@ def test_worker_processes_give_the_same_rows(tiny: Path, tmp_path: Path) -> None
 
 @dataclass
 class FakeFlights:
-    """Stands in for ``campaign._fly``: a record per job; optionally Ctrl-C at job ``stop_at``."""
+    """Stands in for ``campaign._fly``: a record per job; optionally Ctrl-C at job ``stop_at``.
+    ``runs_seen``: rows in ``runs.csv`` as each job starts."""
 
     out_dir: Path
     stop_at: int | None = None
     calls: list[tuple[int, str]] = field(default_factory=list)
-    in_progress_seen: list[int] = field(default_factory=list)
+    runs_seen: list[int] = field(default_factory=list)
 
     def __call__(self, job: campaign._Job) -> RunRecord:
         if len(self.calls) == self.stop_at:
             raise KeyboardInterrupt
-        path = self.out_dir / campaign.IN_PROGRESS_NAME
-        self.in_progress_seen.append(len(_read_csv(path)) if path.exists() else 0)
+        self.runs_seen.append(len(read_runs(self.out_dir / RUNS_NAME)[1]))
         self.calls.append((job.variant, job.planner))
         collided = job.planner == "baseline" and job.variant % 2 == 1
         return RunRecord(
@@ -151,7 +154,9 @@ class FakeFlights:
         )
 
 
-def test_rows_are_in_submission_order_and_flushed(tiny: Path, tmp_path: Path, monkeypatch) -> None:
+def test_rows_are_sorted_and_appended_as_runs_finish(
+    tiny: Path, tmp_path: Path, monkeypatch
+) -> None:
     fake = FakeFlights(tmp_path)
     monkeypatch.setattr(campaign, "_fly", fake)
     result = run_campaign(
@@ -162,9 +167,9 @@ def test_rows_are_in_submission_order_and_flushed(tiny: Path, tmp_path: Path, mo
     assert fake.calls == expected
     assert [(int(r["variant"]), r["planner"]) for r in rows] == expected
     assert [int(r["seed"]) for r in rows] == [4, 4, 5, 5, 6, 6]
-    # An intermediate copy after runs 2 and 4, each holding every run finished by then.
-    assert fake.in_progress_seen == [0, 0, 2, 2, 4, 4]
-    assert not (tmp_path / campaign.IN_PROGRESS_NAME).exists(), "removed once the CSV is written"
+    # runs.csv holds every run finished so far, whenever a run starts.
+    assert fake.runs_seen == [0, 1, 2, 3, 4, 5]
+    assert len(read_runs(tmp_path / RUNS_NAME)[1]) == 6
     summary = result.summary_path.read_text()
     assert "| secure | 3 | 0 | 0.0 %" in summary
     assert "| baseline | 3 | 1 | 33.3 %" in summary
@@ -172,7 +177,7 @@ def test_rows_are_in_submission_order_and_flushed(tiny: Path, tmp_path: Path, mo
     assert "takes 1.00x the baseline's time to goal (mean over the 2 variant(s)" in summary
 
 
-def test_interrupted_campaign_leaves_no_partial_output(
+def test_interrupted_campaign_keeps_its_finished_runs(
     tiny: Path, tmp_path: Path, monkeypatch
 ) -> None:
     monkeypatch.setattr(campaign, "_fly", FakeFlights(tmp_path, stop_at=3))
@@ -181,11 +186,11 @@ def test_interrupted_campaign_leaves_no_partial_output(
     assert not (tmp_path / campaign.CSV_NAME).exists()
     assert not (tmp_path / campaign.SUMMARY_NAME).exists()
     assert _leftovers(tmp_path) == []
-    saved = _read_csv(tmp_path / campaign.IN_PROGRESS_NAME)
-    assert [(r["variant"], r["planner"]) for r in saved] == [
-        ("0", "secure"),
-        ("0", "baseline"),
-        ("1", "secure"),
+    _, saved = read_runs(tmp_path / RUNS_NAME)
+    assert [(r.variant, r.planner) for r in saved] == [
+        (0, "secure"),
+        (0, "baseline"),
+        (1, "secure"),
     ]
 
 
