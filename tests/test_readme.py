@@ -61,3 +61,24 @@ def test_every_relative_link_in_readme_exists():
     assert "docs/img/blind_corner.png" in local
     missing = [link for link in local if not (REPO / link).exists()]
     assert not missing, missing
+
+
+def test_the_paper_to_code_map_names_real_objects():
+    import importlib
+
+    readme = (REPO / "README.md").read_text()
+    section = readme.split("## Architecture", 1)[1].split("\n## ", 1)[0]
+    names = re.findall(r"`(secure3d(?:\.\w+)+)`", section)
+    assert len(names) >= 10, names
+    for name in names:
+        parts = name.split(".")
+        for cut in range(len(parts), 0, -1):  # the longest importable module, then attributes
+            try:
+                obj = importlib.import_module(".".join(parts[:cut]))
+            except ModuleNotFoundError:
+                continue
+            for attr in parts[cut:]:
+                obj = getattr(obj, attr)
+            break
+        else:
+            raise AssertionError(f"{name} does not resolve")

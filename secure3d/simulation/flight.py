@@ -40,14 +40,10 @@ from secure3d.simulation.loop import (
     observed_box,
     scan_control,
     scan_headings,
-    voxel_colors,
 )
 from secure3d.simulation.modes import (
     ARRIVAL_SPEED,
     CONTACT_SAMPLES,
-    DETOUR_FACTOR,
-    DETOUR_SLACK_M,
-    DETOUR_SLACK_S,
     FLYING,
     HEARTBEAT_SECONDS,
     MAX_EXPLORATIONS,
@@ -61,6 +57,7 @@ from secure3d.simulation.modes import (
     Mode,
     RunSettings,
     Trigger,
+    detour_reason,
     log,
 )
 from secure3d.simulation.recheck import plan_unsafe
@@ -139,7 +136,7 @@ class Flight:
 
     def run(self) -> SimResult:
         """Take off (first frame, line 1), then step until the goal, a collision or the time limit."""
-        self.log_world()
+        self.loop.log_world(self.rec)
         self.sense()
         self.start_following(self.make_plan(self.x), Trigger.PLANNED)
         for _ in range(int(np.ceil(self.s.time_limit / self.s.dt))):
@@ -197,7 +194,7 @@ class Flight:
         if self.guard is not None:
             self.guard.add_view(R, o)
         new = new_obstacle_voxels(loop, stats.occupied_codes)
-        self.log_frame(R, o, frame.depth)
+        self.loop.log_frame(self.rec, self.t, self.frame_no, R, o, frame.depth, self.s)
         return new, set(frame.hit_names()) & loop.hidden
 
     def observe(self) -> tuple[str, float] | None:
@@ -366,7 +363,17 @@ class Flight:
         t0 = time.perf_counter()
         result = plan_problem(problem, loop.planner, cache=loop.cache)
         self.solve_times.append(time.perf_counter() - t0)
-        why = None if not result.ok or self.t == 0.0 else self.detour(result, x, problem.goal)
+        why = (
+            None
+            if not result.ok or self.t == 0.0
+            else detour_reason(
+                np.asarray(self.model.position(result.states), dtype=float),
+                result.final_time,
+                np.asarray(self.model.position(x), dtype=float).ravel(),
+                problem.goal,
+                self.model.limits.max_speed,
+            )
+        )
         if not result.ok or why is not None:
             self.failures += 1
             what = why or f"{result.status.value}: {result.message}"
@@ -379,20 +386,6 @@ class Flight:
             self.rec.log_plan(self.t, result, label=loop.planner)
             self.rec.log_scalar(self.t, "solve_time_ms", 1e3 * self.solve_times[-1])
         return result
-
-    def detour(self, plan: PlanResult, x: np.ndarray, goal: np.ndarray) -> str | None:
-        """Why a replan from ``x`` to ``goal`` is too long a detour to fly (see DETOUR_FACTOR),
-        or None."""
-        P = np.asarray(self.model.position(plan.states), dtype=float)
-        p0 = np.asarray(self.model.position(x), dtype=float).ravel()
-        line = float(np.linalg.norm(np.asarray(goal, dtype=float) - p0))
-        length = float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum())
-        if length > DETOUR_FACTOR * line + DETOUR_SLACK_M:
-            return f"replan refused: path {length:.1f} m for {line:.1f} m to the goal"
-        top = DETOUR_FACTOR * line / self.model.limits.max_speed + DETOUR_SLACK_S
-        if plan.final_time > top:
-            return f"replan refused: {plan.final_time:.1f} s for {line:.1f} m (at most {top:.1f} s)"
-        return None
 
     def start_following(self, plan: PlanResult | None, trigger: Trigger) -> None:
         """HOLD -> FOLLOW on a new plan (line 1 succeeded)."""
@@ -580,36 +573,6 @@ class Flight:
             self.beat - self.s.wall0,
             len(self.plans),
         )
-
-    def log_world(self) -> None:
-        if self.rec is None:
-            return
-        from secure3d.world.attacks import server_claim
-
-        scenario, truth = self.loop.scenario, self.loop.truth
-        claim = server_claim(scenario)
-        self.rec.log_world(
-            true_boxes=truth.boxes,
-            true_meshes=truth.meshes,
-            claimed_boxes=claim.boxes,
-            claimed_meshes=claim.meshes,
-            hidden_names=tuple(self.loop.hidden),
-            bounds=scenario.world.bounds,
-            true_voxels=truth.voxel_boxes,
-            true_voxel_colors=voxel_colors(scenario),
-        )
-
-    def log_frame(self, R: np.ndarray, o: np.ndarray, depth: np.ndarray) -> None:
-        rec, s, loop = self.rec, self.s, self.loop
-        if rec is None:
-            return
-        if self.frame_no % s.frame_log_every == 0:
-            cam, spec = loop.camera, loop.scenario.camera
-            rec.log_camera(self.t, R, o, cam.fx, cam.fy, spec.width, spec.height, depth)
-        if self.frame_no % s.belief_log_every == 0:
-            occ, trust = loop.belief.known_obstacles()
-            if len(occ):
-                rec.log_belief(self.t, occ, trust, loop.belief.resolution)
 
     def result(self) -> SimResult:
         model = self.model

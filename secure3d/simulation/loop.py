@@ -100,6 +100,46 @@ class Loop:
         """The plan being followed is now known safe against the current obstacle boxes."""
         self.judged_lo, self.judged_hi = self.problem.boxes_lo, self.problem.boxes_hi
 
+    def log_world(self, rec: object | None) -> None:
+        """Record the true world and the server's claim (nothing without a recording)."""
+        if rec is None:
+            return
+        from secure3d.world.attacks import server_claim
+
+        claim = server_claim(self.scenario)
+        rec.log_world(
+            true_boxes=self.truth.boxes,
+            true_meshes=self.truth.meshes,
+            claimed_boxes=claim.boxes,
+            claimed_meshes=claim.meshes,
+            hidden_names=tuple(self.hidden),
+            bounds=self.scenario.world.bounds,
+            true_voxels=self.truth.voxel_boxes,
+            true_voxel_colors=voxel_colors(self.scenario),
+        )
+
+    def log_frame(
+        self,
+        rec: object | None,
+        t: float,
+        frame_no: int,
+        R: np.ndarray,
+        o: np.ndarray,
+        depth: np.ndarray,
+        every: object,
+    ) -> None:
+        """Record frame ``frame_no`` and the belief, decimated as ``every`` says
+        (``frame_log_every``, ``belief_log_every``)."""
+        if rec is None:
+            return
+        if frame_no % every.frame_log_every == 0:
+            cam, spec = self.camera, self.scenario.camera
+            rec.log_camera(t, R, o, cam.fx, cam.fy, spec.width, spec.height, depth)
+        if frame_no % every.belief_log_every == 0:
+            occ, trust = self.belief.known_obstacles()
+            if len(occ):
+                rec.log_belief(t, occ, trust, self.belief.resolution)
+
     def judged_plus(self, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The judged boxes plus the voxels at ``centres`` (merged into few boxes): a superset of
         the known obstacles when ``centres`` are all the known obstacle voxels found outside the

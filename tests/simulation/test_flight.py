@@ -113,18 +113,13 @@ def test_the_quick_ellipsoid_test_never_passes_an_ellipsoid_that_meets_a_box(rng
 
 
 def test_a_replan_that_detours_too_far_is_refused():
-    model = types.SimpleNamespace(
-        position=lambda X: np.asarray(X)[..., :3], limits=types.SimpleNamespace(max_speed=2.0)
-    )
-    flight = types.SimpleNamespace(model=model)
-    x, goal = np.zeros(6), np.array([5.0, 0, 0])
-    straight = types.SimpleNamespace(
-        states=np.column_stack([np.linspace(0, 5, 11), np.zeros((11, 5))]), final_time=3.0
-    )
-    assert Flight.detour(flight, straight, x, goal) is None
-    zigzag = np.zeros((41, 6))
+    from secure3d.simulation.modes import detour_reason
+
+    p0, goal = np.zeros(3), np.array([5.0, 0, 0])
+    straight = np.column_stack([np.linspace(0, 5, 11), np.zeros((11, 2))])
+    assert detour_reason(straight, 3.0, p0, goal, 2.0) is None
+    zigzag = np.zeros((41, 3))
     zigzag[:, 0] = np.tile([0.0, 5.0], 21)[:41]
-    long_path = types.SimpleNamespace(states=zigzag, final_time=20.0)
-    assert "path 200.0 m for 5.0 m" in Flight.detour(flight, long_path, x, goal)
-    slow = types.SimpleNamespace(states=straight.states, final_time=42.8)
-    assert "42.8 s for 5.0 m" in Flight.detour(flight, slow, x, goal)
+    assert "path 200.0 m for 5.0 m" in detour_reason(zigzag, 20.0, p0, goal, 2.0)
+    assert detour_reason(straight, 42.8, p0, goal, 2.0) is None  # secure plans may crawl
+    assert "120.0 s for 5.0 m" in detour_reason(straight, 120.0, p0, goal, 2.0)
