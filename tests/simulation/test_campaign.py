@@ -33,21 +33,8 @@ from secure3d.world import load_scenario
 from secure3d.world.attacks import hidden_obstacle_family
 from secure3d.world.families import family_variants
 
-TINY = """\
-name: tiny_room
-description: A 6 m x 3 m room, 2 m high, with one wall to go around. Campaign test fixture.
-world:
-  bounds: {lo: [0.0, 0.0, 0.0], hi: [6.0, 3.0, 2.0]}
-  boxes:
-    - {name: wall, lo: [2.8, 0.0, 0.0], hi: [3.2, 1.8, 2.0]}
-server_map: {resolution: 0.1}
-vehicle: {model: point_mass, body_radius: 0.2, limits: {max_accel: 4.0, max_speed: 4.0}}
-camera: {width: 64, height: 48, hfov_deg: 90, max_range: 5.0, far_kind: depth, rate_hz: 10}
-start: {position: [0.8, 0.8, 1.0]}
-goal: {position: [5.2, 0.8, 1.0], tolerance: 0.3}
-planner: {nodes: 12}
-simulation: {dt: 0.02, time_limit: 10}
-"""
+#: A 6 m x 3 m room with one wall to go around (tests/data/tiny_room.yaml).
+TINY = (Path(__file__).resolve().parents[1] / "data" / "tiny_room.yaml").read_text()
 
 
 @pytest.fixture(scope="module")
