@@ -230,7 +230,12 @@ def state_margin(
     settings = settings or CertificateSettings()
     controller = controller if controller is not None else problem.controller
     model, tol = problem.model, settings.tolerance
-    x = np.asarray(x, dtype=float).reshape(1, -1)
+    x = np.asarray(x, dtype=float)
+    if x.shape != (model.nx,) or not np.all(np.isfinite(x)):
+        raise PlanningError(
+            f"state_margin: x must be {model.nx} finite numbers, got shape {x.shape}"
+        )
+    x = x.reshape(1, -1)
     pts = _manoeuvres(controller, model, x, settings.rollout_dt, settings.points_per_manoeuvre)[0]
     R = np.asarray(rotations, dtype=float).reshape(-1, 3, 3)
     o = np.asarray(origins, dtype=float).reshape(-1, 3)

@@ -90,6 +90,10 @@ def test_state_margin_passes_every_sampled_state_of_a_certified_plan(maps_dir):
     far = interpolate(problem.model, plan.times, plan.states, plan.controls, sampled.times[[-5]])[0]
     margin, what = state_margin(far[0], problem, np.zeros((0, 3, 3)), np.zeros((0, 3)))
     assert margin < 0 and "not observed" in what
+    from secure3d.errors import PlanningError
+
+    with pytest.raises(PlanningError, match="state_margin: x must be"):
+        state_margin(far[0][:3], problem, np.zeros((0, 3, 3)), np.zeros((0, 3)))
 
 
 def test_the_quick_ellipsoid_test_never_passes_an_ellipsoid_that_meets_a_box(rng):
