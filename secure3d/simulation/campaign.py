@@ -381,6 +381,19 @@ def _process_cache() -> NLPCache:
     return NLPCache()
 
 
+def error_record(job: _Job, reason: str, wall_time: float = 0.0) -> RunRecord:
+    """The error row of ``job``: outcome ``error`` and the reason."""
+    return RunRecord(
+        variant=job.variant,
+        scenario=job.scenario.name,
+        seed=job.seed,
+        planner=job.planner,
+        outcome=ERROR_OUTCOME,
+        wall_time=wall_time,
+        error=reason,
+    )
+
+
 def _fly(job: _Job) -> RunRecord:
     """Fly one job (in a worker process or in-process). secure3d errors become an error row."""
     from secure3d.simulation.closed_loop import simulate
@@ -391,15 +404,7 @@ def _fly(job: _Job) -> RunRecord:
             job.scenario, job.planner, seed=job.seed, cache=_process_cache(), **job.options
         )
     except Secure3DError as exc:
-        return RunRecord(
-            variant=job.variant,
-            scenario=job.scenario.name,
-            seed=job.seed,
-            planner=job.planner,
-            outcome=ERROR_OUTCOME,
-            wall_time=time.perf_counter() - t0,
-            error=f"{type(exc).__name__}: {exc}",
-        )
+        return error_record(job, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
     return RunRecord.from_result(job.variant, result)
 
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from secure3d.simulation import campaign
-from secure3d.simulation.campaign import ERROR_OUTCOME, RunRecord, _Job
+from secure3d.simulation.campaign import RunRecord, _Job, error_record
 
 __all__ = ["Crash", "InlinePool", "Pool", "ProcessPool", "fly_safely", "schedule"]
 
@@ -67,19 +67,6 @@ class Pool(Protocol):
 
     def close(self) -> None:
         """Stop every worker (idempotent)."""
-
-
-def error_record(job: _Job, reason: str, wall_time: float = 0.0) -> RunRecord:
-    """The error row of ``job``: outcome ``error`` and the reason."""
-    return RunRecord(
-        variant=job.variant,
-        scenario=job.scenario.name,
-        seed=job.seed,
-        planner=job.planner,
-        outcome=ERROR_OUTCOME,
-        wall_time=wall_time,
-        error=reason,
-    )
 
 
 def fly_safely(job: _Job) -> RunRecord:
