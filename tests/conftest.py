@@ -53,3 +53,15 @@ def octomap_dir() -> Path:
 def original_env() -> dict[str, str]:
     """The environment pytest started with, before this file sandboxed HOME and the caches."""
     return dict(ORIGINAL_ENV)
+
+
+#: A 6 m x 3 m room with one wall to go around (campaign and CLI tests).
+TINY_ROOM = Path(__file__).resolve().parent / "data" / "tiny_room.yaml"
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A copy of ``tests/data/tiny_room.yaml`` in a fresh folder (outputs may land beside it)."""
+    path = tmp_path_factory.mktemp("scenarios") / "tiny.yaml"
+    path.write_text(TINY_ROOM.read_text())
+    return path

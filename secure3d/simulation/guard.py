@@ -145,6 +145,7 @@ class TrackingGuard:
         self.settings = settings or GuardSettings()
         self._R: list[np.ndarray] = []
         self._o: list[np.ndarray] = []
+        self._views: tuple[np.ndarray, np.ndarray] | None = None
         self._last_check = -np.inf
         #: exact checks made: (time, margin); checks the quick test settled; for tests and reports
         self.checks: list[tuple[float, float]] = []
@@ -154,6 +155,7 @@ class TrackingGuard:
         """A frame the camera took (rotation camera to world, origin)."""
         self._R.append(np.asarray(R, dtype=float))
         self._o.append(np.asarray(o, dtype=float))
+        self._views = None  # stacked again on the next check
 
     def due(self, t: float) -> bool:
         """Whether a check is due at time ``t``."""
@@ -176,7 +178,12 @@ class TrackingGuard:
         lo = loop.judged_lo if loop.judged_lo is not None else loop.problem.boxes_lo
         hi = loop.judged_hi if loop.judged_hi is not None else loop.problem.boxes_hi
         problem = followed.problem
-        R, o = np.array(self._R).reshape(-1, 3, 3), np.array(self._o).reshape(-1, 3)
+        if self._views is None:  # frames come every 2-4 checks: stack them once per frame
+            self._views = (
+                np.array(self._R).reshape(-1, 3, 3),
+                np.array(self._o).reshape(-1, 3),
+            )
+        R, o = self._views
         c, M = problem.family.ellipsoid(np.asarray(x, dtype=float))
         bounds = (problem.bounds_lo, problem.bounds_hi)
         start = (problem.start_region_lo, problem.start_region_hi)

@@ -33,16 +33,6 @@ from secure3d.world import load_scenario
 from secure3d.world.attacks import hidden_obstacle_family
 from secure3d.world.families import family_variants
 
-#: A 6 m x 3 m room with one wall to go around (tests/data/tiny_room.yaml).
-TINY = (Path(__file__).resolve().parents[1] / "data" / "tiny_room.yaml").read_text()
-
-
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("scenarios") / "tiny.yaml"
-    path.write_text(TINY)
-    return path
-
 
 def _read_csv(path: Path) -> list[dict[str, str]]:
     with open(path, newline="") as fh:

@@ -22,19 +22,10 @@ from secure3d.errors import ConfigError
 from secure3d.simulation.campaign import run_campaign
 from secure3d.simulation.campaign_store import RUNS_NAME, merge_campaigns, read_runs
 
-#: A 6 m x 3 m room with one wall to go around (tests/data/tiny_room.yaml).
-TINY = (Path(__file__).resolve().parents[1] / "data" / "tiny_room.yaml").read_text()
 #: Columns that depend on the machine's speed, not on the run.
 TIMING = {"solve_median", "solve_max", "wall_time", "setup_time", "real_time_factor", "solve_times"}
 N = 4
 KW = {"planners": ("baseline",), "seed": 3, "progress": False}
-
-
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("scenarios") / "tiny.yaml"
-    path.write_text(TINY)
-    return path
 
 
 @pytest.fixture(scope="module")
