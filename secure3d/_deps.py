@@ -15,30 +15,15 @@ import contextlib
 import ctypes
 import functools
 import os
-import signal
 import threading
-from collections.abc import Iterator
 from types import ModuleType
 
+from secure3d.sigint import held_sigint
 
-@contextlib.contextmanager
-def _interrupt_after() -> Iterator[None]:
-    """Hold a Ctrl-C that arrives inside the block; raise it as ``KeyboardInterrupt`` at the end.
 
-    In other threads than the main one (where Python takes no signals) it changes nothing.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    held: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
-    try:
-        yield
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
-    if held:
-        raise KeyboardInterrupt
+def _interrupt_after() -> contextlib.AbstractContextManager[None]:
+    """Hold a Ctrl-C during an import; raise it as ``KeyboardInterrupt`` at the end."""
+    return held_sigint(threading.Event())
 
 
 @functools.cache

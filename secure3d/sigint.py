@@ -30,7 +30,7 @@ from types import FrameType
 
 from secure3d.outputs import remove_temporaries
 
-__all__ = ["EXIT_INTERRUPTED", "cli_interrupts", "requested"]
+__all__ = ["EXIT_INTERRUPTED", "cli_interrupts", "held_sigint", "requested"]
 
 #: Exit status after Ctrl-C (128 + SIGINT, as a shell reports it).
 EXIT_INTERRUPTED = 130
@@ -83,3 +83,26 @@ def cli_interrupts(message: str, grace: float = 0.7) -> Iterator[None]:
         if previous is not None:
             signal.signal(signal.SIGINT, previous)
         _requested.clear()
+
+
+@contextlib.contextmanager
+def held_sigint(event: threading.Event, message: str = "interrupted") -> Iterator[None]:
+    """Hold a Ctrl-C that arrives inside the block in ``event`` (which code inside may poll, as
+    IPOPT's stop callback does) and raise it as ``KeyboardInterrupt(message)`` when the block ends.
+
+    For code that must not see the exception mid-way: a pybind11 module initialising, a CasADi
+    solve. Outside the main thread (where Python takes no signals) it changes nothing.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    event.clear()
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: event.set())
+    try:
+        yield
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+    if event.is_set():
+        event.clear()
+        raise KeyboardInterrupt(message)

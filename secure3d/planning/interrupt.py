@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import contextlib
 import math
-import signal
 import threading
 import time
 from collections.abc import Iterator
 
 import casadi as ca
+
+from secure3d.sigint import held_sigint
 
 __all__ = ["budget_spent", "deadline", "interruptible", "stop_callback"]
 
@@ -101,15 +102,5 @@ def interruptible() -> Iterator[None]:
 
     Outside the main thread (where Python cannot set signal handlers) it changes nothing.
     """
-    if threading.current_thread() is not threading.main_thread():
+    with held_sigint(_requested, "plan interrupted"):
         yield
-        return
-    _requested.clear()
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: _requested.set())
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    if _requested.is_set():
-        _requested.clear()
-        raise KeyboardInterrupt("plan interrupted")
