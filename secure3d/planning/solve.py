@@ -28,7 +28,7 @@ from secure3d.planning.fatrop_transcription import fatrop_status
 from secure3d.planning.guess import Guess, NoPathError, initial_guess, profile_guess
 from secure3d.planning.interrupt import budget_spent, deadline, interruptible
 from secure3d.planning.problem import PlanningProblem, problem_from_scenario
-from secure3d.planning.result import PlanResult, PlanStatus
+from secure3d.planning.result import Certificate, PlanResult, PlanStatus
 from secure3d.planning.trajectory import remainder_keeping_nodes, resample
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -361,6 +361,52 @@ def _guess_from_path(
     return profile_guess(problem, path, frac, planner == "secure")
 
 
+def _refresh_slots(
+    problem: PlanningProblem,
+    planner: str,
+    s: _Solve,
+    cache: NLPCache,
+    extra_margin: float = 0.0,
+) -> tuple[_Solve, float, int]:
+    """Re-select the obstacle slots on solution ``s`` and re-solve warm, up to SLOT_REFRESHES
+    times, while a box left out of the slots breaks a row. Returns the last solve, and the solver
+    time and iterations the re-solves added.
+
+    Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may have come
+    closer. With the slots the NLP is a relaxation of the NLP with every box, so a solution no
+    left-out box comes within the margin of is feasible, hence (locally) optimal, for it too. (A
+    slack of 0.05 m cost a second solve on blind_corner: cold 0.47 s / 51 iterations -> 0.31 s / 33
+    without; 8 hidden-obstacle flights: 0.63x -> 0.68x real time, same outcomes.) The certificate's
+    tightened re-solves (``extra_margin``) go through here too: without it a tightened solution
+    moved onto boxes outside its slots (issue 16: obstacle margins down to -0.8 m).
+    """
+    solve_t, iters = 0.0, 0
+    for _ in range(SLOT_REFRESHES):
+        if (
+            not s.status.ok
+            or budget_spent()
+            or not lb.slots_missing(problem, planner, s.X, s.assignment, s.slots)
+        ):
+            break
+        s = _solve_once(
+            problem,
+            planner,
+            s.assignment,
+            s.T,
+            s.X,
+            s.U,
+            cache,
+            L=s.L,
+            multipliers=None,
+            prev_slots=s.slots,
+            extra_margin=extra_margin,
+            grid=s.grid,
+        )
+        solve_t += s.solve_time
+        iters += s.iterations
+    return s, solve_t, iters
+
+
 def _solve_rounds(
     problem: PlanningProblem,
     planner: str,
@@ -423,35 +469,9 @@ def _solve_rounds(
         build += s.warm_build
         solve_t += s.solve_time
         iters += s.iterations
-        for _ in range(SLOT_REFRESHES):
-            # Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may
-            # have come closer. Re-select and re-solve warm only if one breaks a row: with the slots
-            # the NLP is a relaxation of the NLP with every box, so a solution no left-out box
-            # comes within the margin of is feasible, hence (locally) optimal, for it too. (A slack
-            # of 0.05 m cost a second solve on blind_corner: cold 0.47 s / 51 iterations -> 0.31 s /
-            # 33 without; 8 hidden-obstacle flights: 0.63x -> 0.68x real time, same outcomes.)
-            if (
-                not s.status.ok
-                or budget_spent()
-                or not lb.slots_missing(problem, planner, s.X, assignment, s.slots)
-            ):
-                break
-            nxt = _solve_once(
-                problem,
-                planner,
-                assignment,
-                s.T,
-                s.X,
-                s.U,
-                cache,
-                L=s.L,
-                multipliers=None,
-                prev_slots=s.slots,
-                grid=s.grid,
-            )
-            solve_t += nxt.solve_time
-            iters += nxt.iterations
-            s = nxt
+        s, t_, n_ = _refresh_slots(problem, planner, s, cache)
+        solve_t += t_
+        iters += n_
         if best is None or (s.status.ok and (not best.status.ok or s.T < best.T)):
             best = s
         if not s.status.ok or rounds == 1 or budget_spent():
@@ -603,9 +623,11 @@ def _judged(
     from secure3d.planning.certificate import certify
 
     cert = certify(result, problem)
+    rejected: list[Certificate] = []
     for extra in CERTIFY_TIGHTENING:
         if cert.ok or budget_spent():
             break
+        rejected.append(cert)
         # Tighten and re-solve warm from the rejected solution: never loosen anything.
         t_ = _solve_once(
             problem,
@@ -623,6 +645,8 @@ def _judged(
         )
         solve_t, iters = solve_t + t_.solve_time, iters + t_.iterations
         build += t_.warm_build
+        t_, more_t, more_i = _refresh_slots(problem, planner, t_, cache, extra_margin=extra)
+        solve_t, iters = solve_t + more_t, iters + more_i
         if not t_.status.ok:
             break
         s = t_
@@ -631,7 +655,7 @@ def _judged(
     result = replace(result, build_time=build, solve_time=solve_t, iterations=iters)
     status = result.status if cert.ok else PlanStatus.NOT_CERTIFIED
     msg = result.message if cert.ok else f"solver: {result.message}; certificate: {cert}"
-    return replace(result, certificate=cert, status=status, message=msg)
+    return replace(result, certificate=cert, status=status, message=msg, rejections=tuple(rejected))
 
 
 def plan(
