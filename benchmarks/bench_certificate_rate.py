@@ -55,7 +55,9 @@ def main(argv: list[str] | None = None) -> int:
         calls = first = certified = runs = 0
         t0 = time.perf_counter()
         for i, sc in enumerate(_variants(case, args.n, args.seed)):
-            r = simulate(sc, "secure", seed=args.seed + i, nodes=args.nodes, time_limit=args.time_limit)
+            r = simulate(
+                sc, "secure", seed=args.seed + i, nodes=args.nodes, time_limit=args.time_limit
+            )
             runs += 1
             calls += len(r.certify_log)
             first += sum(1 for k, ok in r.certify_log if k == 0 and ok)
@@ -69,7 +71,10 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         "| case | runs | judged plan calls | certified first try | certified in the end | first-try rate | wall (s) |",
         "|---|---:|---:|---:|---:|---:|---:|",
-        *(f"| {c} | {n} | {k} | {f} | {ce} | {100 * r:.1f} % | {w:.0f} |" for c, n, k, f, ce, r, w in rows),
+        *(
+            f"| {c} | {n} | {k} | {f} | {ce} | {100 * r:.1f} % | {w:.0f} |"
+            for c, n, k, f, ce, r, w in rows
+        ),
         "",
         "| case | first rejection's reason | count |",
         "|---|---|---:|",
@@ -77,7 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     ]
     text = "\n".join(lines)
     print(text)
-    atomic_write_text(args.out, f"# Certificate first-try rate\n\n`{' '.join(sys.argv)}`\n\n{text}\n")
+    atomic_write_text(
+        args.out, f"# Certificate first-try rate\n\n`{' '.join(sys.argv)}`\n\n{text}\n"
+    )
     return 0
 
 

@@ -84,7 +84,9 @@ class Flight:
         self.events: list[SimEvent] = []
         self.plans: list[tuple[float, PlanResult]] = []
         self.solve_times: list[float] = []
-        self.certify_log: list[tuple[int, bool]] = []  # per judged plan call: (rejections, certified)
+        self.certify_log: list[
+            tuple[int, bool]
+        ] = []  # per judged plan call: (rejections, certified)
         self.failures = 0  # failed plan calls in a row
         self.t = 0.0
         self.x = np.asarray(loop.problem.x0, dtype=float)

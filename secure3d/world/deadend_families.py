@@ -49,9 +49,7 @@ def _wall(
     return "dead_end", span_box(prep, base, p[k], across, half, z)
 
 
-def dead_end_variant(
-    prep: Placement, base: Scenario, rng: np.random.Generator, i: int
-) -> Scenario:
+def dead_end_variant(prep: Placement, base: Scenario, rng: np.random.Generator, i: int) -> Scenario:
     """Variant ``i`` of :data:`DEAD_END` (pure in its inputs)."""
     kind, box = place_hidden(prep, base, rng, _wall)
     return hidden_variant(base, kind, box, i, "deadend")
