@@ -77,6 +77,16 @@ class PlannerOptions:
     obstacle_radius : obstacles farther than this from a node's hull are ignored there (m).
     occlusion : require the line-of-sight hull conv({o_j} ∪ E_i) to miss known obstacles (beyond the
         paper, whose frustum sees through walls).
+    interval_rows : secure IPOPT transcription only: node i+1's reactive set must also lie in node
+        i's view (the frustum of node j(i) < i, with a clear sight through node i's separating
+        planes) and clear of node i's obstacle slots through those planes. Both ends of the
+        interval then satisfy one condition that is convex in the set's (centre, shape), so every
+        ellipsoid interpolated between them does too (the support n.c + |M^T n| is convex in
+        (c, M)); what is left between the nodes is the trajectory's curvature, which the margin
+        covers. After a start-region node only the clearance is added. Off by default: measured
+        (``benchmarks/results/certificate_rate.md``) they removed the first-try rejections of a
+        3D-occlusion flight, but cost 3-50x the solve time of shipped scenarios' plans (blind_corner
+        0.18 -> 1.55 s) and thin_pole's plan ran out of its budget.
     start_region_radius : half-size of the box around the start position counted as observed (m).
     effort_weight : weight of the normalised control effort added to the final time (regularises
         the bang-bang minimum-time solution; small).
@@ -108,6 +118,7 @@ class PlannerOptions:
     one_sided_duals: bool = False
     obstacle_radius: float = 1.5
     occlusion: bool = True
+    interval_rows: bool = False
     start_region_radius: float = 1.0
     effort_weight: float = 1e-3
     max_iter: int = 500
