@@ -280,15 +280,116 @@ def secure_speed_caps(
     return speeds[np.maximum(first_bad - 1, 0)]
 
 
+#: A turn-in-place vehicle whose path starts more than this far (rad) from its heading first brakes
+#: to rest along its heading and turns on the spot in the guess (see :func:`stop_and_turn`).
+TURN_ROUND_ANGLE = np.pi / 2
+
+
+def stop_and_turn(
+    p0: np.ndarray, v0: float, yaw0: float, yaw1: float, a_max: float, yaw_rate: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A turn-in-place vehicle's way round: brake at ``a_max`` from speed ``v0`` (m/s, along the
+    heading ``yaw0``) at ``p0`` (3,) to rest, then turn on the spot to ``yaw1`` at 70 % of
+    ``yaw_rate``. Returns samples (times (n,), positions (n, 3), velocities (n, 3), yaws (n,))
+    from t = 0; the last one at rest, facing ``yaw1``.
+
+    Without it a guess for a robot facing a dead end flipped its heading by pi in one node while
+    still driving at 1.3 m/s, and IPOPT ran out of iterations (issue 16, diff drive with dead
+    ends)."""
+    heading = np.array([np.cos(yaw0), np.sin(yaw0), 0.0])
+    v0 = max(float(v0), 0.0)
+    t_b = v0 / a_max
+    tb = np.linspace(0.0, t_b, 8)
+    along = v0 * tb - 0.5 * a_max * tb**2
+    turn = abs(yaw1 - yaw0) / (0.7 * yaw_rate)
+    tt = t_b + np.linspace(0.0, turn, 9)[1:]
+    times = np.concatenate([tb, tt])
+    pos = np.concatenate(
+        [p0 + along[:, None] * heading, np.repeat([p0 + along[-1] * heading], 8, 0)]
+    )
+    vel = np.concatenate([(v0 - a_max * tb)[:, None] * heading, np.zeros((8, 3))])
+    yaws = np.concatenate([np.full(8, yaw0), np.linspace(yaw0, yaw1, 9)[1:]])
+    return times, pos, vel, yaws
+
+
+def _turn_round(
+    problem: PlanningProblem, pts: np.ndarray, arc: np.ndarray, a_max: float, yaw_rate: float
+):
+    """The stop-and-turn samples for a turn-in-place model whose path ``pts`` leaves against its
+    heading (see :data:`TURN_ROUND_ANGLE`), or None."""
+    model = problem.model
+    if model.name != "diff_drive" or arc[-1] <= 0.0:
+        return None
+    yaw0 = float(model.yaw(problem.x0))
+    d = pts[min(np.searchsorted(arc, 0.3), len(pts) - 1)] - pts[0]
+    yaw1 = float(np.arctan2(d[1], d[0]))
+    yaw1 += np.round((yaw0 - yaw1) / (2 * np.pi)) * 2 * np.pi
+    if abs(yaw1 - yaw0) <= TURN_ROUND_ANGLE:
+        return None
+    v0 = float(np.dot(model.velocity(problem.x0)[:2], [np.cos(yaw0), np.sin(yaw0)]))
+    p0 = np.asarray(model.position(problem.x0), dtype=float).ravel()
+    return stop_and_turn(p0, v0, yaw0, yaw1, a_max, yaw_rate)
+
+
 def profile_guess(
     problem: PlanningProblem, path: np.ndarray, speed_fraction: float, secure: bool
 ) -> Guess:
     """Time-parametrise ``path``: speed caps (limit, yaw rate, and for the secure planner the
     visibility of the reactive set), then forward/backward acceleration passes; K nodes equally
-    spaced in time."""
+    spaced in time. A turn-in-place vehicle whose path leaves against its heading first stops and
+    turns round (:func:`stop_and_turn`)."""
     model = problem.model
     K = problem.options.nodes
     pts, arc = _densify(path, 0.2)
+    v_max = float(getattr(model.limits, "max_speed", 2.0))
+    a_max = 0.6 * float(getattr(model.limits, "max_accel", 3.0))
+    yaw_rate = float(
+        getattr(model.limits, "max_yaw_rate", getattr(model.limits, "max_ang_speed", 2.0))
+    )
+    yaw0 = float(model.yaw(problem.x0))
+    v_start = min(float(np.linalg.norm(model.velocity(problem.x0))), v_max)
+    prefix = _turn_round(problem, pts, arc, a_max, yaw_rate)
+    if prefix is not None:
+        # the path then starts where the robot stopped (back over its braking distance)
+        pts, arc = _densify(np.vstack([prefix[1][-1], path]), 0.2)
+        yaw0, v_start = float(prefix[3][-1]), 0.0
+    t_arc, v, yaw, tang = _speed_profile(problem, pts, arc, speed_fraction, secure, yaw0, v_start)
+    if prefix is None:
+        times = np.linspace(0.0, t_arc[-1], K)
+        s_k = np.interp(times, t_arc, arc)
+        pos = np.stack([np.interp(s_k, arc, pts[:, d]) for d in range(3)], axis=1)
+        vel = np.stack([np.interp(s_k, arc, v * tang[:, d]) for d in range(3)], axis=1)
+        yaw_k = np.interp(s_k, arc, yaw)
+    else:  # stop, turn on the spot (no arc length), then the path: interpolate in time
+        t0 = prefix[0][-1]
+        t_all = np.concatenate([prefix[0], t0 + t_arc[1:]])
+        p_all = np.concatenate([prefix[1], pts[1:]])
+        v_all = np.concatenate([prefix[2], v[1:, None] * tang[1:]])
+        y_all = np.concatenate([prefix[3], yaw[1:]])
+        times = np.linspace(0.0, t_all[-1], K)
+        pos = np.stack([np.interp(times, t_all, p_all[:, d]) for d in range(3)], axis=1)
+        vel = np.stack([np.interp(times, t_all, v_all[:, d]) for d in range(3)], axis=1)
+        yaw_k = np.interp(times, t_all, y_all)
+    states = model.initial_states(pos, vel, yaw_k)
+    states[0] = problem.x0
+    controls = np.stack([model.nominal_control(states[k]) for k in range(K)])
+    return Guess(times=times, states=states, controls=controls, path=path)
+
+
+def _speed_profile(
+    problem: PlanningProblem,
+    pts: np.ndarray,
+    arc: np.ndarray,
+    speed_fraction: float,
+    secure: bool,
+    yaw0: float,
+    v_start: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Speeds along the densified path ``pts`` (n, 3) at arc lengths ``arc`` (n,): caps (limit,
+    yaw rate, and for the secure planner the visibility of the reactive set), then forward and
+    backward acceleration passes from ``v_start`` to rest. Returns (times (n,), speeds (n,),
+    yaws (n,), unit tangents (n, 3))."""
+    model = problem.model
     tang = np.gradient(pts, arc, axis=0)
     tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
     v_max = float(getattr(model.limits, "max_speed", 2.0))
@@ -296,7 +397,6 @@ def profile_guess(
     yaw_rate = float(
         getattr(model.limits, "max_yaw_rate", getattr(model.limits, "max_ang_speed", 2.0))
     )
-    yaw0 = float(model.yaw(problem.x0))
     if model.name == "diff_drive":
         yaw = look_ahead_yaw(pts, arc, 0.0, yaw0)
     else:
@@ -309,23 +409,14 @@ def profile_guess(
     cap = np.maximum(cap, 0.05)
     v = cap.copy()
     ds = np.diff(arc)
-    v[0] = min(float(np.linalg.norm(model.velocity(problem.x0))), v_max)
+    v[0] = v_start
     for i in range(1, len(v)):
         v[i] = min(v[i], np.sqrt(v[i - 1] ** 2 + 2 * a_max * ds[i - 1]))
     v[-1] = 0.0
     for i in range(len(v) - 2, 0, -1):
         v[i] = min(v[i], np.sqrt(v[i + 1] ** 2 + 2 * a_max * ds[i]))
     dt = 2 * ds / np.maximum(v[:-1] + v[1:], 1e-3)
-    t_arc = np.concatenate([[0.0], np.cumsum(dt)])
-    times = np.linspace(0.0, t_arc[-1], K)
-    s_k = np.interp(times, t_arc, arc)
-    pos = np.stack([np.interp(s_k, arc, pts[:, d]) for d in range(3)], axis=1)
-    vel = np.stack([np.interp(s_k, arc, v * tang[:, d]) for d in range(3)], axis=1)
-    yaw_k = np.interp(s_k, arc, yaw)
-    states = model.initial_states(pos, vel, yaw_k)
-    states[0] = problem.x0
-    controls = np.stack([model.nominal_control(states[k]) for k in range(K)])
-    return Guess(times=times, states=states, controls=controls, path=path)
+    return np.concatenate([[0.0], np.cumsum(dt)]), v, yaw, tang
 
 
 def centre_path(

@@ -26,7 +26,7 @@ import casadi as ca
 
 from secure3d.sigint import held_sigint
 
-__all__ = ["budget_spent", "deadline", "interruptible", "stop_callback"]
+__all__ = ["budget_spent", "deadline", "interruptible", "stop_callback", "stopped_for_budget"]
 
 _requested = threading.Event()
 _budget = threading.local()
@@ -36,9 +36,15 @@ def _deadline_now() -> float:
     return getattr(_budget, "deadline", math.inf)
 
 
-def budget_spent() -> bool:
-    """True once the innermost :func:`deadline` of this thread has passed."""
-    return time.monotonic() >= _deadline_now()
+def budget_spent(ahead: float = 0.0) -> bool:
+    """True once the innermost :func:`deadline` of this thread has passed, or will have passed
+    ``ahead`` seconds from now."""
+    return time.monotonic() + ahead >= _deadline_now()
+
+
+def stopped_for_budget() -> bool:
+    """Whether the last solve of this thread was stopped by its budget (not by Ctrl-C)."""
+    return bool(getattr(_budget, "stopped", False))
 
 
 @contextlib.contextmanager
@@ -76,7 +82,17 @@ class _StopCallback(ca.Callback):
         return self._sizes[ca.nlpsol_out(i)]
 
     def eval(self, args: list) -> list:
-        return [1.0 if _requested.is_set() or budget_spent() else 0.0]
+        # Stop when the budget would be spent before the next iteration ends (an iteration costs
+        # about as long as the last one): a budget is a bound, not a point to overrun by one
+        # iteration (up to 2.1 s over a 10 s budget under load, issue 16).
+        now = time.monotonic()
+        last = getattr(_budget, "last_iteration", None)  # reset by interruptible() per solve
+        _budget.last_iteration = now
+        gap = now - last if last is not None else 0.0
+        if budget_spent(ahead=gap):
+            _budget.stopped = True
+            return [1.0]
+        return [1.0 if _requested.is_set() else 0.0]
 
 
 def stop_callback(n_x: int, n_g: int, n_p: int) -> ca.Callback:
@@ -100,7 +116,10 @@ def stop_callback(n_x: int, n_g: int, n_p: int) -> ca.Callback:
 def interruptible() -> Iterator[None]:
     """Run a solve so that Ctrl-C stops it within one IPOPT iteration and raises KeyboardInterrupt.
 
-    Outside the main thread (where Python cannot set signal handlers) it changes nothing.
+    Outside the main thread (where Python cannot set signal handlers) it changes nothing. It also
+    starts the solve's iteration clock, by which the budget stops a solve one iteration early.
     """
+    _budget.last_iteration = None
+    _budget.stopped = False
     with held_sigint(_requested, "plan interrupted"):
         yield

@@ -26,7 +26,12 @@ from secure3d.planning.blas import pin_blas_threads
 from secure3d.planning.collocation import T_MAX, T_MIN, NLPCache, TranscribedNLP
 from secure3d.planning.fatrop_transcription import fatrop_status
 from secure3d.planning.guess import Guess, NoPathError, initial_guess, profile_guess
-from secure3d.planning.interrupt import budget_spent, deadline, interruptible
+from secure3d.planning.interrupt import (
+    budget_spent,
+    deadline,
+    interruptible,
+    stopped_for_budget,
+)
 from secure3d.planning.problem import PlanningProblem, problem_from_scenario
 from secure3d.planning.result import Certificate, PlanResult, PlanStatus
 from secure3d.planning.trajectory import remainder_keeping_nodes, resample
@@ -214,7 +219,7 @@ def _solve_once(
     viol = _violations(nlp, w, p, lbg, ubg)
     worst = max(viol.values(), default=0.0)
     rs = str(stats.get("return_status", "unknown"))
-    if rs == "User_Requested_Stop" and not budget_spent():
+    if rs == "User_Requested_Stop" and not (budget_spent() or stopped_for_budget()):
         # Ctrl-C (planning/interrupt.py): the user asked to stop, not to try the next start.
         raise KeyboardInterrupt("solve interrupted")
     status = _IPOPT_STATUS.get(
