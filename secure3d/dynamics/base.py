@@ -25,6 +25,7 @@ from secure3d.dynamics import _symbolic as sym
 from secure3d.dynamics.integrate import rk4_step
 from secure3d.errors import ConfigError
 from secure3d.geometry import transforms
+from secure3d.validation import is_real
 
 Vec3 = tuple[float, float, float]
 
@@ -38,7 +39,7 @@ def check_positive(owner: str, name: str, value: Any, *, allow_zero: bool = Fals
     name : field name (the key scenario files use under ``vehicle.limits``).
     value : the user's value; must be a real number, finite and > 0 (>= 0 with ``allow_zero``).
     """
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+    if not is_real(value, numpy=True):
         raise ConfigError(f"{owner}.{name}: expected a number, got {value!r}")
     v = float(value)
     if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
@@ -74,7 +75,7 @@ class CameraMount:
 
     def __post_init__(self) -> None:
         p = self.pitch
-        if isinstance(p, bool) or not isinstance(p, (int, float, np.integer, np.floating)):
+        if not is_real(p, numpy=True):
             raise ConfigError(f"CameraMount.pitch: expected a number (rad), got {p!r}")
         if not (math.isfinite(float(p)) and abs(float(p)) < math.pi / 2):
             raise ConfigError(

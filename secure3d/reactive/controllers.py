@@ -34,6 +34,7 @@ from secure3d.dynamics.integrate import _check_dt
 from secure3d.dynamics.point_mass import PointMass
 from secure3d.dynamics.quadrotor import Quadrotor
 from secure3d.errors import ConfigError
+from secure3d.validation import is_int, is_real
 
 #: Speed (m/s) and angular speed (rad/s) below which a manoeuvre counts as stopped.
 REST_SPEED = 1e-3
@@ -191,12 +192,7 @@ class QuadrotorBrakingGains:
     def __post_init__(self) -> None:
         for name in ("decel_fraction", "velocity_time_constant", "attitude_gain"):
             v = getattr(self, name)
-            if (
-                isinstance(v, bool)
-                or not isinstance(v, (int, float))
-                or not math.isfinite(v)
-                or v <= 0
-            ):
+            if not is_real(v) or not math.isfinite(v) or v <= 0:
                 raise ConfigError(
                     f"QuadrotorBrakingGains.{name}: must be finite and > 0, got {v!r}"
                 )
@@ -349,7 +345,7 @@ class MPCWeights:
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            ok = is_real(v) and math.isfinite(v)
             if not ok or v < 0 or (f.name in ("drift", "effort") and v == 0):
                 raise ConfigError(
                     f"MPCWeights.{f.name}: must be finite and >= 0 (> 0 for drift and "
@@ -412,7 +408,7 @@ class MPCReactiveController(ReactiveController):
             raise ConfigError(
                 f"MPCReactiveController.model: implemented for point_mass, got {model.name!r}"
             )
-        if isinstance(horizon, bool) or not isinstance(horizon, int) or not 2 <= horizon <= 200:
+        if not is_int(horizon) or not 2 <= horizon <= 200:
             raise ConfigError(
                 f"MPCReactiveController.horizon: must be an integer in [2, 200], got {horizon!r}"
             )

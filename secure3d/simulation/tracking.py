@@ -30,6 +30,7 @@ import numpy as np
 
 from secure3d.dynamics.base import VehicleModel
 from secure3d.errors import ConfigError, GeometryError
+from secure3d.validation import is_real
 
 #: Indices of the quaternion (w, x, y, z) in the quadrotor state.
 _QUAT = slice(6, 10)
@@ -74,12 +75,7 @@ class TrackerGains:
     def __post_init__(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
-            if (
-                isinstance(v, bool)
-                or not isinstance(v, (int, float))
-                or not math.isfinite(v)
-                or v <= 0
-            ):
+            if not is_real(v) or not math.isfinite(v) or v <= 0:
                 raise ConfigError(f"TrackerGains.{f.name}: must be finite and > 0, got {v!r}")
             object.__setattr__(self, f.name, float(v))
 

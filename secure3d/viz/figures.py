@@ -28,6 +28,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from secure3d.errors import ConfigError, GeometryError
 from secure3d.outputs import atomic_output
+from secure3d.validation import is_int_in
 from secure3d.world.spec import Bounds, Box, MeshObstacle
 
 #: Colours by planner label; other labels cycle through matplotlib's default palette.
@@ -242,7 +243,7 @@ def draw_top_down(
         Centres of the voxels (edge ``voxel_size``) the server's map claims occupied: those cut by
         the slice are outlined in red.
     """
-    if isinstance(ellipse_every, bool) or not isinstance(ellipse_every, int) or ellipse_every < 1:
+    if not is_int_in(ellipse_every, 1):
         raise ConfigError(f"ellipse_every: must be a positive integer, got {ellipse_every!r}")
     hidden = set(hidden_names)
     truth = [*true_boxes, *true_meshes]

@@ -34,6 +34,7 @@ import numpy as np
 import yaml
 
 from secure3d.errors import ConfigError, ScenarioError
+from secure3d.validation import is_int, is_real
 from secure3d.world import spec
 from secure3d.world.attacks import octomap_voxel_boxes
 from secure3d.world.bundled import resolve_scenario
@@ -238,7 +239,7 @@ def _check_keys(
 
 
 def _as_float(value: object, path: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if not is_real(value):
         hint = ""
         if isinstance(value, str):
             try:
@@ -260,7 +261,7 @@ def _finite(value: int | float) -> bool:
 
 
 def _as_int(value: object, path: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
+    if not is_int(value):
         raise _FieldError(path, "expected an integer", value)
     return value
 
@@ -287,7 +288,7 @@ def _as_vec3(value: object, path: str) -> tuple[float, float, float]:
     if not isinstance(value, list) or len(value) != 3:
         raise _FieldError(path, "expected a list of 3 numbers", value)
     for i, x in enumerate(value):
-        if isinstance(x, bool) or not isinstance(x, (int, float)):
+        if not is_real(x):
             raise _FieldError(f"{path}[{i}]", "expected a number", x)
         if not _finite(x):
             raise _FieldError(path, "must be finite", value)

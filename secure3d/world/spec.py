@@ -29,6 +29,7 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from secure3d.errors import ScenarioError
+from secure3d.validation import is_int_in, is_real
 
 Vec3 = tuple[float, float, float]
 
@@ -75,7 +76,7 @@ def _vec3(value: object, what: str) -> Vec3:
 
 
 def _number(value: object, what: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, Real):
+    if not is_real(value, types=(Real,)):
         raise ScenarioError(f"{what}: expected a number (got {_short(value)})")
     v = float(value)
     if not math.isfinite(v):
@@ -92,8 +93,7 @@ def _positive(value: object, what: str, *, allow_zero: bool = False) -> float:
 
 
 def _integer(value: object, what: str, lo: int, hi: int | None = None) -> int:
-    ok = not isinstance(value, bool) and isinstance(value, (int, np.integer))
-    if not ok or value < lo or (hi is not None and value > hi):
+    if not is_int_in(value, lo, hi, numpy=True):
         span = f"[{lo}, {hi}]" if hi is not None else f">= {lo}"
         raise ScenarioError(f"{what}: must be an integer {span} (got {_short(value)})")
     return int(value)
