@@ -52,11 +52,12 @@ LAYERS = ("geometry", "mapping", "dynamics", "reactive", "world", "planning", "s
 
 
 def layer(mod: str) -> int:
-    """0 for package-wide helpers (errors, outputs, ...), 1.. for LAYERS, 99 for the CLI edge."""
+    """0 for package-wide helpers (errors, outputs, ...), 1.. for LAYERS, 99 for the edges that
+    consume everything (the CLI, ``secure3d.warm``)."""
     parts = mod.split(".")
     if len(parts) > 1 and parts[1] in LAYERS:
         return LAYERS.index(parts[1]) + 1
-    if mod in ("secure3d", "secure3d.__main__") or mod.startswith("secure3d.cli"):
+    if mod in ("secure3d", "secure3d.__main__", "secure3d.warm") or mod.startswith("secure3d.cli"):
         return 99
     return 0
 
