@@ -114,6 +114,12 @@ class VehicleModel(ABC):
     state_names: ClassVar[tuple[str, ...]]
     control_names: ClassVar[tuple[str, ...]]
     limits_type: ClassVar[type]
+    #: Moves in a horizontal plane at a fixed height (the paper's planar robot).
+    planar: ClassVar[bool] = False
+    #: Its heading is its direction of travel (non-holonomic): a path's yaw is its tangent's.
+    heading_follows_path: ClassVar[bool] = False
+    #: State entries holding an attitude quaternion (w, x, y, z), or None without one.
+    quaternion_slice: ClassVar[slice | None] = None
 
     def __init__(
         self, limits: Any = None, body_radius: float = 0.2, mount: CameraMount | None = None
@@ -300,6 +306,55 @@ class VehicleModel(ABC):
     def nominal_control(self, x: np.ndarray) -> np.ndarray:
         """Control that keeps the velocity (zero acceleration, or hover): (nu,) or (N, nu)."""
         return np.zeros((*np.shape(x)[:-1], self.nu))
+
+    # -- capabilities (what callers used to learn by checking the vehicle's name) -----------------
+
+    @property
+    def speed_limit(self) -> float:
+        """Largest speed (m/s)."""
+        return float(self.limits.max_speed)
+
+    @property
+    def yaw_rate_limit(self) -> float:
+        """Largest rate of turn of the heading (rad/s)."""
+        return float(self.limits.max_yaw_rate)
+
+    @property
+    def nominal_accel(self) -> float:
+        """Acceleration (m/s^2) to time-parametrise an initial guess with (the bound where the
+        model has one)."""
+        return float(self.limits.max_accel)
+
+    def rest_residuals(self, x: Any) -> list[Any]:
+        """Entries of state ``x`` (numpy or CasADi) that must also vanish for the robot to be at
+        rest, beyond the velocity the planner already pins (e.g. a planar robot's turn rate)."""
+        return []
+
+    def turn_in_place_control(
+        self, u: np.ndarray, x: np.ndarray, yaw_error: float, rate_fraction: float, dt: float
+    ) -> np.ndarray:
+        """``u`` (a control holding still) changed to turn the heading by ``yaw_error`` (rad), at
+        up to ``rate_fraction`` of the yaw-rate limit, for a step of ``dt`` s (in place)."""
+        w = rate_fraction * self.yaw_rate_limit
+        u[3] = float(np.clip(3.0 * yaw_error, -w, w))
+        return u
+
+    def sample_states(
+        self, positions: np.ndarray, speeds: Any, rng: np.random.Generator
+    ) -> np.ndarray:
+        """Random states at ``positions`` (n, 3) within the limits: ``speeds(top)`` draws (n,)
+        magnitudes up to ``top``. (n, nx) float."""
+        raise ConfigError(f"sample_states: no sampler for model {self.name!r}")
+
+    def sample_controls(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` random controls, uniform in the control box: (n, nu) float."""
+        return self.u_lo + (self.u_hi - self.u_lo) * rng.random((n, self.nu))
+
+
+def sample_unit_vectors(n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` random directions, uniform on the sphere: (n, 3) float."""
+    u = rng.normal(size=(n, 3))
+    return u / np.linalg.norm(u, axis=1, keepdims=True)
 
 
 def _frozen(values: list[float]) -> np.ndarray:

@@ -8,6 +8,7 @@ moves in the horizontal plane at the fixed height ``limits.height``; the camera 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
@@ -55,6 +56,8 @@ class DiffDrive(VehicleModel):
     state_names = ("x", "y", "theta", "v", "omega")
     control_names = ("a", "alpha")
     limits_type = DiffDriveLimits
+    planar = True
+    heading_follows_path = True
     limits: DiffDriveLimits
 
     def _control_bounds(self) -> tuple[list[float], list[float]]:
@@ -101,3 +104,33 @@ class DiffDrive(VehicleModel):
             raise ConfigError(f"DiffDrive.initial_state: yaw must be finite, got {yaw!r}")
         speed = float(v[0] * np.cos(yaw) + v[1] * np.sin(yaw))
         return np.array([p[0], p[1], yaw, speed, 0.0])
+
+    @property
+    def yaw_rate_limit(self) -> float:
+        return float(self.limits.max_ang_speed)
+
+    def rest_residuals(self, x: Any) -> list[Any]:
+        """The turn rate: a wheeled robot at rest does not spin in place."""
+        return [x[4]]
+
+    def turn_in_place_control(
+        self, u: np.ndarray, x: np.ndarray, yaw_error: float, rate_fraction: float, dt: float
+    ) -> np.ndarray:
+        """Accelerate the turn rate towards a rate proportional to ``yaw_error`` (saturated)."""
+        lim = self.limits
+        rate = float(np.clip(3.0 * yaw_error, -1, 1)) * rate_fraction * lim.max_ang_speed
+        u[1] = np.clip((rate - float(x[4])) / dt, -lim.max_ang_accel, lim.max_ang_accel)
+        return u
+
+    def sample_states(
+        self, positions: np.ndarray, speeds: Any, rng: np.random.Generator
+    ) -> np.ndarray:
+        """Random states in the plane; signed speed and turn rate of either sign."""
+        n = len(positions)
+        X = np.zeros((n, self.nx))
+        X[:, :2] = positions[:, :2]
+        X[:, 2] = rng.uniform(-math.pi, math.pi, n)
+        v = speeds(self.limits.max_speed) * rng.choice([-1.0, 1.0], n)
+        w = speeds(self.limits.max_ang_speed) * rng.choice([-1.0, 1.0], n)
+        X[:, 3], X[:, 4] = v, w
+        return X

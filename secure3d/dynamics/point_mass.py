@@ -8,6 +8,7 @@ looks along the yaw heading with the mount's downward pitch.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, Literal
@@ -15,7 +16,7 @@ from typing import Any, Literal
 import numpy as np
 
 from secure3d.dynamics import _symbolic as sym
-from secure3d.dynamics.base import VehicleModel, normalise_fields, vec3
+from secure3d.dynamics.base import VehicleModel, normalise_fields, sample_unit_vectors, vec3
 from secure3d.errors import ConfigError
 from secure3d.geometry.transforms import yaw_matrix
 
@@ -113,6 +114,24 @@ class PointMass(VehicleModel):
         if not np.all(np.isfinite(out[:, :6])):
             raise ConfigError("initial_states: positions and velocities must be finite")
         return out
+
+    def sample_states(
+        self, positions: np.ndarray, speeds: Any, rng: np.random.Generator
+    ) -> np.ndarray:
+        n = len(positions)
+        X = np.zeros((n, self.nx))
+        X[:, :3] = positions
+        X[:, 3:6] = speeds(self.limits.max_speed)[:, None] * sample_unit_vectors(n, rng)
+        X[:, 6] = rng.uniform(-math.pi, math.pi, n)
+        return X
+
+    def sample_controls(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """Uniform in the control box; with a norm bound, the acceleration uniform in the ball."""
+        U = super().sample_controls(n, rng)
+        if self.limits.accel_norm == "ball":
+            a = self.limits.max_accel * rng.random(n) ** (1 / 3)
+            U[:, :3] = a[:, None] * sample_unit_vectors(n, rng)
+        return U
 
     @property
     def braking_deceleration(self) -> float:

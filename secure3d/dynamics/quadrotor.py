@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 
 from secure3d.dynamics import _symbolic as sym
-from secure3d.dynamics.base import VehicleModel, normalise_fields, vec3
+from secure3d.dynamics.base import VehicleModel, normalise_fields, sample_unit_vectors, vec3
 from secure3d.errors import ConfigError
-from secure3d.geometry.transforms import quat_to_matrix
+from secure3d.geometry.transforms import quat_multiply, quat_to_matrix
 
 
 @dataclass(frozen=True)
@@ -76,6 +76,7 @@ class Quadrotor(VehicleModel):
     state_names = ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")
     control_names = ("thrust", "wx", "wy", "wz")
     limits_type = QuadrotorLimits
+    quaternion_slice = slice(6, 10)
     limits: QuadrotorLimits
 
     def _control_bounds(self) -> tuple[list[float], list[float]]:
@@ -160,3 +161,29 @@ class Quadrotor(VehicleModel):
         u = np.zeros((*np.shape(x)[:-1], self.nu))
         u[..., 0] = self.limits.gravity
         return u
+
+    @property
+    def nominal_accel(self) -> float:
+        """3 m/s^2: thrust and tilt bound the acceleration together, with no single limit; the
+        initial guess's time-parametrisation assumes this much."""
+        return 3.0
+
+    def sample_states(
+        self, positions: np.ndarray, speeds: Any, rng: np.random.Generator
+    ) -> np.ndarray:
+        """Random states; the attitude tilted about a random horizontal axis, then yawed."""
+        n = len(positions)
+        X = np.zeros((n, self.nx))
+        X[:, :3] = positions
+        X[:, 3:6] = speeds(self.limits.max_speed)[:, None] * sample_unit_vectors(n, rng)
+        yaw = rng.uniform(-math.pi, math.pi, n)
+        tilt = speeds(self.limits.max_tilt)
+        axis_angle = rng.uniform(-math.pi, math.pi, n)
+        # Tilt about a random horizontal axis, then yaw: q = q_tilt * q_yaw.
+        ca, sa = np.cos(tilt / 2), np.sin(tilt / 2)
+        ax, ay = np.cos(axis_angle), np.sin(axis_angle)
+        cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
+        q_t = np.stack([ca, sa * ax, sa * ay, np.zeros(n)], axis=1)
+        q_y = np.stack([cy, np.zeros(n), np.zeros(n), sy], axis=1)
+        X[:, 6:10] = quat_multiply(q_t, q_y)
+        return X

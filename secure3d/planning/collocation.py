@@ -628,9 +628,7 @@ def camera_dims(model: object) -> tuple[int, ...]:
 
 def model_terminal_rows(model: object, x_end: ca.SX) -> list[ca.SX]:
     """Extra terminal equalities so the robot is really at rest (angular rates of planar models)."""
-    if getattr(model, "name", "") == "diff_drive":
-        return [x_end[4]]
-    return []
+    return list(model.rest_residuals(x_end))
 
 
 def model_identity(model: object) -> tuple:

@@ -39,7 +39,7 @@ class NoPathError(RuntimeError):
 
 def _planar(problem: PlanningProblem) -> float | None:
     """Fixed height of a planar model, or None for 3D models."""
-    if problem.model.name == "diff_drive":
+    if problem.model.planar:
         return float(problem.start_position[2])
     return None
 
@@ -291,16 +291,12 @@ def profile_guess(
     pts, arc = _densify(path, 0.2)
     tang = np.gradient(pts, arc, axis=0)
     tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
-    v_max = float(getattr(model.limits, "max_speed", 2.0))
-    a_max = 0.6 * float(getattr(model.limits, "max_accel", 3.0))
-    yaw_rate = float(
-        getattr(model.limits, "max_yaw_rate", getattr(model.limits, "max_ang_speed", 2.0))
-    )
+    v_max = model.speed_limit
+    a_max = 0.6 * model.nominal_accel
+    yaw_rate = model.yaw_rate_limit
     yaw0 = float(model.yaw(problem.x0))
-    if model.name == "diff_drive":
-        yaw = look_ahead_yaw(pts, arc, 0.0, yaw0)
-    else:
-        yaw = look_ahead_yaw(pts, arc, 1.5, yaw0)
+    # A robot that heads where it goes faces the path's tangent; the others look 1.5 m ahead.
+    yaw = look_ahead_yaw(pts, arc, 0.0 if model.heading_follows_path else 1.5, yaw0)
     cap = np.full(len(pts), speed_fraction * v_max)
     dyaw = np.abs(np.gradient(yaw, arc))
     cap = np.minimum(cap, 0.7 * yaw_rate / np.maximum(dyaw, 1e-6))

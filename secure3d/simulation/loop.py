@@ -292,12 +292,5 @@ def scan_control(
     """Hold still (the braking law) while turning the heading towards ``target``."""
     u = np.array(brake.control(x), dtype=float)
     err = heading_error(target, float(model.yaw(x)))
-    name = getattr(model, "name", "")
-    if name == "diff_drive":
-        lim = model.limits
-        rate = float(np.clip(3.0 * err, -1, 1)) * SCAN_RATE_FRACTION * lim.max_ang_speed
-        u[1] = np.clip((rate - float(x[4])) / dt, -lim.max_ang_accel, lim.max_ang_accel)
-    else:  # point mass (yaw rate) and quadrotor (body z rate, level at rest)
-        w = SCAN_RATE_FRACTION * model.limits.max_yaw_rate
-        u[3] = float(np.clip(3.0 * err, -w, w))
+    model.turn_in_place_control(u, x, err, SCAN_RATE_FRACTION, dt)
     return u

@@ -32,9 +32,6 @@ from secure3d.dynamics.base import VehicleModel
 from secure3d.errors import ConfigError, GeometryError
 from secure3d.validation import is_real
 
-#: Indices of the quaternion (w, x, y, z) in the quadrotor state.
-_QUAT = slice(6, 10)
-
 
 @dataclass(frozen=True)
 class TrackerGains:
@@ -139,12 +136,13 @@ class Reference:
                 f"reference: {model.name} needs states (K, {model.nx}) and controls"
                 f" (K, {model.nu}); got {X.shape} and {U.shape}"
             )
-        if model is not None and model.name == "quadrotor":
+        quat = None if model is None else model.quaternion_slice
+        if quat is not None:
             # q and -q are the same attitude; interpolating across a sign flip would pass through 0.
-            q = X[:, _QUAT]
+            q = X[:, quat]
             flips = np.sign(np.einsum("ij,ij->i", q[1:], q[:-1]))
             flips[flips == 0] = 1.0
-            X[1:, _QUAT] *= np.cumprod(flips)[:, None]
+            X[1:, quat] *= np.cumprod(flips)[:, None]
         self.times, self.states, self.controls, self.model = t, X, U, model
         self.derivatives = None if model is None else np.asarray(model.f_batch(X, U), dtype=float)
 

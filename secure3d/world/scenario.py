@@ -549,22 +549,22 @@ def _check_vehicle_model(scenario: Scenario) -> None:
             f"not a valid initial state for {v.model}: {problem}",
             list(st.velocity),
         ) from None
-    if v.model == "diff_drive":
+    if model.heading_follows_path:
         heading = np.array([math.cos(st.yaw), math.sin(st.yaw), 0.0])
         lateral = np.subtract(st.velocity, np.dot(st.velocity, heading) * heading)
         if np.linalg.norm(lateral) > 1e-9 * (1.0 + np.linalg.norm(st.velocity)):
             raise _FieldError(
                 "start.velocity",
-                f"a diff_drive can only move along its heading yaw = {st.yaw:g} rad",
+                f"a {v.model} can only move along its heading yaw = {st.yaw:g} rad",
                 list(st.velocity),
             )
     height = getattr(model.limits, "height", None)
-    if v.model == "diff_drive" and height is not None:
+    if model.planar and height is not None:
         for what, p in (("start", st.position), ("goal", scenario.goal.position)):
             if abs(p[2] - height) > 1e-6:
                 raise _FieldError(
                     f"{what}.position",
-                    f"a diff_drive moves at its fixed height vehicle.limits.height = {height:g} m,"
+                    f"a {v.model} moves at its fixed height vehicle.limits.height = {height:g} m,"
                     " so z must equal it",
                     list(p),
                 )
