@@ -22,16 +22,22 @@ constraints, boundary conditions, obstacle and visibility constraints, solver.
 from __future__ import annotations
 
 import time
-from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
 
-from secure3d.errors import ConfigError
 from secure3d.planning import constraints as cons
 from secure3d.planning.assembled_derivatives import KernelCall, assembled_derivatives
 from secure3d.planning.interrupt import stop_callback
+from secure3d.planning.nlp_cache import (  # noqa: F401  (NLPCache, the identities: re-exported)
+    NLPCache,
+    family_identity,
+    model_identity,
+    nlp_key,
+    register_transcription,
+    transcription,
+)
 from secure3d.planning.problem import PlanningProblem
 
 #: Symbol type of the transcription. Measured on blind_corner (K=40): MX builds in ~0.2 s but its
@@ -399,13 +405,11 @@ def build_nlp(
 
     Every constraint family is one mapped call of its node kernel over the nodes it applies to, so
     the expression graph (and the solver set-up time) does not grow with K.
-    With ``options.solver == "fatrop"`` the stage-wise transcription of
-    :mod:`secure3d.planning.fatrop_transcription` is built instead.
+    With another ``options.solver`` (``"fatrop"``) that solver's transcription is built instead
+    (:data:`secure3d.planning.nlp_cache.TRANSCRIPTIONS`).
     """
-    if problem.options.solver == "fatrop":
-        from secure3d.planning.fatrop_transcription import build_fatrop_nlp  # imports this module
-
-        return build_fatrop_nlp(problem, planner, assignment, kernels)
+    if problem.options.solver != "ipopt":  # another transcription (nlp_cache.TRANSCRIPTIONS)
+        return transcription(problem.options.solver).build(problem, planner, assignment, kernels)
     t0 = time.perf_counter()
     model, o = problem.model, problem.options
     K, nx, nu, S = o.nodes, model.nx, model.nu, o.obstacle_slots
@@ -631,110 +635,4 @@ def model_terminal_rows(model: object, x_end: ca.SX) -> list[ca.SX]:
     return list(model.rest_residuals(x_end))
 
 
-def model_identity(model: object) -> tuple:
-    """What makes two vehicle models interchangeable in an NLP (their frozen configuration)."""
-    return (type(model).__name__, model.name, model.limits, float(model.body_radius), model.mount)
-
-
-def family_identity(family: object) -> tuple:
-    """What makes two reactive-set families interchangeable: class, model, controller, latency and,
-    for fitted families, the coefficients' data file content."""
-    coefs = [
-        getattr(family, a)
-        for a in ("centre_coef", "beta_coef", "gamma_coef", "eta_coef")
-        if hasattr(family, a)
-    ]
-    digest = (
-        hash(b"".join(np.asarray(c_, dtype=float).tobytes() for c_ in coefs)) if coefs else None
-    )
-    return (
-        type(family).__name__,
-        getattr(family, "kind", None),
-        getattr(family, "controller_name", None),
-        float(getattr(family, "latency", 0.0)),
-        model_identity(family.model),
-        digest,
-    )
-
-
-def nlp_key(problem: PlanningProblem, planner: str, assignment: tuple[int, ...]) -> tuple:
-    """What determines the NLP's structure: the same key means the compiled NLP can be reused."""
-    o = problem.options
-    return (
-        model_identity(problem.model),
-        family_identity(problem.family),
-        problem.frustum,
-        planner,
-        o.nodes,
-        o.obstacle_slots,
-        o.one_sided_duals and o.solver == "ipopt",
-        o.collocation,
-        o.margin,
-        o.occlusion if planner == "secure" else False,
-        o.effort_weight,
-        o.solver,
-        o.max_iter,
-        o.time_limit,
-        o.verbose,
-        tuple(problem.bounds_lo),
-        tuple(problem.bounds_hi),
-        o.lookback_encoding if planner == "secure" else "",
-        # the assignment is structure unless it is passed as a parameter (never for fatrop)
-        tuple(assignment)
-        if planner == "secure" and (o.solver == "fatrop" or o.lookback_encoding == "structure")
-        else (),
-    )
-
-
-class NLPCache:
-    """Least-recently-used cache of built NLPs, keyed by structure (see :func:`nlp_key`).
-
-    The cache holds the model and family objects its keys refer to (by id), so those ids stay valid.
-    A simulator keeps one cache for a whole flight; :func:`secure3d.plan` uses a shared default.
-    """
-
-    def __init__(self, max_size: int = 24) -> None:
-        self.max_size = max_size
-        self._items: OrderedDict[tuple, tuple[TranscribedNLP, object, object]] = OrderedDict()
-        self._kernels: OrderedDict[tuple, tuple[NodeKernels, object, object]] = OrderedDict()
-        self.hits = 0
-        self.misses = 0
-
-    def get(
-        self, problem: PlanningProblem, planner: str, assignment: tuple[int, ...]
-    ) -> tuple[TranscribedNLP, bool]:
-        """The NLP for this structure and whether it came from the cache."""
-        key = nlp_key(problem, planner, assignment)
-        item = self._items.get(key)
-        if item is not None:
-            self._items.move_to_end(key)
-            self.hits += 1
-            return item[0], True
-        self.misses += 1
-        kkey = nlp_key(problem, "kernels", ())
-        if kkey not in self._kernels:
-            self._kernels[kkey] = (node_kernels(problem), problem.model, problem.family)
-            while len(self._kernels) > self.max_size:
-                self._kernels.popitem(last=False)
-        built = build_nlp(problem, planner, assignment, self._kernels[kkey][0])
-        self._items[key] = (built, problem.model, problem.family)
-        while len(self._items) > self.max_size:
-            self._items.popitem(last=False)
-        return built, False
-
-    def prepare(self, problem: PlanningProblem, planner: str) -> bool:
-        """Compile ahead the NLP ``planner`` will solve for ``problem``'s structure, so that the
-        first plan does not pay for it. Possible only when the structure does not depend on the
-        look-back assignment (the baseline, or look-backs passed as parameters to IPOPT); returns
-        whether the NLP is cached."""
-        if planner not in ("secure", "baseline"):
-            raise ConfigError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
-        K = problem.options.nodes
-        start_only, first_node = (-1,) * K, (0,) * K
-        if nlp_key(problem, planner, start_only) != nlp_key(problem, planner, first_node):
-            return False  # one NLP per assignment: which one is known only at plan time
-        self.get(problem, planner, start_only)
-        return True
-
-    def __len__(self) -> int:
-        return len(self._items)
+register_transcription("ipopt", build_nlp, node_kernels)

@@ -74,9 +74,9 @@ from secure3d.planning.collocation import (
     NodeKernels,
     TranscribedNLP,
     model_terminal_rows,
-    nlp_key,
     node_kernels,
 )
+from secure3d.planning.nlp_cache import nlp_key, register_transcription
 from secure3d.planning.problem import PlanningProblem
 from secure3d.planning.result import PlanStatus
 
@@ -516,3 +516,6 @@ def build_fatrop_nlp(
         solver_name="fatrop",
         solver_options=opts,
     )
+
+
+register_transcription("fatrop", build_fatrop_nlp, node_kernels)
