@@ -38,7 +38,7 @@ from secure3d.planning.nlp_cache import (  # noqa: F401  (NLPCache, the identiti
     register_transcription,
     transcription,
 )
-from secure3d.planning.problem import PlanningProblem
+from secure3d.planning.problem import Planner, PlanningProblem, Solver
 
 #: Symbol type of the transcription. Measured on blind_corner (K=40): MX builds in ~0.2 s but its
 #: Hessian costs ~18 ms per iteration; SX builds in ~0.6 s and iterates in ~1.5 ms. Builds are
@@ -218,7 +218,7 @@ class TranscribedNLP:
         """Same NLP, solver options tuned for a warm start from a primal-dual guess."""
         if self.warm_solver is None:
             opts = dict(self.solver_options)
-            if self.solver_name == "ipopt":
+            if self.solver_name == Solver.IPOPT:
                 # Measured on blind_corner (K=40, replan 0.1 s along the plan, 3 runs): 41
                 # iterations with mu_init 1e-4 and pushes 1e-6; 28 with these settings.
                 opts.update(
@@ -282,7 +282,7 @@ def _solver_options(problem: PlanningProblem, planner: str = "secure") -> tuple[
         "ipopt.adaptive_mu_globalization": "never-monotone-mode",
         "ipopt.linear_solver": "mumps",
     }
-    if planner == "secure":
+    if planner == Planner.SECURE:
         # No gradient-based row scaling for the secure NLP. Measured over the ten scenarios in
         # maps/ (cold, 1 run each, every plan certified): total cold secure solve 11.1 s -> 9.6 s,
         # blind_corner 0.29 s / 33 iterations -> 0.18 s / 21, six scenarios faster, three the
@@ -408,13 +408,13 @@ def build_nlp(
     With another ``options.solver`` (``"fatrop"``) that solver's transcription is built instead
     (:data:`secure3d.planning.nlp_cache.TRANSCRIPTIONS`).
     """
-    if problem.options.solver != "ipopt":  # another transcription (nlp_cache.TRANSCRIPTIONS)
+    if problem.options.solver != Solver.IPOPT:  # another transcription (nlp_cache.TRANSCRIPTIONS)
         return transcription(problem.options.solver).build(problem, planner, assignment, kernels)
     t0 = time.perf_counter()
     model, o = problem.model, problem.options
     K, nx, nu, S = o.nodes, model.nx, model.nu, o.obstacle_slots
     hermite = o.collocation == "hermite_simpson"
-    secure = planner == "secure"
+    secure = planner == Planner.SECURE
     parametric = secure and o.lookback_encoding == "parameter"
     lay = NLPLayout(
         K=K,
@@ -596,7 +596,7 @@ def build_nlp(
         if derivatives is not None:
             opts["jac_g"], opts["hess_lag"] = derivatives
     stop = None
-    if solver_name == "ipopt":
+    if solver_name == Solver.IPOPT:
         stop = stop_callback(w.numel(), g_all.numel(), p.numel())
         opts["iteration_callback"] = stop  # Ctrl-C stops the solve (planning/interrupt.py)
     solver = ca.nlpsol(f"secure3d_{planner}", solver_name, nlp, opts)

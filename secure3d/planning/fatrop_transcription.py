@@ -77,7 +77,7 @@ from secure3d.planning.collocation import (
     node_kernels,
 )
 from secure3d.planning.nlp_cache import nlp_key, register_transcription
-from secure3d.planning.problem import PlanningProblem
+from secure3d.planning.problem import Planner, PlanningProblem
 from secure3d.planning.result import PlanStatus
 
 #: RK4 steps per node interval. One is exact for the point mass (piecewise-cubic positions). For
@@ -361,7 +361,7 @@ def build_fatrop_nlp(
     check_fatrop_options(problem, planner)
     model, o = problem.model, problem.options
     K, nx, nu, S = o.nodes, model.nx, model.nu, o.obstacle_slots
-    secure = planner == "secure"
+    secure = planner == Planner.SECURE
     kern = kernels if kernels is not None else node_kernels(problem)
     if len(assignment) != K:
         raise ConfigError(f"assignment: expected {K} look-back entries, got {len(assignment)}")

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from secure3d.errors import ConfigError
+from secure3d.planning.problem import Planner, Solver
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.collocation import NodeKernels, TranscribedNLP
@@ -106,10 +107,10 @@ def nlp_key(problem: PlanningProblem, planner: str, assignment: tuple[int, ...])
         planner,
         o.nodes,
         o.obstacle_slots,
-        o.one_sided_duals and o.solver == "ipopt",
+        o.one_sided_duals and o.solver == Solver.IPOPT,
         o.collocation,
         o.margin,
-        o.occlusion if planner == "secure" else False,
+        o.occlusion if planner == Planner.SECURE else False,
         o.effort_weight,
         o.solver,
         o.max_iter,
@@ -117,10 +118,11 @@ def nlp_key(problem: PlanningProblem, planner: str, assignment: tuple[int, ...])
         o.verbose,
         tuple(problem.bounds_lo),
         tuple(problem.bounds_hi),
-        o.lookback_encoding if planner == "secure" else "",
+        o.lookback_encoding if planner == Planner.SECURE else "",
         # the assignment is structure unless it is passed as a parameter (never for fatrop)
         tuple(assignment)
-        if planner == "secure" and (o.solver == "fatrop" or o.lookback_encoding == "structure")
+        if planner == Planner.SECURE
+        and (o.solver == Solver.FATROP or o.lookback_encoding == "structure")
         else (),
     )
 
@@ -167,7 +169,7 @@ class NLPCache:
         first plan does not pay for it. Possible only when the structure does not depend on the
         look-back assignment (the baseline, or look-backs passed as parameters to IPOPT); returns
         whether the NLP is cached."""
-        if planner not in ("secure", "baseline"):
+        if planner not in tuple(Planner):
             raise ConfigError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
         K = problem.options.nodes
         start_only, first_node = (-1,) * K, (0,) * K

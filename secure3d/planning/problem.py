@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
@@ -39,6 +40,23 @@ def _check_positive(name: str, value: float, *, allow_zero: bool = False) -> Non
 
 #: Farthest look-back of the adaptive rule with fatrop (its register depth), unless set.
 FATROP_MAX_SPAN = 6
+
+
+class Planner(StrEnum):
+    """Which problem is solved: the paper's secure NLP (visibility of every reactive set, eq. NLP)
+    or the baseline (the same minimum-time problem without the visibility rows). A ``StrEnum``:
+    ``"secure"`` and ``Planner.SECURE`` compare equal, so callers may pass either."""
+
+    SECURE = "secure"
+    BASELINE = "baseline"
+
+
+class Solver(StrEnum):
+    """The NLP solver (``PlannerOptions.solver``); each has its transcription
+    (:data:`secure3d.planning.nlp_cache.TRANSCRIPTIONS`)."""
+
+    IPOPT = "ipopt"
+    FATROP = "fatrop"
 
 
 @dataclass(frozen=True)
@@ -126,7 +144,7 @@ class PlannerOptions:
         """The adaptive rule's farthest look-back in effect (None: unlimited)."""
         if self.lookback_max_span is not None:
             return self.lookback_max_span
-        return FATROP_MAX_SPAN if self.solver == "fatrop" else None
+        return FATROP_MAX_SPAN if self.solver == Solver.FATROP else None
 
     def __post_init__(self) -> None:
         if not is_int_in(self.nodes, 5, 400):

@@ -27,7 +27,7 @@ from secure3d.planning.collocation import T_MAX, T_MIN, NLPCache, TranscribedNLP
 from secure3d.planning.fatrop_transcription import fatrop_status
 from secure3d.planning.guess import Guess, NoPathError, initial_guess, profile_guess
 from secure3d.planning.interrupt import budget_spent, deadline, interruptible
-from secure3d.planning.problem import PlanningProblem, problem_from_scenario
+from secure3d.planning.problem import Planner, PlanningProblem, Solver, problem_from_scenario
 from secure3d.planning.result import PlanResult, PlanStatus
 from secure3d.planning.trajectory import remainder_keeping_nodes, resample
 
@@ -222,7 +222,7 @@ def _solve_once(
     )
     if rs == "User_Requested_Stop":
         status = PlanStatus.TIME_BUDGET
-    if nlp.solver_name == "fatrop":
+    if nlp.solver_name == Solver.FATROP:
         status, rs = fatrop_status(stats)
     if status is PlanStatus.SUCCESS and worst > FEASIBILITY_TOL:
         status = PlanStatus.INFEASIBLE
@@ -317,8 +317,8 @@ def _result(
         ellipsoid_shapes=geo["M"],
         positions=geo["P"],
         speeds=speeds,
-        lookback=np.array(s.assignment if planner == "secure" else [-1] * K, dtype=int),
-        lookback_rule=problem.options.lookback if planner == "secure" else "none",
+        lookback=np.array(s.assignment if planner == Planner.SECURE else [-1] * K, dtype=int),
+        lookback_rule=problem.options.lookback if planner == Planner.SECURE else "none",
         build_time=build,
         solve_time=solve,
         iterations=iters,
@@ -344,7 +344,7 @@ def _guess_from_warm(problem: PlanningProblem, warm: PlanResult, t_offset: float
     """The previous plan from ``t_offset`` on: its later nodes kept as they are where the NLP takes
     a time grid (IPOPT) and they fit, else resampled on evenly spaced nodes."""
     args = (problem.model, warm.times, warm.states, warm.controls, t_offset)
-    kept = remainder_keeping_nodes(*args) if problem.options.solver == "ipopt" else None
+    kept = remainder_keeping_nodes(*args) if problem.options.solver == Solver.IPOPT else None
     times, X, U = kept if kept is not None else resample(*args, problem.options.nodes)
     X[0] = problem.x0
     return Guess(times=times, states=X, controls=U, path=X[:, :3])
@@ -357,8 +357,8 @@ def _guess_from_path(
     problem's start), time-scaled as the graph-search guess is (:func:`profile_guess`)."""
     later = other.positions[other.times > t_offset + 1e-9]
     path = np.vstack([problem.start_position[None], later if len(later) else problem.goal[None]])
-    frac = 1.0 if planner == "baseline" else problem.options.guess_speed_fraction
-    return profile_guess(problem, path, frac, planner == "secure")
+    frac = 1.0 if planner == Planner.BASELINE else problem.options.guess_speed_fraction
+    return profile_guess(problem, path, frac, planner == Planner.SECURE)
 
 
 def _solve_rounds(
@@ -375,7 +375,7 @@ def _solve_rounds(
     ``dual_start`` is False (then the cold solver's barrier schedule from the primal guess)."""
     o = problem.options
     K = o.nodes
-    if planner == "baseline":
+    if planner == Planner.BASELINE:
         assignment: tuple[int, ...] = (-1,) * K
     elif o.lookback == "fixed":
         assignment = lb.fixed_assignment(K, o.lookback_steps)
@@ -392,14 +392,14 @@ def _solve_rounds(
             multipliers = (warm.warm["key"], warm.warm["lam_x"], warm.warm["lam_g"])
         L0 = warm.warm["L"]
         prev_slots = warm.warm["slots"]
-        if planner == "secure" and o.lookback == "adaptive":
+        if planner == Planner.SECURE and o.lookback == "adaptive":
             assignment = tuple(warm.warm["assignment"])
 
     build = solve_t = 0.0
     iters = 0
     T, X, U = guess.final_time, guess.states, guess.controls
     grid = guess.times / guess.final_time if warm is not None else None
-    rounds = o.lookback_rounds if (planner == "secure" and o.lookback == "adaptive") else 1
+    rounds = o.lookback_rounds if (planner == Planner.SECURE and o.lookback == "adaptive") else 1
     if warm is not None:
         rounds = 1  # a warm replan keeps the previous, already refined, assignment
     best: _Solve | None = None
@@ -495,7 +495,7 @@ def plan_problem(
     warm : a previous plan to start from (its remainder after ``warm_time`` seconds).
     cache : compiled NLPs to reuse; default: a module-wide cache.
     """
-    if planner not in ("secure", "baseline"):
+    if planner not in tuple(Planner):
         raise ConfigError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
     cache = DEFAULT_CACHE if cache is None else cache
     pin_blas_threads()  # the same iterates whatever the machine's cores (planning/blas.py)
@@ -542,13 +542,13 @@ def _plan_within_budget(
             else:
                 guess = initial_guess(
                     problem,
-                    secure=planner == "secure",
-                    speed_fraction=1.0 if planner == "baseline" else None,
+                    secure=planner == Planner.SECURE,
+                    speed_fraction=1.0 if planner == Planner.BASELINE else None,
                 )
         except NoPathError as exc:
             return _failed(problem, planner, PlanStatus.INFEASIBLE, str(exc))
         attempts = [(guess, True)]
-        if planner == "secure":
+        if planner == Planner.SECURE:
             # The paper: poor guesses stop convergence. Slower flights along the same path are
             # more conservative (more feasible) starts; they are tried when the first one fails.
             attempts += [(frac * o.guess_speed_fraction, True) for frac in RETRY_GUESS_SPEEDS]
@@ -571,7 +571,7 @@ def _plan_within_budget(
         for frac in o.extra_starts:
             if budget_spent():
                 break
-            g = initial_guess(problem, secure=planner == "secure", speed_fraction=frac)
+            g = initial_guess(problem, secure=planner == Planner.SECURE, speed_fraction=frac)
             s2, b_, t_, i_ = _solve_rounds(problem, planner, g, None, 0.0, cache)
             build, solve_t, iters = build + b_, solve_t + t_, iters + i_
             other = _judged(problem, planner, s2, build, solve_t, iters, cache)
@@ -596,7 +596,7 @@ def _judged(
     """The result of a solve, certified (secure planner): a rejected solution is re-solved warm
     with tightened rows (:data:`CERTIFY_TIGHTENING`) before it is reported NOT_CERTIFIED."""
     result = _result(problem, planner, s, build, solve_t, iters)
-    if not (result.ok and planner == "secure" and problem.options.certify):
+    if not (result.ok and planner == Planner.SECURE and problem.options.certify):
         return result
     from dataclasses import replace
 
