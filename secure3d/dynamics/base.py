@@ -350,6 +350,32 @@ class VehicleModel(ABC):
         """``n`` random controls, uniform in the control box: (n, nu) float."""
         return self.u_lo + (self.u_hi - self.u_lo) * rng.random((n, self.nu))
 
+    # -- the braking law of :class:`secure3d.reactive.controllers.BrakingController` ----------------
+    #: Whether the model has a braking law (the methods below).
+    has_braking_law: ClassVar[bool] = False
+    #: Whether the law reads the controller's gains (then they are part of its configuration).
+    braking_uses_gains: ClassVar[bool] = False
+
+    def braking_deceleration_with(self, gains: Any) -> float:
+        """The deceleration (m/s^2) the law demands: ``max_accel`` unless the model says else."""
+        return self.limits.max_accel
+
+    def braking_durations(self, deceleration: float, gains: Any) -> tuple[float, float]:
+        """(twice the braking time from the top speed, settling time) in s."""
+        return 2.0 * self.limits.max_speed / deceleration, 0.5
+
+    def braking_controls(
+        self, X: np.ndarray, dt: float, deceleration: float, gains: Any
+    ) -> np.ndarray:
+        """Braking controls (N, nu) for states X (N, nx) held for ``dt`` s."""
+        raise NotImplementedError(f"{type(self).__name__} has no braking law")
+
+    def braking_at_rest(
+        self, X: np.ndarray, rest: float, deceleration: float, gains: Any
+    ) -> np.ndarray:
+        """(N,) bool: stopped (speeds below ``rest``, and whatever else the law settles)."""
+        raise NotImplementedError(f"{type(self).__name__} has no braking law")
+
 
 def sample_unit_vectors(n: int, rng: np.random.Generator) -> np.ndarray:
     """``n`` random directions, uniform on the sphere: (n, 3) float."""

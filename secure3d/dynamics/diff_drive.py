@@ -134,3 +134,28 @@ class DiffDrive(VehicleModel):
         w = speeds(self.limits.max_ang_speed) * rng.choice([-1.0, 1.0], n)
         X[:, 3], X[:, 4] = v, w
         return X
+
+    # -- braking law (secure3d.reactive.controllers.BrakingController) ------------------------------
+    has_braking_law = True
+
+    def braking_durations(self, deceleration: float, gains: Any) -> tuple[float, float]:
+        """The longer of the speed's and the turn rate's braking times, doubled; settling 0.5 s."""
+        lim = self.limits
+        t_brake = 2.0 * lim.max_speed / deceleration
+        return max(t_brake, 2.0 * lim.max_ang_speed / lim.max_ang_accel), 0.5
+
+    def braking_controls(
+        self, X: np.ndarray, dt: float, deceleration: float, gains: Any
+    ) -> np.ndarray:
+        """The point mass's law on the signed speed (``max_accel``) and on the turn rate
+        (``max_ang_accel``)."""
+        v, w = X[:, 3], X[:, 4]
+        lim = self.limits
+        a = -np.sign(v) * np.minimum(lim.max_accel, np.abs(v) / dt)
+        alpha = -np.sign(w) * np.minimum(lim.max_ang_accel, np.abs(w) / dt)
+        return np.stack([a, alpha], axis=1)
+
+    def braking_at_rest(
+        self, X: np.ndarray, rest: float, deceleration: float, gains: Any
+    ) -> np.ndarray:
+        return (np.abs(X[:, 3]) < rest) & (np.abs(X[:, 4]) < rest)

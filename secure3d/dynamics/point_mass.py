@@ -137,3 +137,20 @@ class PointMass(VehicleModel):
     def braking_deceleration(self) -> float:
         """Deceleration allowed along any direction (m/s^2): ``max_accel`` for both norms."""
         return self.limits.max_accel
+
+    # -- braking law (secure3d.reactive.controllers.BrakingController) ------------------------------
+    has_braking_law = True
+
+    def braking_controls(
+        self, X: np.ndarray, dt: float, deceleration: float, gains: Any
+    ) -> np.ndarray:
+        """``a = -min(a_b, s / dt) v_hat``: the last step lands exactly on v = 0."""
+        v = X[:, 3:6]
+        s = np.linalg.norm(v, axis=1)
+        scale = np.minimum(deceleration, s / dt) / np.maximum(s, 1e-300)
+        return np.concatenate([-scale[:, None] * v, np.zeros((len(X), 1))], axis=1)
+
+    def braking_at_rest(
+        self, X: np.ndarray, rest: float, deceleration: float, gains: Any
+    ) -> np.ndarray:
+        return np.linalg.norm(X[:, 3:6], axis=1) < rest

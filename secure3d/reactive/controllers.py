@@ -29,10 +29,9 @@ import casadi as ca
 import numpy as np
 
 from secure3d.dynamics.base import VehicleModel
-from secure3d.dynamics.diff_drive import DiffDrive
 from secure3d.dynamics.integrate import _check_dt
 from secure3d.dynamics.point_mass import PointMass
-from secure3d.dynamics.quadrotor import Quadrotor
+from secure3d.dynamics.quadrotor import QuadrotorBrakingGains  # noqa: F401  (re-exported)
 from secure3d.errors import ConfigError
 from secure3d.validation import is_int, is_real
 
@@ -168,40 +167,6 @@ class ReactiveController(ABC):
 # ------------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class QuadrotorBrakingGains:
-    """Gains of the quadrotor braking law.
-
-    Attributes
-    ----------
-    decel_fraction : float
-        Fraction of the largest deceleration the thrust range allows in every direction
-        (``min(thrust_max - g, g - thrust_min, g sin(max_tilt))``) that the law demands, in (0, 1];
-        the rest is margin for the attitude error.
-    velocity_time_constant : float
-        Below ``decel * tau`` m/s the demanded deceleration is ``v / tau`` (tau in s): a smooth,
-        chatter-free approach to rest.
-    attitude_gain : float
-        Body rate per radian of thrust-axis error (1/s), saturated at ``max_rate``.
-    """
-
-    decel_fraction: float = 0.9
-    velocity_time_constant: float = 0.25
-    attitude_gain: float = 12.0
-
-    def __post_init__(self) -> None:
-        for name in ("decel_fraction", "velocity_time_constant", "attitude_gain"):
-            v = getattr(self, name)
-            if not is_real(v) or not math.isfinite(v) or v <= 0:
-                raise ConfigError(
-                    f"QuadrotorBrakingGains.{name}: must be finite and > 0, got {v!r}"
-                )
-        if self.decel_fraction > 1:
-            raise ConfigError(
-                f"QuadrotorBrakingGains.decel_fraction: must be <= 1, got {self.decel_fraction}"
-            )
-
-
 class BrakingController(ReactiveController):
     """Maximum braking for any model (see module docstring); ignores the obstacle.
 
@@ -230,90 +195,36 @@ class BrakingController(ReactiveController):
         self, model: VehicleModel, latency: float = 0.0, gains: QuadrotorBrakingGains | None = None
     ):
         super().__init__(model, latency)
-        if not isinstance(model, (PointMass, Quadrotor, DiffDrive)):
+        if not model.has_braking_law:
             raise ConfigError(f"BrakingController.model: unsupported model {model.name!r}")
         self.gains = QuadrotorBrakingGains() if gains is None else gains
-        if isinstance(model, Quadrotor):
-            lim = model.limits
-            g = lim.gravity
-            avail = min(lim.thrust_max - g, g - lim.thrust_min, g * math.sin(lim.max_tilt))
-            self.deceleration = self.gains.decel_fraction * avail
-        elif isinstance(model, DiffDrive):
-            self.deceleration = model.limits.max_accel
-        else:
-            self.deceleration = model.limits.max_accel
+        self.deceleration = model.braking_deceleration_with(self.gains)
 
     def config(self) -> dict[str, Any]:
-        """Name, latency and (quadrotor) the gains."""
+        """Name, latency and (for a law with gains: the quadrotor's) the gains."""
         out = super().config()
-        if isinstance(self.model, Quadrotor):
+        if self.model.braking_uses_gains:
             out["gains"] = dataclasses.asdict(self.gains)
         return out
 
     def default_t_max(self) -> float:
         """Latency + twice the braking time from the top speed + settling (s)."""
-        lim = self.model.limits
-        t_brake = 2.0 * lim.max_speed / self.deceleration
-        if isinstance(self.model, DiffDrive):
-            t_brake = max(t_brake, 2.0 * lim.max_ang_speed / lim.max_ang_accel)
-        settle = (
-            12.0 * self.gains.velocity_time_constant if isinstance(self.model, Quadrotor) else 0.5
-        )
+        t_brake, settle = self.model.braking_durations(self.deceleration, self.gains)
         return self.latency + t_brake + settle
 
     # -- laws ------------------------------------------------------------------------------------
     def control_batch(self, X: np.ndarray, dt: float = 0.01, **context: Any) -> np.ndarray:
-        """Braking controls (N, nu) for states X (N, nx) held for ``dt`` seconds."""
-        X = np.asarray(X, dtype=float)
-        if isinstance(self.model, Quadrotor):
-            return self._quadrotor(X)[0]
-        if isinstance(self.model, DiffDrive):
-            v, w = X[:, 3], X[:, 4]
-            lim = self.model.limits
-            a = -np.sign(v) * np.minimum(lim.max_accel, np.abs(v) / dt)
-            alpha = -np.sign(w) * np.minimum(lim.max_ang_accel, np.abs(w) / dt)
-            return np.stack([a, alpha], axis=1)
-        v = X[:, 3:6]
-        s = np.linalg.norm(v, axis=1)
-        scale = np.minimum(self.deceleration, s / dt) / np.maximum(s, 1e-300)
-        return np.concatenate([-scale[:, None] * v, np.zeros((len(X), 1))], axis=1)
-
-    def _quadrotor(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Controls (N, 4) and the thrust-axis error angle (N,) of the quadrotor law."""
-        model: Quadrotor = self.model  # type: ignore[assignment]
-        lim, gains = model.limits, self.gains
-        v = X[:, 3:6]
-        s = np.linalg.norm(v, axis=1)
-        k = np.minimum(
-            self.deceleration / np.maximum(s, 1e-300), 1.0 / gains.velocity_time_constant
+        """Braking controls (N, nu) for states X (N, nx) held for ``dt`` seconds (the vehicle's
+        law: :meth:`~secure3d.dynamics.base.VehicleModel.braking_controls`)."""
+        return self.model.braking_controls(
+            np.asarray(X, dtype=float), dt, self.deceleration, self.gains
         )
-        t_des = -k[:, None] * v
-        t_des[:, 2] += lim.gravity
-        d = t_des / np.linalg.norm(t_des, axis=1, keepdims=True)
-        R = model.body_rotation(X)
-        z_b = R[:, :, 2]
-        cross = np.cross(z_b, d)
-        sin_e = np.linalg.norm(cross, axis=1)
-        angle = np.arctan2(sin_e, np.einsum("ij,ij->i", z_b, d))
-        # angle / sin(angle) -> 1 as the error vanishes; the axis is then irrelevant.
-        ratio = np.where(sin_e > 1e-12, angle / np.maximum(sin_e, 1e-300), 1.0)
-        w_world = (gains.attitude_gain * ratio)[:, None] * cross
-        w_body = np.einsum("nji,nj->ni", R, w_world)
-        rate = np.linalg.norm(w_body[:, :2], axis=1)
-        w_body *= np.minimum(1.0, lim.max_rate / np.maximum(rate, 1e-300))[:, None]
-        w_body[:, 2] = 0.0
-        thrust = np.clip(np.einsum("ij,ij->i", t_des, z_b), lim.thrust_min, lim.thrust_max)
-        return np.concatenate([thrust[:, None], w_body], axis=1), angle
 
     def at_rest(self, X: np.ndarray) -> np.ndarray:
         """Stopped: speed < 1e-3 m/s (and |omega| < 1e-3 rad/s, attitude settled to 1e-3 rad)."""
-        X = np.asarray(X, dtype=float)
-        if isinstance(self.model, DiffDrive):
-            return (np.abs(X[:, 3]) < REST_SPEED) & (np.abs(X[:, 4]) < REST_SPEED)
-        rest = np.linalg.norm(X[:, 3:6], axis=1) < REST_SPEED
-        if isinstance(self.model, Quadrotor):
-            rest &= self._quadrotor(X)[1] < REST_SPEED
-        return rest
+        return self.model.braking_at_rest(
+            np.asarray(X, dtype=float), REST_SPEED, self.deceleration, self.gains
+        )
 
 
 # ------------------------------------------------------------------------------------------------
