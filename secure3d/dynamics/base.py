@@ -351,6 +351,10 @@ class VehicleModel(ABC):
         return self.u_lo + (self.u_hi - self.u_lo) * rng.random((n, self.nu))
 
     # -- the braking law of :class:`secure3d.reactive.controllers.BrakingController` ----------------
+    #: The closed-form reactive set of its braking (secure3d.reactive.reactive_set.closed_form_family):
+    #: "capsule" (braking along -v, bounded by :meth:`braking_capsule`), "heading_capsule" (a
+    #: wheeled robot braking along its heading), or None.
+    closed_form: ClassVar[str | None] = None
     #: Whether the model has a braking law (the methods below).
     has_braking_law: ClassVar[bool] = False
     #: Whether the law reads the controller's gains (then they are part of its configuration).
@@ -363,6 +367,14 @@ class VehicleModel(ABC):
     def braking_durations(self, deceleration: float, gains: Any) -> tuple[float, float]:
         """(twice the braking time from the top speed, settling time) in s."""
         return 2.0 * self.limits.max_speed / deceleration, 0.5
+
+    def braking_capsule(
+        self, latency: float, deceleration: float, gains: Any
+    ) -> tuple[float, float, float, float, float]:
+        """The capsule bound on a braking manoeuvre after ``latency`` s (``closed_form ==
+        "capsule"``): deceleration, coast time, error acceleration, error time, extra growth, as
+        :class:`secure3d.reactive.reactive_set.CapsuleBound` takes them."""
+        raise NotImplementedError(f"{type(self).__name__} has no capsule bound")
 
     def braking_controls(
         self, X: np.ndarray, dt: float, deceleration: float, gains: Any

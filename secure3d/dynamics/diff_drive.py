@@ -137,6 +137,7 @@ class DiffDrive(VehicleModel):
 
     # -- braking law (secure3d.reactive.controllers.BrakingController) ------------------------------
     has_braking_law = True
+    closed_form = "heading_capsule"
 
     def braking_durations(self, deceleration: float, gains: Any) -> tuple[float, float]:
         """The longer of the speed's and the turn rate's braking times, doubled; settling 0.5 s."""

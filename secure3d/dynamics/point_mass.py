@@ -140,6 +140,15 @@ class PointMass(VehicleModel):
 
     # -- braking law (secure3d.reactive.controllers.BrakingController) ------------------------------
     has_braking_law = True
+    closed_form = "capsule"
+
+    def braking_capsule(
+        self, latency: float, deceleration: float, gains: Any
+    ) -> tuple[float, float, float, float, float]:
+        """Coast for the latency while any held acceleration (the norm bound, or the box's
+        diagonal) pushes off the reference, then brake at ``max_accel``."""
+        a_hold = self.limits.max_accel * (1.0 if self.limits.accel_norm == "ball" else math.sqrt(3))
+        return self.braking_deceleration, latency, a_hold, latency, 0.0
 
     def braking_controls(
         self, X: np.ndarray, dt: float, deceleration: float, gains: Any

@@ -225,6 +225,30 @@ class Quadrotor(VehicleModel):
 
     # -- braking law (secure3d.reactive.controllers.BrakingController) ------------------------------
     has_braking_law = True
+    closed_form = "capsule"
+
+    def braking_capsule(
+        self, latency: float, deceleration: float, gains: QuadrotorBrakingGains
+    ) -> tuple[float, float, float, float, float]:
+        """Braking at ``deceleration`` after the thrust axis has turned (saturated body rates,
+        then one attitude time constant), with the thrust error of that turn."""
+        lim = self.limits
+        g, a_b = lim.gravity, deceleration
+        brake_tilt = math.asin(min(1.0, a_b / g))
+        # Largest angle between the thrust axis (tilt <= max_tilt, plus what the held rates add
+        # during the latency) and any braking thrust direction (tilt <= brake_tilt).
+        turn = min(math.pi, lim.max_tilt + lim.max_rate * latency + brake_tilt)
+        # Saturated turn at max_rate, then one attitude time constant to settle.
+        t_turn = latency + turn / lim.max_rate + 1.0 / gains.attitude_gain
+        # The law's thrust error is |t| sin(angle) <= (g + a_b) sin(angle); a held command during
+        # the latency may use up to thrust_max and differs from the braking reference by a_b more.
+        if latency > 0:
+            err = lim.thrust_max * math.sin(min(turn, math.pi / 2)) + a_b
+        else:
+            err = (g + a_b) * math.sin(min(turn, math.pi / 2))
+        tau = gains.velocity_time_constant
+        return a_b, 0.0, err, t_turn, 0.5 * a_b * tau * tau
+
     braking_uses_gains = True
 
     def braking_deceleration_with(self, gains: QuadrotorBrakingGains) -> float:
