@@ -355,6 +355,9 @@ class VehicleModel(ABC):
     #: "capsule" (braking along -v, bounded by :meth:`braking_capsule`), "heading_capsule" (a
     #: wheeled robot braking along its heading), or None.
     closed_form: ClassVar[str | None] = None
+    #: Default feature map of a fitted reactive-set family (a key of
+    #: ``secure3d.reactive.features.FEATURE_MAPS``).
+    feature_map: ClassVar[str]
     #: Whether the model has a braking law (the methods below).
     has_braking_law: ClassVar[bool] = False
     #: Whether the law reads the controller's gains (then they are part of its configuration).

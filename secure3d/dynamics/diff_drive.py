@@ -53,6 +53,7 @@ class DiffDrive(VehicleModel):
     """Differential drive (see module docstring). ``limits`` is a :class:`DiffDriveLimits`."""
 
     name = "diff_drive"
+    feature_map = "diff_drive/v1"
     state_names = ("x", "y", "theta", "v", "omega")
     control_names = ("a", "alpha")
     limits_type = DiffDriveLimits

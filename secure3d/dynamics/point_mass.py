@@ -54,6 +54,7 @@ class PointMass(VehicleModel):
     """Point mass with yaw (see module docstring). ``limits`` is a :class:`PointMassLimits`."""
 
     name = "point_mass"
+    feature_map = "point_mass/v1"
     state_names = ("px", "py", "pz", "vx", "vy", "vz", "yaw")
     control_names = ("ax", "ay", "az", "yaw_rate")
     limits_type = PointMassLimits

@@ -108,6 +108,7 @@ class Quadrotor(VehicleModel):
     """Quadrotor (see module docstring). ``limits`` is a :class:`QuadrotorLimits`."""
 
     name = "quadrotor"
+    feature_map = "quadrotor/v1"
     state_names = ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")
     control_names = ("thrust", "wx", "wy", "wz")
     limits_type = QuadrotorLimits
