@@ -15,6 +15,7 @@ Pipeline (each step a function, the problem itself in :mod:`.problem`):
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -481,6 +482,7 @@ def plan_problem(
     warm: PlanResult | None = None,
     warm_time: float = 0.0,
     cache: NLPCache | None = None,
+    solve_rounds: Callable[..., tuple[_Solve, float, float, int]] | None = None,
 ) -> PlanResult:
     """Solve a :class:`PlanningProblem` (see :func:`plan` for the scenario-level entry point).
 
@@ -494,13 +496,17 @@ def plan_problem(
         ``"baseline"`` (dynamics, limits and body-vs-known-obstacle avoidance only).
     warm : a previous plan to start from (its remainder after ``warm_time`` seconds).
     cache : compiled NLPs to reuse; default: a module-wide cache.
+    solve_rounds : one solve from a guess with its look-back rounds (default the real one); a
+        seam for tests that make solves fail.
     """
     if planner not in tuple(Planner):
         raise ConfigError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
     cache = DEFAULT_CACHE if cache is None else cache
     pin_blas_threads()  # the same iterates whatever the machine's cores (planning/blas.py)
     with deadline(problem.options.plan_budget):
-        return _plan_within_budget(problem, planner, warm, warm_time, cache)
+        return _plan_within_budget(
+            problem, planner, warm, warm_time, cache, solve_rounds or _solve_rounds
+        )
 
 
 def _plan_within_budget(
@@ -509,6 +515,7 @@ def _plan_within_budget(
     warm: PlanResult | None,
     warm_time: float,
     cache: NLPCache,
+    solve_rounds: Callable[..., tuple[_Solve, float, float, int]],
 ) -> PlanResult:
     o = problem.options
     reason = _precheck(problem)
@@ -560,7 +567,7 @@ def _plan_within_budget(
             break
         if isinstance(g, float):
             g = initial_guess(problem, secure=True, speed_fraction=g)
-        s, b_, t_, i_ = _solve_rounds(problem, planner, g, warm, warm_time, cache, dual_start)
+        s, b_, t_, i_ = solve_rounds(problem, planner, g, warm, warm_time, cache, dual_start)
         build, solve_t, iters = build + b_, solve_t + t_, iters + i_
         if s.status.ok:
             break
@@ -572,7 +579,7 @@ def _plan_within_budget(
             if budget_spent():
                 break
             g = initial_guess(problem, secure=planner == Planner.SECURE, speed_fraction=frac)
-            s2, b_, t_, i_ = _solve_rounds(problem, planner, g, None, 0.0, cache)
+            s2, b_, t_, i_ = solve_rounds(problem, planner, g, None, 0.0, cache)
             build, solve_t, iters = build + b_, solve_t + t_, iters + i_
             other = _judged(problem, planner, s2, build, solve_t, iters, cache)
             if other.ok and (not result.ok or other.final_time < result.final_time):

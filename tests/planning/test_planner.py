@@ -263,7 +263,7 @@ def test_one_sided_duals_option_is_validated(corner_problem):
         corner_problem.with_options(one_sided_duals="yes")
 
 
-def test_failed_cold_solves_fall_back_to_slower_guesses(corner_problem, monkeypatch):
+def test_failed_cold_solves_fall_back_to_slower_guesses(corner_problem):
     """A secure cold plan whose solve fails from the first guess is retried from slower ones
     (``RETRY_GUESS_SPEEDS``), in turn, and the first that solves is kept."""
     from secure3d.planning import solve as solve_mod
@@ -278,8 +278,7 @@ def test_failed_cold_solves_fall_back_to_slower_guesses(corner_problem, monkeypa
             s = dataclasses.replace(s, status=PlanStatus.ITERATION_LIMIT)
         return s, build, solve_t, iters
 
-    monkeypatch.setattr(solve_mod, "_solve_rounds", failing_twice)
-    result = plan_problem(corner_problem, "secure", cache=NLPCache())
+    result = plan_problem(corner_problem, "secure", cache=NLPCache(), solve_rounds=failing_twice)
     assert len(finals) == 1 + len(solve_mod.RETRY_GUESS_SPEEDS) == 3
     # each fallback flies the same path slower: a longer guess
     assert finals[0] < finals[1] < finals[2]
