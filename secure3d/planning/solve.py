@@ -29,7 +29,7 @@ from secure3d.planning.fatrop_transcription import fatrop_status
 from secure3d.planning.guess import Guess, NoPathError, initial_guess, profile_guess
 from secure3d.planning.interrupt import budget_spent, deadline, interruptible
 from secure3d.planning.problem import Planner, PlanningProblem, Solver, problem_from_scenario
-from secure3d.planning.result import PlanResult, PlanStatus
+from secure3d.planning.result import PlanResult, PlanStatus, WarmStart
 from secure3d.planning.trajectory import remainder_keeping_nodes, resample
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -189,24 +189,24 @@ def _solve_once(
             sol = solver(**args)
     except RuntimeError as exc:  # CasADi raises on evaluation errors (NaN in a function, ...)
         return _Solve(
-            PlanStatus.SOLVER_ERROR,
-            f"solver error: {exc}".splitlines()[0],
-            T,
-            X,
-            U,
-            L,
-            w0,
-            np.zeros(lay.n_w),
-            np.zeros(len(nlp.lbg)),
-            nlp,
-            assignment,
-            slots,
-            {},
-            time.perf_counter() - t0,
-            0,
-            cached,
-            warm_build,
-            grid,
+            status=PlanStatus.SOLVER_ERROR,
+            message=f"solver error: {exc}".splitlines()[0],
+            T=T,
+            X=X,
+            U=U,
+            L=L,
+            w=w0,
+            lam_x=np.zeros(lay.n_w),
+            lam_g=np.zeros(len(nlp.lbg)),
+            nlp=nlp,
+            assignment=assignment,
+            slots=slots,
+            violations={},
+            solve_time=time.perf_counter() - t0,
+            iterations=0,
+            cached=cached,
+            warm_build=warm_build,
+            grid=grid,
         )
     solve_time = time.perf_counter() - t0
     stats = solver.stats()
@@ -325,19 +325,19 @@ def _result(
         iterations=iters,
         solver=problem.options.solver,
         violations={k: v for k, v in s.violations.items() if v > FEASIBILITY_TOL},
-        warm={
-            "key": s.nlp.key,
-            "w": s.w,
-            "lam_x": s.lam_x,
-            "lam_g": s.lam_g,
-            "L": s.L,
-            "assignment": s.assignment,
-            "slots": s.slots,
-            "T": s.T,
-            "X": s.X,
-            "U": s.U,
-            "grid": s.grid,
-        },
+        warm=WarmStart(
+            key=s.nlp.key,
+            w=s.w,
+            lam_x=s.lam_x,
+            lam_g=s.lam_g,
+            L=s.L,
+            assignment=s.assignment,
+            slots=s.slots,
+            T=s.T,
+            X=s.X,
+            U=s.U,
+            grid=s.grid,
+        ),
     )
 
 
@@ -390,11 +390,11 @@ def _solve_rounds(
         # Same structure as the previous plan: its multipliers are a good start even after the
         # remaining trajectory was resampled from warm_time on (node i keeps its role).
         if dual_start:
-            multipliers = (warm.warm["key"], warm.warm["lam_x"], warm.warm["lam_g"])
-        L0 = warm.warm["L"]
-        prev_slots = warm.warm["slots"]
+            multipliers = (warm.warm.key, warm.warm.lam_x, warm.warm.lam_g)
+        L0 = warm.warm.L
+        prev_slots = warm.warm.slots
         if planner == Planner.SECURE and o.lookback == "adaptive":
-            assignment = tuple(warm.warm["assignment"])
+            assignment = tuple(warm.warm.assignment)
 
     build = solve_t = 0.0
     iters = 0

@@ -241,7 +241,7 @@ def test_one_sided_duals_plan_the_same_corner_and_certify(corner_problem, plans)
     assert result.certificate is not None and result.certificate.ok
     nlp = next(iter(cache._items.values()))[0]
     assert nlp.layout.i_L.shape[-1] == 3  # half the separation variables
-    np.testing.assert_allclose(result.warm["L"][..., :3] * result.warm["L"][..., 3:], 0.0)
+    np.testing.assert_allclose(result.warm.L[..., :3] * result.warm.L[..., 3:], 0.0)
 
 
 def test_one_sided_layout_round_trip():

@@ -91,7 +91,7 @@ def test_warm_replan_along_the_plan_keeps_nodes_and_certifies(cold, corner_probl
     # an uneven grid: the kept nodes are where the previous plan had them, rescaled with T
     steps = np.diff(warm.times)
     assert steps.max() - steps.min() > 1e-3
-    np.testing.assert_allclose(warm.times, warm.final_time * warm.warm["grid"])
+    np.testing.assert_allclose(warm.times, warm.final_time * warm.warm.grid)
     if dt < plan.times[1]:  # only node 0 passed: every other node is the old one
         assert warm.iterations <= 12, warm.iterations
     # about as fast as the rest of the cold plan (the start region moved with the start; the
