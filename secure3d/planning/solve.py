@@ -92,6 +92,21 @@ class _Solve:
     grid: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class SolveCost:
+    """What solves cost, summed: seconds building NLPs (and warm-start solvers), seconds inside the
+    solver, solver iterations."""
+
+    build: float = 0.0
+    solve: float = 0.0
+    iterations: int = 0
+
+    def __add__(self, other: SolveCost) -> SolveCost:
+        return SolveCost(
+            self.build + other.build, self.solve + other.solve, self.iterations + other.iterations
+        )
+
+
 #: The final time may not exceed this multiple of the initial guess's (a feasible-ish flight): keeps
 #: IPOPT from wandering to absurd durations when it struggles.
 T_GUESS_FACTOR = 3.0
@@ -296,9 +311,7 @@ def _failed(
     )
 
 
-def _result(
-    problem: PlanningProblem, planner: str, s: _Solve, build: float, solve: float, iters: int
-) -> PlanResult:
+def _result(problem: PlanningProblem, planner: str, s: _Solve, cost: SolveCost) -> PlanResult:
     model = problem.model
     K = problem.options.nodes
     times = s.T * (np.linspace(0.0, 1.0, K) if s.grid is None else s.grid)
@@ -320,9 +333,9 @@ def _result(
         speeds=speeds,
         lookback=np.array(s.assignment if planner == Planner.SECURE else [-1] * K, dtype=int),
         lookback_rule=problem.options.lookback if planner == Planner.SECURE else "none",
-        build_time=build,
-        solve_time=solve,
-        iterations=iters,
+        build_time=cost.build,
+        solve_time=cost.solve,
+        iterations=cost.iterations,
         solver=problem.options.solver,
         violations={k: v for k, v in s.violations.items() if v > FEASIBILITY_TOL},
         warm=WarmStart(
@@ -370,7 +383,7 @@ def _solve_rounds(
     warm_time: float,
     cache: NLPCache,
     dual_start: bool = True,
-) -> tuple[_Solve, float, float, int]:
+) -> tuple[_Solve, SolveCost]:
     """Assign look-backs on the guess, solve, and (adaptive rule) re-assign and re-solve. A warm
     replan starts from the previous plan's multipliers too, with the warm-start solver, unless
     ``dual_start`` is False (then the cold solver's barrier schedule from the primal guess)."""
@@ -396,8 +409,7 @@ def _solve_rounds(
         if planner == Planner.SECURE and o.lookback == "adaptive":
             assignment = tuple(warm.warm.assignment)
 
-    build = solve_t = 0.0
-    iters = 0
+    cost = SolveCost()
     T, X, U = guess.final_time, guess.states, guess.controls
     grid = guess.times / guess.final_time if warm is not None else None
     rounds = o.lookback_rounds if (planner == Planner.SECURE and o.lookback == "adaptive") else 1
@@ -419,11 +431,8 @@ def _solve_rounds(
             prev_slots=prev_slots,
             grid=grid,
         )
-        if cache.misses > n_before:
-            build += s.nlp.build_time
-        build += s.warm_build
-        solve_t += s.solve_time
-        iters += s.iterations
+        built = s.nlp.build_time if cache.misses > n_before else 0.0
+        cost = cost + SolveCost(built + s.warm_build, s.solve_time, s.iterations)
         for _ in range(SLOT_REFRESHES):
             # Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may
             # have come closer. Re-select and re-solve warm only if one breaks a row: with the slots
@@ -450,8 +459,7 @@ def _solve_rounds(
                 prev_slots=s.slots,
                 grid=s.grid,
             )
-            solve_t += nxt.solve_time
-            iters += nxt.iterations
+            cost = cost + SolveCost(0.0, nxt.solve_time, nxt.iterations)
             s = nxt
         if best is None or (s.status.ok and (not best.status.ok or s.T < best.T)):
             best = s
@@ -463,7 +471,7 @@ def _solve_rounds(
         assignment = new_assignment
         T, X, U, L0, multipliers, prev_slots = s.T, s.X, s.U, s.L, None, s.slots
         grid = s.grid
-    return best, build, solve_t, iters
+    return best, cost
 
 
 #: Cruise speeds of the slower guesses a secure cold plan falls back to, in turn, when the solve
@@ -482,7 +490,7 @@ def plan_problem(
     warm: PlanResult | None = None,
     warm_time: float = 0.0,
     cache: NLPCache | None = None,
-    solve_rounds: Callable[..., tuple[_Solve, float, float, int]] | None = None,
+    solve_rounds: Callable[..., tuple[_Solve, SolveCost]] | None = None,
 ) -> PlanResult:
     """Solve a :class:`PlanningProblem` (see :func:`plan` for the scenario-level entry point).
 
@@ -515,7 +523,7 @@ def _plan_within_budget(
     warm: PlanResult | None,
     warm_time: float,
     cache: NLPCache,
-    solve_rounds: Callable[..., tuple[_Solve, float, float, int]],
+    solve_rounds: Callable[..., tuple[_Solve, SolveCost]],
 ) -> PlanResult:
     o = problem.options
     reason = _precheck(problem)
@@ -560,18 +568,17 @@ def _plan_within_budget(
             # more conservative (more feasible) starts; they are tried when the first one fails.
             attempts += [(frac * o.guess_speed_fraction, True) for frac in RETRY_GUESS_SPEEDS]
     s = None
-    build = solve_t = 0.0
-    iters = 0
+    cost = SolveCost()
     for g, dual_start in attempts:
         if s is not None and budget_spent():
             break
         if isinstance(g, float):
             g = initial_guess(problem, secure=True, speed_fraction=g)
-        s, b_, t_, i_ = solve_rounds(problem, planner, g, warm, warm_time, cache, dual_start)
-        build, solve_t, iters = build + b_, solve_t + t_, iters + i_
+        s, c = solve_rounds(problem, planner, g, warm, warm_time, cache, dual_start)
+        cost = cost + c
         if s.status.ok:
             break
-    result = _judged(problem, planner, s, build, solve_t, iters, cache)
+    result = _judged(problem, planner, s, cost, cache)
     if warm is None:
         # Minimum-time NLPs have many local optima (the paper: "poor guesses stop convergence");
         # further starts at other cruise speeds, keeping the fastest plan that passes.
@@ -579,15 +586,17 @@ def _plan_within_budget(
             if budget_spent():
                 break
             g = initial_guess(problem, secure=planner == Planner.SECURE, speed_fraction=frac)
-            s2, b_, t_, i_ = solve_rounds(problem, planner, g, None, 0.0, cache)
-            build, solve_t, iters = build + b_, solve_t + t_, iters + i_
-            other = _judged(problem, planner, s2, build, solve_t, iters, cache)
+            s2, c = solve_rounds(problem, planner, g, None, 0.0, cache)
+            cost = cost + c
+            other = _judged(problem, planner, s2, cost, cache)
             if other.ok and (not result.ok or other.final_time < result.final_time):
                 result = other
         if o.extra_starts:
             from dataclasses import replace
 
-            result = replace(result, build_time=build, solve_time=solve_t, iterations=iters)
+            result = replace(
+                result, build_time=cost.build, solve_time=cost.solve, iterations=cost.iterations
+            )
     return result
 
 
@@ -595,14 +604,12 @@ def _judged(
     problem: PlanningProblem,
     planner: str,
     s: _Solve,
-    build: float,
-    solve_t: float,
-    iters: int,
+    cost: SolveCost,
     cache: NLPCache,
 ) -> PlanResult:
     """The result of a solve, certified (secure planner): a rejected solution is re-solved warm
     with tightened rows (:data:`CERTIFY_TIGHTENING`) before it is reported NOT_CERTIFIED."""
-    result = _result(problem, planner, s, build, solve_t, iters)
+    result = _result(problem, planner, s, cost)
     if not (result.ok and planner == Planner.SECURE and problem.options.certify):
         return result
     from dataclasses import replace
@@ -628,14 +635,15 @@ def _judged(
             extra_margin=extra,
             grid=s.grid,
         )
-        solve_t, iters = solve_t + t_.solve_time, iters + t_.iterations
-        build += t_.warm_build
+        cost = cost + SolveCost(t_.warm_build, t_.solve_time, t_.iterations)
         if not t_.status.ok:
             break
         s = t_
-        result = _result(problem, planner, s, build, solve_t, iters)
+        result = _result(problem, planner, s, cost)
         cert = certify(result, problem)
-    result = replace(result, build_time=build, solve_time=solve_t, iterations=iters)
+    result = replace(
+        result, build_time=cost.build, solve_time=cost.solve, iterations=cost.iterations
+    )
     status = result.status if cert.ok else PlanStatus.NOT_CERTIFIED
     msg = result.message if cert.ok else f"solver: {result.message}; certificate: {cert}"
     return replace(result, certificate=cert, status=status, message=msg)

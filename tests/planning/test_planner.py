@@ -273,10 +273,10 @@ def test_failed_cold_solves_fall_back_to_slower_guesses(corner_problem):
 
     def failing_twice(problem, planner, guess, *args, **kwargs):
         finals.append(guess.final_time)
-        s, build, solve_t, iters = real(problem, planner, guess, *args, **kwargs)
+        s, cost = real(problem, planner, guess, *args, **kwargs)
         if len(finals) <= 2:
             s = dataclasses.replace(s, status=PlanStatus.ITERATION_LIMIT)
-        return s, build, solve_t, iters
+        return s, cost
 
     result = plan_problem(corner_problem, "secure", cache=NLPCache(), solve_rounds=failing_twice)
     assert len(finals) == 1 + len(solve_mod.RETRY_GUESS_SPEEDS) == 3
