@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from secure3d.world.spec_fields import (
+    Vec3,
     _count,
     _fmt,
 )
@@ -25,37 +26,8 @@ def scenario_summary(scenario: Scenario, max_obstacles: int = 30) -> str:
     max_obstacles : int
         List at most this many obstacles one per line; the rest are counted.
     """
-    w, b, v, c, p = (
-        scenario.world,
-        scenario.world.bounds,
-        scenario.vehicle,
-        scenario.camera,
-        scenario.planner,
-    )
-    status: dict[str, str] = {}
-    for a in scenario.server_map.attacks:
-        if a.target is None:
-            continue
-        if a.kind in ("hide", "stale"):
-            status[a.target] = f"HIDDEN by the server ({a.kind})"
-        elif a.kind == "shift":
-            status[a.target] = f"SHIFTED by the server by {_fmt(a.offset)} m"
-    rows = [(o.name, "box", o.lo, o.hi, status.get(o.name, "")) for o in w.boxes]
-    rows += [
-        (
-            o.name,
-            f"mesh {o.path.name if o.path else '(inline)'}",
-            o.lo,
-            o.hi,
-            status.get(o.name, ""),
-        )
-        for o in w.meshes
-    ]
-    rows += [
-        (a.box.name, "box", a.box.lo, a.box.hi, "PHANTOM: claimed by the server, not real")
-        for a in scenario.server_map.attacks
-        if a.kind == "phantom" and a.box is not None
-    ]
+    w, b, v, c = scenario.world, scenario.world.bounds, scenario.vehicle, scenario.camera
+    rows = _obstacle_rows(scenario)
     width = max([len(r[0]) for r in rows] + [4])
     kind_width = max([len(r[1]) for r in rows] + [3])
     out = [f"Scenario {scenario.name!r}" + (f"  ({scenario.source})" if scenario.source else "")]
@@ -96,6 +68,47 @@ def scenario_summary(scenario: Scenario, max_obstacles: int = 30) -> str:
         + (f", noise {c.noise_std:g} m" if c.noise_std else "")
         + (f", dropout {c.dropout:g}" if c.dropout else "")
     )
+    out += _motion_lines(scenario)
+    wrapped = [
+        "\n".join(textwrap.wrap(line, 100, subsequent_indent=" " * 14)) if len(line) > 100 else line
+        for line in out
+    ]
+    return "\n".join(wrapped)
+
+
+def _obstacle_rows(scenario: Scenario) -> list[tuple[str, str, Vec3, Vec3, str]]:
+    """(name, kind, lo, hi, note) of every true and claimed obstacle, with what the server did."""
+    w = scenario.world
+    status: dict[str, str] = {}
+    for a in scenario.server_map.attacks:
+        if a.target is None:
+            continue
+        if a.kind in ("hide", "stale"):
+            status[a.target] = f"HIDDEN by the server ({a.kind})"
+        elif a.kind == "shift":
+            status[a.target] = f"SHIFTED by the server by {_fmt(a.offset)} m"
+    rows = [(o.name, "box", o.lo, o.hi, status.get(o.name, "")) for o in w.boxes]
+    rows += [
+        (
+            o.name,
+            f"mesh {o.path.name if o.path else '(inline)'}",
+            o.lo,
+            o.hi,
+            status.get(o.name, ""),
+        )
+        for o in w.meshes
+    ]
+    rows += [
+        (a.box.name, "box", a.box.lo, a.box.hi, "PHANTOM: claimed by the server, not real")
+        for a in scenario.server_map.attacks
+        if a.kind == "phantom" and a.box is not None
+    ]
+    return rows
+
+
+def _motion_lines(scenario: Scenario) -> list[str]:
+    """The start, goal, planner and simulation lines."""
+    p, out = scenario.planner, []
     st, g = scenario.start, scenario.goal
     dist = float(np.linalg.norm(np.subtract(g.position, st.position)))
     out.append(
@@ -115,8 +128,4 @@ def scenario_summary(scenario: Scenario, max_obstacles: int = 30) -> str:
     )
     sim = scenario.simulation
     out.append(f"  simulation: dt {sim.dt:g} s, time limit {sim.time_limit:g} s")
-    wrapped = [
-        "\n".join(textwrap.wrap(line, 100, subsequent_indent=" " * 14)) if len(line) > 100 else line
-        for line in out
-    ]
-    return "\n".join(wrapped)
+    return out
