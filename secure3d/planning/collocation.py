@@ -411,12 +411,26 @@ def build_nlp(
     if problem.options.solver != Solver.IPOPT:  # another transcription (nlp_cache.TRANSCRIPTIONS)
         return transcription(problem.options.solver).build(problem, planner, assignment, kernels)
     t0 = time.perf_counter()
+    lay = _layout(problem, planner == Planner.SECURE)
+    kern = kernels if kernels is not None else node_kernels(problem)
+    v = _symbols(problem, lay)
+    rows = _NLPRows()
+    J = _objective(problem, v)
+    _dynamics_rows(rows, kern, v)
+    _path_rows(rows, kern, v)
+    _terminal_rows(rows, problem, v)
+    _obstacle_and_visibility_rows(rows, problem, kern, v, planner, assignment)
+    return _transcribed(problem, planner, assignment, kern, v, J, rows, t0)
+
+
+def _layout(problem: PlanningProblem, secure: bool) -> NLPLayout:
+    """Where each variable sits in the decision vector (viewing states for look-backs passed as
+    parameters, the secure planner's ``lookback_encoding="parameter"``)."""
     model, o = problem.model, problem.options
     K, nx, nu, S = o.nodes, model.nx, model.nu, o.obstacle_slots
     hermite = o.collocation == "hermite_simpson"
-    secure = planner == Planner.SECURE
     parametric = secure and o.lookback_encoding == "parameter"
-    lay = NLPLayout(
+    return NLPLayout(
         K=K,
         nx=nx,
         nu=nu,
@@ -427,7 +441,65 @@ def build_nlp(
         view_dims=camera_dims(model) if parametric else (),
         grid=True,
     )
-    kern = kernels if kernels is not None else node_kernels(problem)
+
+
+@dataclass
+class _Symbols:
+    """The NLP's symbols: decision vector ``w`` (final time ``T``, states ``X`` (nx, K), controls
+    ``U`` (nu, K), midpoint controls ``Um`` (nu, K-1)), parameters ``p`` (start box, goal, slot
+    boxes ``Boxes`` (6S, K), dual sides, look-back selection, interval ratios; ``n_*`` their sizes),
+    the obstacle duals ``Lam`` (6S, K), the mean step ``h`` and the interval lengths ``steps``."""
+
+    lay: NLPLayout
+    w: ca.SX
+    T: ca.SX
+    X: ca.SX
+    U: ca.SX
+    Um: ca.SX
+    p: ca.SX
+    start_lo: ca.SX
+    start_hi: ca.SX
+    goal: ca.SX
+    Boxes: ca.SX
+    Lam: ca.SX
+    h: ca.SX
+    steps: ca.SX
+    n_boxes: int
+    n_sides: int
+    n_sel: int
+    n_p: int
+
+
+@dataclass
+class _NLPRows:
+    """Constraint rows in the order they are added: each block's expression and what it is (for
+    the assembled derivatives), each row's family name and bounds, and its node (-1: none)."""
+
+    exprs: list = field(default_factory=list)
+    parts: list = field(default_factory=list)
+    meta: list[tuple[str, float, float]] = field(default_factory=list)
+    row_node: list[int] = field(default_factory=list)
+
+    def add(
+        self,
+        out: object,
+        rows: list[tuple[str, float, float]],
+        n_cols: int,
+        nodes: list[int] | None = None,
+    ) -> None:
+        call = isinstance(out, KernelCall)
+        self.exprs.append(out.rows() if call else ca.vec(out))
+        self.parts.append(out if call else self.exprs[-1])
+        self.meta.extend(rows * n_cols)
+        self.row_node.extend(
+            np.repeat(nodes, len(rows)) if nodes is not None else [-1] * (len(rows) * n_cols)
+        )
+
+
+def _symbols(problem: PlanningProblem, lay: NLPLayout) -> _Symbols:
+    """Decision variables and parameters (see :class:`_Symbols`)."""
+    K, nx, nu, S = lay.K, lay.nx, lay.nu, lay.slots
+    hermite, parametric = lay.hermite, lay.viewing
 
     # ---- decision variables and parameters ----------------------------------------------------
     w = SYM.sym("w", lay.n_w)
@@ -466,38 +538,59 @@ def build_nlp(
         Lam = ca.reshape(L_w, 6 * S, K)
     h = T / (K - 1)  # the mean step
     steps = h * ratios
-    exprs: list = []
-    parts: list = []  # what each block of rows is, for the assembled derivatives
-    meta: list[tuple[str, float, float]] = []
-    row_node: list[int] = []
+    return _Symbols(
+        lay,
+        w,
+        T,
+        X,
+        U,
+        Um,
+        p,
+        start_lo,
+        start_hi,
+        goal,
+        Boxes,
+        Lam,
+        h,
+        steps,
+        n_boxes,
+        n_sides,
+        n_sel,
+        n_p,
+    )
 
-    def add(
-        out: object,
-        rows: list[tuple[str, float, float]],
-        n_cols: int,
-        nodes: list[int] | None = None,
-    ) -> None:
-        call = isinstance(out, KernelCall)
-        exprs.append(out.rows() if call else ca.vec(out))
-        parts.append(out if call else exprs[-1])
-        meta.extend(rows * n_cols)
-        row_node.extend(
-            np.repeat(nodes, len(rows)) if nodes is not None else [-1] * (len(rows) * n_cols)
-        )
 
+def _objective(problem: PlanningProblem, v: _Symbols) -> ca.SX:
+    """Minimum time (+ a small normalised effort term)."""
+    model, o, K = problem.model, problem.options, v.lay.K
+    T, U, h = v.T, v.U, v.h
     # ---- objective: minimum time (+ a small normalised effort term) -------------------------------
     u_mid = 0.5 * (model.u_lo + model.u_hi)
     u_scale = np.maximum(0.5 * (model.u_hi - model.u_lo), 1e-6)
     J = T + o.effort_weight * h * ca.sumsqr((U - ca.repmat(u_mid, 1, K)) / ca.repmat(u_scale, 1, K))
+    return J
 
+
+def _dynamics_rows(rows: _NLPRows, kern: NodeKernels, v: _Symbols) -> None:
+    """Dynamics defects between consecutive nodes."""
+    K, nx, add = v.lay.K, v.lay.nx, rows.add
+    X, U, Um, steps = v.X, v.U, v.Um, v.steps
     # ---- dynamics defects ------------------------------------------------------------------------
     dyn = KernelCall(kern.dyn, [X[:, : K - 1], U[:, : K - 1], X[:, 1:], U[:, 1:], Um, steps], K - 1)
     add(dyn, [("dynamics", 0.0, 0.0)] * nx, K - 1)
 
+
+def _path_rows(rows: _NLPRows, kern: NodeKernels, v: _Symbols) -> None:
+    """Model limits and world bounds at nodes 1..K-1."""
+    K, X, U, add = v.lay.K, v.X, v.U, rows.add
     # ---- path constraints: model limits and world bounds -----------------------------------------
     if kern.path_rows:
         add(KernelCall(kern.path, [X[:, 1:], U[:, 1:]], K - 1), kern.path_rows, K - 1)
 
+
+def _terminal_rows(rows: _NLPRows, problem: PlanningProblem, v: _Symbols) -> None:
+    """At rest at the goal (x(0) is fixed through the variable bounds)."""
+    model, K, X, w, goal, add = problem.model, v.lay.K, v.X, v.w, v.goal, rows.add
     # ---- boundary conditions: x(0) fixed through variable bounds; at rest at the goal -------------
     x_end = X[:, K - 1]
     pos_end, vel_end = model.position(x_end), model.velocity(x_end)
@@ -510,6 +603,21 @@ def build_nlp(
     for extra in model_terminal_rows(model, x_end):
         add(extra, [("terminal", 0.0, 0.0)], 1)
 
+
+def _obstacle_and_visibility_rows(
+    rows: _NLPRows,
+    problem: PlanningProblem,
+    kern: NodeKernels,
+    v: _Symbols,
+    planner: str,
+    assignment: tuple[int, ...],
+) -> None:
+    """The baseline's obstacle rows, or the secure planner's visibility and obstacle rows (eq. NLP)
+    for a look-back assignment that is structure, or passed as parameters (viewing states)."""
+    o, lay, K, nx, add = problem.options, v.lay, v.lay.K, v.lay.nx, rows.add
+    secure, parametric = planner == Planner.SECURE, v.lay.viewing
+    X, w, p, Boxes, Lam, start_lo, start_hi = v.X, v.w, v.p, v.Boxes, v.Lam, v.start_lo, v.start_hi
+    n_boxes, n_sides, n_sel = v.n_boxes, v.n_sides, v.n_sel
     # ---- obstacles and visibility (eq. NLP: S_r(x_i) inside S_s(x_j), clear of Ĉ_obst) ----------
     nodes = list(range(1, K))
     if not secure:
@@ -582,6 +690,20 @@ def build_nlp(
         # [dual, clear, occlusion] per slot; occlusion rows are switched off for start nodes
         add(KernelCall(kern.obs_view, [Xi, Yi, Bi, Li], K - 1), kern.obs_view_rows, K - 1, nodes)
 
+
+def _transcribed(
+    problem: PlanningProblem,
+    planner: str,
+    assignment: tuple[int, ...],
+    kern: NodeKernels,
+    v: _Symbols,
+    J: ca.SX,
+    rows: _NLPRows,
+    t0: float,
+) -> TranscribedNLP:
+    """The solver (assembled derivatives, Ctrl-C callback) and the record solve.py reads."""
+    w, p, n_p, lay = v.w, v.p, v.n_p, v.lay
+    exprs, parts, meta, row_node = rows.exprs, rows.parts, rows.meta, rows.row_node
     names = [m_[0] for m_ in meta]
     g_all = ca.vertcat(*exprs)
     lbg = np.array([m_[1] for m_ in meta])
