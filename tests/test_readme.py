@@ -69,7 +69,7 @@ def test_the_paper_to_code_map_names_real_objects():
     readme = (REPO / "README.md").read_text()
     section = readme.split("## Architecture", 1)[1].split("\n## ", 1)[0]
     names = re.findall(r"`(secure3d(?:\.\w+)+)`", section)
-    assert len(names) >= 10, names
+    assert len(names) >= 20, names
     for name in names:
         parts = name.split(".")
         for cut in range(len(parts), 0, -1):  # the longest importable module, then attributes
@@ -82,25 +82,3 @@ def test_the_paper_to_code_map_names_real_objects():
             break
         else:
             raise AssertionError(f"{name} does not resolve")
-
-
-def test_every_name_in_the_architecture_table_resolves():
-    """The table maps each paper equation to code one hop away: every dotted name imports."""
-    import importlib
-
-    readme = (REPO / "README.md").read_text()
-    section = readme.split("## Architecture: from the paper to the code", 1)[1].split("\n## ", 1)[0]
-    names = re.findall(r"`(secure3d\.[\w.]+)`", section)
-    assert len(names) >= 20, names
-    for dotted in names:
-        parts = dotted.split(".")
-        for cut in range(len(parts), 0, -1):
-            try:
-                obj = importlib.import_module(".".join(parts[:cut]))
-            except ModuleNotFoundError:
-                continue
-            for attr in parts[cut:]:
-                obj = getattr(obj, attr)
-            break
-        else:
-            raise AssertionError(f"{dotted} does not import")

@@ -346,6 +346,17 @@ class VehicleModel(ABC):
         magnitudes up to ``top``. (n, nx) float."""
         raise ConfigError(f"sample_states: no sampler for model {self.name!r}")
 
+    def _sample_moving(
+        self, positions: np.ndarray, speeds: Any, rng: np.random.Generator
+    ) -> np.ndarray:
+        """States (n, nx) at ``positions`` with velocities (entries 3:6) of random direction and
+        magnitude ``speeds(max_speed)``; the rest zero (for the model to fill)."""
+        n = len(positions)
+        X = np.zeros((n, self.nx))
+        X[:, :3] = positions
+        X[:, 3:6] = speeds(self.limits.max_speed)[:, None] * sample_unit_vectors(n, rng)
+        return X
+
     def sample_controls(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` random controls, uniform in the control box: (n, nu) float."""
         return self.u_lo + (self.u_hi - self.u_lo) * rng.random((n, self.nu))

@@ -119,10 +119,8 @@ class PointMass(VehicleModel):
     def sample_states(
         self, positions: np.ndarray, speeds: Any, rng: np.random.Generator
     ) -> np.ndarray:
-        n = len(positions)
-        X = np.zeros((n, self.nx))
-        X[:, :3] = positions
-        X[:, 3:6] = speeds(self.limits.max_speed)[:, None] * sample_unit_vectors(n, rng)
+        X = self._sample_moving(positions, speeds, rng)
+        n = len(X)
         X[:, 6] = rng.uniform(-math.pi, math.pi, n)
         return X
 

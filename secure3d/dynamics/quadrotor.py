@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from secure3d.dynamics import _symbolic as sym
-from secure3d.dynamics.base import VehicleModel, normalise_fields, sample_unit_vectors, vec3
+from secure3d.dynamics.base import VehicleModel, normalise_fields, vec3
 from secure3d.errors import ConfigError
 from secure3d.geometry.transforms import quat_multiply, quat_to_matrix
 from secure3d.validation import is_real
@@ -208,10 +208,8 @@ class Quadrotor(VehicleModel):
         self, positions: np.ndarray, speeds: Any, rng: np.random.Generator
     ) -> np.ndarray:
         """Random states; the attitude tilted about a random horizontal axis, then yawed."""
-        n = len(positions)
-        X = np.zeros((n, self.nx))
-        X[:, :3] = positions
-        X[:, 3:6] = speeds(self.limits.max_speed)[:, None] * sample_unit_vectors(n, rng)
+        X = self._sample_moving(positions, speeds, rng)
+        n = len(X)
         yaw = rng.uniform(-math.pi, math.pi, n)
         tilt = speeds(self.limits.max_tilt)
         axis_angle = rng.uniform(-math.pi, math.pi, n)
