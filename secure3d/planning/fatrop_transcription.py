@@ -70,15 +70,11 @@ import casadi as ca
 import numpy as np
 
 from secure3d.errors import ConfigError
-from secure3d.planning.collocation import (
-    NodeKernels,
-    TranscribedNLP,
-    model_terminal_rows,
-    node_kernels,
-)
+from secure3d.planning.collocation import NodeKernels, model_terminal_rows, node_kernels
 from secure3d.planning.nlp_cache import nlp_key, register_transcription
 from secure3d.planning.problem import Planner, PlanningProblem
 from secure3d.planning.result import PlanStatus
+from secure3d.planning.transcribed import TranscribedNLP
 
 #: RK4 steps per node interval. One is exact for the point mass (piecewise-cubic positions). For
 #: the quadrotor (the only nonlinear dynamics) at h = 0.115 s and full body rates, the largest state

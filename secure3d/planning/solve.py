@@ -24,13 +24,14 @@ import numpy as np
 from secure3d.errors import ConfigError
 from secure3d.planning import lookback as lb
 from secure3d.planning.blas import pin_blas_threads
-from secure3d.planning.collocation import T_MAX, T_MIN, NLPCache, TranscribedNLP
 from secure3d.planning.fatrop_transcription import fatrop_status
 from secure3d.planning.guess import Guess, NoPathError, initial_guess, profile_guess
 from secure3d.planning.interrupt import budget_spent, deadline, interruptible
+from secure3d.planning.nlp_cache import NLPCache
 from secure3d.planning.problem import Planner, PlanningProblem, Solver, problem_from_scenario
 from secure3d.planning.result import PlanResult, PlanStatus, WarmStart
 from secure3d.planning.trajectory import remainder_keeping_nodes, resample
+from secure3d.planning.transcribed import T_MAX, T_MIN, TranscribedNLP
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.mapping.occupancy import OccupancyMap
