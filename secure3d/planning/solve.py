@@ -162,9 +162,87 @@ def _solve_once(
     """One NLP solve from the guess (T, X, U) on node time fractions ``grid`` (None: evenly
     spaced; only NLPs with a time-grid parameter take others)."""
     nlp, cached = cache.get(problem, planner, assignment)
-    lay = nlp.layout
-    if not getattr(lay, "grid", False):
+    if not getattr(nlp.layout, "grid", False):
         grid = None
+    start = _start_point(
+        problem, planner, nlp, assignment, T, X, U, L, prev_slots, extra_margin, grid
+    )
+    solver = nlp.solver
+    warm_build = 0.0
+    if multipliers is not None and multipliers[0] == nlp.key:
+        start.args["lam_x0"], start.args["lam_g0"] = multipliers[1], multipliers[2]
+        t_build = time.perf_counter()
+        # a second nlpsol (same NLP, warm-start options) on first use
+        solver = nlp.get_warm_solver()
+        warm_build = time.perf_counter() - t_build
+    t0 = time.perf_counter()
+    try:
+        with interruptible():
+            sol = solver(**start.args)
+    except RuntimeError as exc:  # CasADi raises on evaluation errors (NaN in a function, ...)
+        return _Solve(
+            status=PlanStatus.SOLVER_ERROR,
+            message=f"solver error: {exc}".splitlines()[0],
+            T=T,
+            X=start.X,
+            U=start.U,
+            L=start.L,
+            w=start.args["x0"],
+            lam_x=np.zeros(nlp.layout.n_w),
+            lam_g=np.zeros(len(nlp.lbg)),
+            nlp=nlp,
+            assignment=assignment,
+            slots=start.slots,
+            violations={},
+            solve_time=time.perf_counter() - t0,
+            iterations=0,
+            cached=cached,
+            warm_build=warm_build,
+            grid=grid,
+        )
+    solve_time = time.perf_counter() - t0
+    return _read_solution(
+        nlp,
+        start,
+        sol,
+        solver.stats(),
+        assignment=assignment,
+        solve_time=solve_time,
+        cached=cached,
+        warm_build=warm_build,
+        grid=grid,
+    )
+
+
+@dataclass
+class _StartPoint:
+    """What one solve starts from: the guess as the NLP takes it (X with the start state, U within
+    the limits, the slots' boxes and duals L), the solver's arguments (``x0``, ``p``, bounds) and
+    the slots' dual sides (one-sided duals only)."""
+
+    X: np.ndarray
+    U: np.ndarray
+    L: np.ndarray
+    slots: np.ndarray
+    sides: np.ndarray | None
+    args: dict
+
+
+def _start_point(
+    problem: PlanningProblem,
+    planner: str,
+    nlp: TranscribedNLP,
+    assignment: tuple[int, ...],
+    T: float,
+    X: np.ndarray,
+    U: np.ndarray,
+    L: np.ndarray | None,
+    prev_slots: np.ndarray | None,
+    extra_margin: float,
+    grid: np.ndarray | None,
+) -> _StartPoint:
+    """Slots and duals near the guess, the packed initial point, parameters and bounds."""
+    lay = nlp.layout
     X = np.array(X, dtype=float)
     X[0] = problem.x0
     U = np.clip(U, problem.model.u_lo, problem.model.u_hi)
@@ -190,45 +268,29 @@ def _solve_once(
             idx = nlp.families.get(name, np.zeros(0, int))
             lbg[idx] += extra_margin  # -inf rows (switched off) stay off
     args = {"x0": w0, "p": p, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
-    solver = nlp.solver
-    warm_build = 0.0
-    if multipliers is not None and multipliers[0] == nlp.key:
-        args["lam_x0"], args["lam_g0"] = multipliers[1], multipliers[2]
-        t_build = time.perf_counter()
-        solver = (
-            nlp.get_warm_solver()
-        )  # a second nlpsol (same NLP, warm-start options) on first use
-        warm_build = time.perf_counter() - t_build
-    t0 = time.perf_counter()
-    try:
-        with interruptible():
-            sol = solver(**args)
-    except RuntimeError as exc:  # CasADi raises on evaluation errors (NaN in a function, ...)
-        return _Solve(
-            status=PlanStatus.SOLVER_ERROR,
-            message=f"solver error: {exc}".splitlines()[0],
-            T=T,
-            X=X,
-            U=U,
-            L=L,
-            w=w0,
-            lam_x=np.zeros(lay.n_w),
-            lam_g=np.zeros(len(nlp.lbg)),
-            nlp=nlp,
-            assignment=assignment,
-            slots=slots,
-            violations={},
-            solve_time=time.perf_counter() - t0,
-            iterations=0,
-            cached=cached,
-            warm_build=warm_build,
-            grid=grid,
-        )
-    solve_time = time.perf_counter() - t0
-    stats = solver.stats()
+    return _StartPoint(X, U, L, slots, sides, args)
+
+
+def _read_solution(
+    nlp: TranscribedNLP,
+    start: _StartPoint,
+    sol: dict,
+    stats: dict,
+    *,
+    assignment: tuple[int, ...],
+    solve_time: float,
+    cached: bool,
+    warm_build: float,
+    grid: np.ndarray | None,
+) -> _Solve:
+    """The solver's answer: the solution unpacked, its status (a converged solution that violates
+    a row by more than :data:`FEASIBILITY_TOL` is INFEASIBLE) and its violations."""
+    a = start.args
     w = np.asarray(sol["x"]).ravel()
-    Ts, Xs, Us, Ls = lay.unpack(w, sides) if one_sided else lay.unpack(w)
-    viol = _violations(nlp, w, p, lbg, ubg)
+    lay = nlp.layout
+    one_sided = getattr(lay, "one_sided", False)
+    Ts, Xs, Us, Ls = lay.unpack(w, start.sides) if one_sided else lay.unpack(w)
+    viol = _violations(nlp, w, a["p"], a["lbg"], a["ubg"])
     worst = max(viol.values(), default=0.0)
     rs = str(stats.get("return_status", "unknown"))
     if rs == "User_Requested_Stop" and not budget_spent():
@@ -256,7 +318,7 @@ def _solve_once(
         lam_g=np.asarray(sol["lam_g"]).ravel(),
         nlp=nlp,
         assignment=assignment,
-        slots=slots,
+        slots=start.slots,
         violations=viol,
         solve_time=solve_time,
         iterations=int(stats.get("iter_count", 0)),
