@@ -118,6 +118,9 @@ class VehicleModel(ABC):
     planar: ClassVar[bool] = False
     #: Its heading is its direction of travel (non-holonomic): a path's yaw is its tangent's.
     heading_follows_path: ClassVar[bool] = False
+    #: p' = v, v' = u[:3]: position (0:3) and velocity (3:6) driven by an acceleration command (the
+    #: MPC reactive controller's prediction model).
+    double_integrator: ClassVar[bool] = False
     #: State entries holding an attitude quaternion (w, x, y, z), or None without one.
     quaternion_slice: ClassVar[slice | None] = None
 

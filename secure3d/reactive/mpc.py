@@ -15,7 +15,6 @@ import numpy as np
 
 from secure3d.dynamics.base import VehicleModel
 from secure3d.dynamics.integrate import _check_dt
-from secure3d.dynamics.point_mass import PointMass
 from secure3d.errors import ConfigError
 from secure3d.reactive.controller_base import REST_SPEED, ReactiveController
 from secure3d.validation import is_int, is_real
@@ -106,7 +105,7 @@ class MPCReactiveController(ReactiveController):
         max_iter: int = 2000,
     ):
         super().__init__(model, latency)
-        if not isinstance(model, PointMass):
+        if not model.double_integrator:
             raise ConfigError(
                 f"MPCReactiveController.model: implemented for point_mass, got {model.name!r}"
             )
