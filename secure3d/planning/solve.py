@@ -166,6 +166,38 @@ def _guess_from_path(
     return profile_guess(problem, path, frac, planner == Planner.SECURE)
 
 
+def _first_round(
+    problem: PlanningProblem,
+    planner: str,
+    guess: Guess,
+    warm: PlanResult | None,
+    dual_start: bool,
+) -> tuple[tuple[int, ...], tuple | None, np.ndarray | None, np.ndarray | None]:
+    """The first round's look-back assignment, and from a warm plan its multipliers (with
+    ``dual_start``), obstacle duals and slots: ``(assignment, multipliers, L, slots)``."""
+    o = problem.options
+    K = o.nodes
+    if planner == Planner.BASELINE:
+        assignment: tuple[int, ...] = (-1,) * K
+    elif o.lookback == "fixed":
+        assignment = lb.fixed_assignment(K, o.lookback_steps)
+    else:
+        assignment, _ = lb.adaptive_assignment(problem, guess.states)
+    multipliers = None
+    L0 = None
+    prev_slots = None
+    if warm is not None and warm.warm is not None:
+        # Same structure as the previous plan: its multipliers are a good start even after the
+        # remaining trajectory was resampled from warm_time on (node i keeps its role).
+        if dual_start:
+            multipliers = (warm.warm.key, warm.warm.lam_x, warm.warm.lam_g)
+        L0 = warm.warm.L
+        prev_slots = warm.warm.slots
+        if planner == Planner.SECURE and o.lookback == "adaptive":
+            assignment = tuple(warm.warm.assignment)
+    return assignment, multipliers, L0, prev_slots
+
+
 def _solve_rounds(
     problem: PlanningProblem,
     planner: str,
@@ -179,27 +211,9 @@ def _solve_rounds(
     replan starts from the previous plan's multipliers too, with the warm-start solver, unless
     ``dual_start`` is False (then the cold solver's barrier schedule from the primal guess)."""
     o = problem.options
-    K = o.nodes
-    if planner == Planner.BASELINE:
-        assignment: tuple[int, ...] = (-1,) * K
-    elif o.lookback == "fixed":
-        assignment = lb.fixed_assignment(K, o.lookback_steps)
-    else:
-        assignment, _ = lb.adaptive_assignment(problem, guess.states)
-
-    multipliers = None
-    L0 = None
-    prev_slots = None
-    if warm is not None and warm.warm is not None:
-        # Same structure as the previous plan: its multipliers are a good start even after the
-        # remaining trajectory was resampled from warm_time on (node i keeps its role).
-        if dual_start:
-            multipliers = (warm.warm.key, warm.warm.lam_x, warm.warm.lam_g)
-        L0 = warm.warm.L
-        prev_slots = warm.warm.slots
-        if planner == Planner.SECURE and o.lookback == "adaptive":
-            assignment = tuple(warm.warm.assignment)
-
+    assignment, multipliers, L0, prev_slots = _first_round(
+        problem, planner, guess, warm, dual_start
+    )
     cost = SolveCost()
     T, X, U = guess.final_time, guess.states, guess.controls
     grid = guess.times / guess.final_time if warm is not None else None
@@ -370,25 +384,34 @@ def _plan_within_budget(
         if s.status.ok:
             break
     result = _judged(problem, planner, s, cost, cache)
-    if warm is None:
-        # Minimum-time NLPs have many local optima (the paper: "poor guesses stop convergence");
-        # further starts at other cruise speeds, keeping the fastest plan that passes.
-        for frac in o.extra_starts:
-            if budget_spent():
-                break
-            g = initial_guess(problem, secure=planner == Planner.SECURE, speed_fraction=frac)
-            s2, c = solve_rounds(problem, planner, g, None, 0.0, cache)
-            cost = cost + c
-            other = _judged(problem, planner, s2, cost, cache)
-            if other.ok and (not result.ok or other.final_time < result.final_time):
-                result = other
-        if o.extra_starts:
-            from dataclasses import replace
-
-            result = replace(
-                result, build_time=cost.build, solve_time=cost.solve, iterations=cost.iterations
-            )
+    if warm is None and o.extra_starts:
+        result = _extra_starts(problem, planner, result, cost, cache, solve_rounds)
     return result
+
+
+def _extra_starts(
+    problem: PlanningProblem,
+    planner: str,
+    result: PlanResult,
+    cost: SolveCost,
+    cache: NLPCache,
+    solve_rounds: Callable[..., tuple[_Solve, SolveCost]],
+) -> PlanResult:
+    """Minimum-time NLPs have many local optima (the paper: "poor guesses stop convergence"):
+    further cold starts at the cruise speeds ``options.extra_starts``, keeping the fastest plan
+    that passes; the result reports what every start cost."""
+    from dataclasses import replace
+
+    for frac in problem.options.extra_starts:
+        if budget_spent():
+            break
+        g = initial_guess(problem, secure=planner == Planner.SECURE, speed_fraction=frac)
+        s2, c = solve_rounds(problem, planner, g, None, 0.0, cache)
+        cost = cost + c
+        other = _judged(problem, planner, s2, cost, cache)
+        if other.ok and (not result.ok or other.final_time < result.final_time):
+            result = other
+    return replace(result, build_time=cost.build, solve_time=cost.solve, iterations=cost.iterations)
 
 
 def _judged(
