@@ -106,10 +106,16 @@ def _add_planner_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--lookback", choices=("adaptive", "fixed"), help="look-back rule of eq. NLP's visibility"
     )
+    group.add_argument(
+        "--plan-budget",
+        type=float,
+        metavar="S",
+        help="wall-clock budget of one plan call, retries included (s; default 60)",
+    )
 
 
 def _planner_options(args: argparse.Namespace) -> dict[str, object]:
-    names = ("nodes", "solver", "lookback")
+    names = ("nodes", "solver", "lookback", "plan_budget")
     return {name: getattr(args, name) for name in names if getattr(args, name) is not None}
 
 

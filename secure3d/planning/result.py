@@ -142,6 +142,9 @@ class PlanResult:
     iterations : solver iterations (summed over look-back rounds).
     violations : constraint family -> worst violation (m or unit of the family), for failures.
     certificate : the independent check of the returned trajectory (None if not run).
+    rejections : the certificate's verdicts on the solver successes it rejected before this result
+        (secure planner; each re-solved with tightened rows), oldest first: empty when the first
+        solution certified (issue 16's first-try rate).
     """
 
     status: PlanStatus
@@ -166,6 +169,7 @@ class PlanResult:
     violations: dict[str, float] = field(default_factory=dict)
     certificate: Certificate | None = None
     warm: WarmStart | None = field(default=None, repr=False)
+    rejections: tuple[Certificate, ...] = field(default=(), repr=False)
 
     @property
     def ok(self) -> bool:
@@ -186,6 +190,7 @@ class PlanResult:
             "build_time": float(self.build_time),
             "solve_time": float(self.solve_time),
             "iterations": int(self.iterations),
+            "certificate_rejections": len(self.rejections),
             "certificate": None
             if cert is None
             else {

@@ -35,7 +35,7 @@ from secure3d.planning.nlp_solve import (  # noqa: F401  (the constants: re-expo
     _solve_once,
 )
 from secure3d.planning.problem import Planner, PlanningProblem, Solver, problem_from_scenario
-from secure3d.planning.result import PlanResult, PlanStatus, WarmStart
+from secure3d.planning.result import Certificate, PlanResult, PlanStatus, WarmStart
 from secure3d.planning.trajectory import remainder_keeping_nodes, resample
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -198,6 +198,51 @@ def _first_round(
     return assignment, multipliers, L0, prev_slots
 
 
+def _refresh_slots(
+    problem: PlanningProblem,
+    planner: str,
+    s: _Solve,
+    cache: NLPCache,
+    extra_margin: float = 0.0,
+) -> tuple[_Solve, SolveCost]:
+    """Re-select the obstacle slots on solution ``s`` and re-solve warm, up to SLOT_REFRESHES
+    times, while a box left out of the slots breaks a row. Returns the last solve, and what the
+    re-solves cost.
+
+    Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may have come
+    closer. With the slots the NLP is a relaxation of the NLP with every box, so a solution no
+    left-out box comes within the margin of is feasible, hence (locally) optimal, for it too. (A
+    slack of 0.05 m cost a second solve on blind_corner: cold 0.47 s / 51 iterations -> 0.31 s / 33
+    without; 8 hidden-obstacle flights: 0.63x -> 0.68x real time, same outcomes.) The certificate's
+    tightened re-solves (``extra_margin``) go through here too: without it a tightened solution
+    moved onto boxes outside its slots (issue 16: obstacle margins down to -0.8 m).
+    """
+    cost = SolveCost()
+    for _ in range(SLOT_REFRESHES):
+        if (
+            not s.status.ok
+            or budget_spent()
+            or not lb.slots_missing(problem, planner, s.X, s.assignment, s.slots)
+        ):
+            break
+        s = _solve_once(
+            problem,
+            planner,
+            s.assignment,
+            s.T,
+            s.X,
+            s.U,
+            cache,
+            L=s.L,
+            multipliers=None,
+            prev_slots=s.slots,
+            extra_margin=extra_margin,
+            grid=s.grid,
+        )
+        cost = cost + SolveCost(0.0, s.solve_time, s.iterations)
+    return s, cost
+
+
 def _solve_rounds(
     problem: PlanningProblem,
     planner: str,
@@ -238,34 +283,8 @@ def _solve_rounds(
         )
         built = s.nlp.build_time if cache.misses > n_before else 0.0
         cost = cost + SolveCost(built + s.warm_build, s.solve_time, s.iterations)
-        for _ in range(SLOT_REFRESHES):
-            # Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may
-            # have come closer. Re-select and re-solve warm only if one breaks a row: with the slots
-            # the NLP is a relaxation of the NLP with every box, so a solution no left-out box
-            # comes within the margin of is feasible, hence (locally) optimal, for it too. (A slack
-            # of 0.05 m cost a second solve on blind_corner: cold 0.47 s / 51 iterations -> 0.31 s /
-            # 33 without; 8 hidden-obstacle flights: 0.63x -> 0.68x real time, same outcomes.)
-            if (
-                not s.status.ok
-                or budget_spent()
-                or not lb.slots_missing(problem, planner, s.X, assignment, s.slots)
-            ):
-                break
-            nxt = _solve_once(
-                problem,
-                planner,
-                assignment,
-                s.T,
-                s.X,
-                s.U,
-                cache,
-                L=s.L,
-                multipliers=None,
-                prev_slots=s.slots,
-                grid=s.grid,
-            )
-            cost = cost + SolveCost(0.0, nxt.solve_time, nxt.iterations)
-            s = nxt
+        s, c = _refresh_slots(problem, planner, s, cache)
+        cost = cost + c
         if best is None or (s.status.ok and (not best.status.ok or s.T < best.T)):
             best = s
         if not s.status.ok or rounds == 1 or budget_spent():
@@ -431,9 +450,11 @@ def _judged(
     from secure3d.planning.certificate import certify
 
     cert = certify(result, problem)
+    rejected: list[Certificate] = []
     for extra in CERTIFY_TIGHTENING:
         if cert.ok or budget_spent():
             break
+        rejected.append(cert)
         # Tighten and re-solve warm from the rejected solution: never loosen anything.
         t_ = _solve_once(
             problem,
@@ -450,6 +471,8 @@ def _judged(
             grid=s.grid,
         )
         cost = cost + SolveCost(t_.warm_build, t_.solve_time, t_.iterations)
+        t_, c = _refresh_slots(problem, planner, t_, cache, extra_margin=extra)
+        cost = cost + c
         if not t_.status.ok:
             break
         s = t_
@@ -460,7 +483,7 @@ def _judged(
     )
     status = result.status if cert.ok else PlanStatus.NOT_CERTIFIED
     msg = result.message if cert.ok else f"solver: {result.message}; certificate: {cert}"
-    return replace(result, certificate=cert, status=status, message=msg)
+    return replace(result, certificate=cert, status=status, message=msg, rejections=tuple(rejected))
 
 
 def plan(

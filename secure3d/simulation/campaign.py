@@ -39,6 +39,7 @@ from secure3d import outputs
 from secure3d.errors import ConfigError
 from secure3d.simulation.campaign_pool import fly_job
 from secure3d.simulation.campaign_records import (
+    CERTIFY_FIELDS,
     CSV_FIELDS,
     CSV_NAME,
     ERROR_OUTCOME,
@@ -70,6 +71,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from secure3d.world.spec import Scenario
 
 __all__ = [
+    "CERTIFY_FIELDS",
     "COMPARISON_COLUMNS",
     "CSV_FIELDS",
     "CSV_NAME",

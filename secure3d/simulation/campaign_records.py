@@ -47,8 +47,12 @@ CSV_FIELDS = (
     "setup_time",
     "real_time_factor",
     "detection_time",
+    "plans_judged",
+    "certified_first_try",
     "error",
 )
+#: Columns added by issue 16 (files written before them are still read).
+CERTIFY_FIELDS = ("plans_judged", "certified_first_try")
 CSV_NAME = "campaign.csv"
 SUMMARY_NAME = "summary.md"
 #: Kept for compatibility (``run_campaign``'s ``flush_every``): rows are now appended as runs end.
@@ -81,6 +85,8 @@ class RunRecord:
     solve_times : wall time of every planner call of the run (s).
     sim_time, wall_time : simulated and wall-clock duration of the run (s).
     setup_time : the part of ``wall_time`` before take-off (world, camera, map, NLP compilation).
+    plans_judged, certified_first_try : plan calls whose solver succeeded (so the certificate
+        judged them), and how many of those certified their first solution (issue 16).
     """
 
     variant: int
@@ -99,6 +105,8 @@ class RunRecord:
     wall_time: float = 0.0
     setup_time: float = 0.0
     detection_time: float = math.nan
+    plans_judged: int = 0
+    certified_first_try: int = 0
     error: str = ""
 
     @classmethod
@@ -121,6 +129,8 @@ class RunRecord:
             wall_time=float(result.wall_time),
             setup_time=float(result.setup_time),
             detection_time=_or_nan(result.detection_time),
+            plans_judged=len(result.certify_log),
+            certified_first_try=sum(1 for k, ok in result.certify_log if k == 0 and ok),
         )
 
     @property
@@ -156,6 +166,8 @@ class RunRecord:
             "setup_time": _num(self.setup_time),
             "real_time_factor": _num(self.real_time_factor),
             "detection_time": _num(self.detection_time),
+            "plans_judged": str(self.plans_judged),
+            "certified_first_try": str(self.certified_first_try),
             "error": " ".join(self.error.split()),
         }
 
@@ -222,6 +234,7 @@ class PlannerStats:
     solve_p90: float
     solve_max: float
     real_time_factor: float
+    first_try_rate: float = math.nan
 
 
 def planner_stats(records: Sequence[RunRecord], planner: str) -> PlannerStats:
@@ -236,6 +249,7 @@ def planner_stats(records: Sequence[RunRecord], planner: str) -> PlannerStats:
         (*np.percentile(solves, [50, 90]), solves.max()) if len(solves) else (math.nan,) * 3
     )
     flight = sum(r.flight_time for r in mine)
+    judged = sum(r.plans_judged for r in mine)
     return PlannerStats(
         planner=planner,
         runs=n,
@@ -251,6 +265,7 @@ def planner_stats(records: Sequence[RunRecord], planner: str) -> PlannerStats:
         solve_p90=float(p90),
         solve_max=float(smax),
         real_time_factor=sum(r.sim_time for r in mine) / flight if flight > 0 else math.nan,
+        first_try_rate=sum(r.certified_first_try for r in mine) / judged if judged else math.nan,
     )
 
 
@@ -385,8 +400,9 @@ def _summary_markdown(result: CampaignResult) -> str:
         f" {result.wall_time:.1f} s wall. One row per run in `{CSV_NAME}`.",
         "",
         "| planner | runs | collisions | collision rate (95 % CI) | goal rate |"
-        " mean / median time to goal | solve p50 / p90 / max (ms) | real-time factor (flight) | errors |",
-        "|---|---:|---:|---|---:|---|---|---:|---:|",
+        " mean / median time to goal | solve p50 / p90 / max (ms) | real-time factor (flight) |"
+        " certified first try | errors |",
+        "|---|---:|---:|---|---:|---|---|---:|---:|---:|",
     ]
     for st in result.stats().values():
         lo, hi = st.collision_ci
@@ -395,7 +411,7 @@ def _summary_markdown(result: CampaignResult) -> str:
             f" ({_pct(lo)} - {_pct(hi)}) | {_pct(st.goal_rate)} |"
             f" {_fmt_s(st.mean_time)} / {_fmt_s(st.median_time)} |"
             f" {_fmt_ms(st.solve_p50)} / {_fmt_ms(st.solve_p90)} / {_fmt_ms(st.solve_max)} |"
-            f" {st.real_time_factor:.2f} | {st.errors} |"
+            f" {st.real_time_factor:.2f} | {_pct(st.first_try_rate)} | {st.errors} |"
         )
     ratio, pairs = price_of_security(result.records)
     if pairs:

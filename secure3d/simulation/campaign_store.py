@@ -32,6 +32,7 @@ from typing import IO, TYPE_CHECKING, Any
 from secure3d import outputs
 from secure3d.errors import ConfigError, Secure3DError
 from secure3d.simulation.campaign_records import (
+    CERTIFY_FIELDS,
     CSV_FIELDS,
     CSV_NAME,
     SUMMARY_NAME,
@@ -61,6 +62,8 @@ RUNS_NAME = "runs.csv"
 FAILURES_DIR = "failures"
 #: Columns of ``runs.csv``: those of ``campaign.csv`` and every solve time of the run (s).
 RUNS_FIELDS = (*CSV_FIELDS, "solve_times")
+#: The columns before issue 16's certificate counts (still read; the counts read as 0).
+_LEGACY_RUNS_FIELDS = tuple(f for f in RUNS_FIELDS if f not in CERTIFY_FIELDS)
 #: Start of ``runs.csv``'s first line, followed by the parameters as JSON.
 HEADER_PREFIX = "# secure3d campaign "
 #: Format of ``runs.csv`` (raised when its columns or header change meaning).
@@ -236,7 +239,7 @@ def read_runs(path: str | os.PathLike[str]) -> tuple[dict[str, Any], list[RunRec
     if not rest.endswith("\n"):
         rest = rest[: rest.rfind("\n") + 1]
     reader = csv.DictReader(io.StringIO(rest))
-    if tuple(reader.fieldnames or ()) != RUNS_FIELDS:
+    if tuple(reader.fieldnames or ()) not in (RUNS_FIELDS, _LEGACY_RUNS_FIELDS):
         raise ConfigError(f"{path}: unexpected columns {reader.fieldnames}")
     return params, [record_from_row(row) for row in reader]
 
@@ -264,6 +267,8 @@ def record_from_row(row: Mapping[str, str]) -> RunRecord:
         wall_time=_float(row["wall_time"]) if row["wall_time"] else 0.0,
         setup_time=_float(row["setup_time"]) if row["setup_time"] else 0.0,
         detection_time=_float(row["detection_time"]),
+        plans_judged=int(row.get("plans_judged") or 0),
+        certified_first_try=int(row.get("certified_first_try") or 0),
         error=row["error"],
     )
 

@@ -85,6 +85,9 @@ class Flight:
         self.events: list[SimEvent] = []
         self.plans: list[tuple[float, PlanResult]] = []
         self.solve_times: list[float] = []
+        self.certify_log: list[
+            tuple[int, bool]
+        ] = []  # per judged plan call: (rejections, certified)
         self.failures = 0  # failed plan calls in a row
         self.t = 0.0
         self.x = np.asarray(loop.problem.x0, dtype=float)
@@ -363,6 +366,7 @@ class Flight:
         t0 = time.perf_counter()
         result = plan_problem(problem, loop.planner, cache=loop.cache)
         self.solve_times.append(time.perf_counter() - t0)
+        self.log_certificates(result)
         why = (
             None
             if not result.ok or self.t == 0.0
@@ -385,6 +389,25 @@ class Flight:
         self.rec.log_plan(self.t, result, label=loop.planner)
         self.rec.log_scalar(self.t, "solve_time_ms", 1e3 * self.solve_times[-1])
         return result
+
+    def log_certificates(self, result: PlanResult) -> None:
+        """Count the certificate's verdicts on this plan call (issue 16's first-try rate) and say
+        what it rejected."""
+        if result.certificate is None:
+            return
+        self.certify_log.append((len(result.rejections), bool(result.certificate.ok)))
+        if result.rejections:
+            first = result.rejections[0].first_violation
+            where = ""
+            if first is not None and len(result.times) > 1:
+                t = result.times
+                k = int(np.clip(np.searchsorted(t, first.time, side="right") - 1, 0, len(t) - 2))
+                at = (first.time - t[k]) / max(t[k + 1] - t[k], 1e-12)
+                where = f" (between nodes {k} and {k + 1}, at {at:.2f} of the interval)"
+            self.event(
+                "certificate",
+                f"rejected {len(result.rejections)} solution(s); the first: {first}{where}",
+            )
 
     def start_following(self, plan: PlanResult | None, trigger: Trigger) -> None:
         """HOLD -> FOLLOW on a new plan (line 1 succeeded)."""
@@ -600,5 +623,6 @@ class Flight:
             takeovers=self.takeovers,
             replans=self.replans,
             solve_times=tuple(self.solve_times),
+            certify_log=tuple(self.certify_log),
             wall_time=time.perf_counter() - self.s.wall0,
         )

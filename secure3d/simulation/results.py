@@ -43,6 +43,8 @@ class SimResult:
     plans : (time, PlanResult) of every plan followed.
     detection_time, detection_point : first frame that saw a hidden obstacle, and where the robot was.
     frames, takeovers, replans : counts. solve_times : wall time of every plan call (s).
+    certify_log : per plan call whose solver succeeded (secure planner): (how many solutions the
+        certificate rejected first, whether the returned plan certified). (0, True): first try.
     wall_time : the whole run's wall time (s), set-up included.
     setup_time : the part of it spent before take-off: building the true world, the camera, the
         collision world and the belief map, compiling the NLP (unless already cached), and opening
@@ -74,6 +76,7 @@ class SimResult:
     solve_times: tuple[float, ...]
     wall_time: float
     setup_time: float = 0.0
+    certify_log: tuple[tuple[int, bool], ...] = ()
     outputs: dict[str, Path] = field(default_factory=dict)
 
     @property

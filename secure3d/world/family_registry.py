@@ -6,6 +6,7 @@ Adding a family is one entry here. The hidden-obstacle kinds ``auto``, ``corner`
 
 from __future__ import annotations
 
+from secure3d.world.deadend_families import DEAD_END
 from secure3d.world.denial_families import DENIAL
 from secure3d.world.families import Family
 from secure3d.world.region_attacks import REGION_ATTACKS
@@ -15,5 +16,5 @@ __all__ = ["FAMILIES"]
 
 #: Families by name.
 FAMILIES: dict[str, Family] = {
-    f.name: f for f in (THIN_OBSTACLES, OCCLUSION_3D, REGION_ATTACKS, DENIAL)
+    f.name: f for f in (THIN_OBSTACLES, OCCLUSION_3D, DEAD_END, REGION_ATTACKS, DENIAL)
 }

@@ -86,7 +86,7 @@ def _path_point(prep: Placement, rng: np.random.Generator) -> tuple[np.ndarray, 
     return p[k].copy(), across
 
 
-def _span(
+def span_box(
     prep: Placement, base: Scenario, centre: np.ndarray, axis: int, half: float, z: tuple
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """A box through ``centre`` spanning horizontal ``axis`` from the nearest obstacle face on one
@@ -140,8 +140,8 @@ def _thin_box(
     zc = p[2] + rng.uniform(-0.8, 0.8) * r
     if kind == "plank":
         depth = rng.uniform(2.0, 6.0) * w  # a board: w thick, several w wide
-        return kind, _span(prep, base, p, axis, depth / 2, (zc - w / 2, zc + w / 2))
-    return kind, _span(prep, base, p, axis, w / 2, (zc - w / 2, zc + w / 2))
+        return kind, span_box(prep, base, p, axis, depth / 2, (zc - w / 2, zc + w / 2))
+    return kind, span_box(prep, base, p, axis, w / 2, (zc - w / 2, zc + w / 2))
 
 
 def _occlusion_box(
@@ -163,14 +163,14 @@ def _occlusion_box(
         z = (floor, p[2] + rng.uniform(-0.5, 0.8) * r)
     if not z[0] < z[1]:
         return None
-    return kind, _span(prep, base, p, axis, depth / 2, z)
+    return kind, span_box(prep, base, p, axis, depth / 2, z)
 
 
 def _z_range(base: Scenario) -> tuple[float, float]:
     return float(base.world.bounds.lo[2]), float(base.world.bounds.hi[2])
 
 
-def _place(
+def place_hidden(
     prep: Placement,
     base: Scenario,
     rng: np.random.Generator,
@@ -198,7 +198,7 @@ def _place(
     )
 
 
-def _hidden_variant(base: Scenario, kind: str, box: Box, i: int, family: str) -> Scenario:
+def hidden_variant(base: Scenario, kind: str, box: Box, i: int, family: str) -> Scenario:
     world = dataclasses.replace(base.world, boxes=(*base.world.boxes, box))
     server = base.server_map
     if server.bt is None:
@@ -221,16 +221,16 @@ def _hidden_variant(base: Scenario, kind: str, box: Box, i: int, family: str) ->
 
 def thin_variant(prep: Placement, base: Scenario, rng: np.random.Generator, i: int) -> Scenario:
     """Variant ``i`` of :data:`THIN_OBSTACLES` (pure in its inputs)."""
-    kind, box = _place(prep, base, rng, _thin_box)
-    return _hidden_variant(base, kind, box, i, "thin")
+    kind, box = place_hidden(prep, base, rng, _thin_box)
+    return hidden_variant(base, kind, box, i, "thin")
 
 
 def occlusion_variant(
     prep: Placement, base: Scenario, rng: np.random.Generator, i: int
 ) -> Scenario:
     """Variant ``i`` of :data:`OCCLUSION_3D` (pure in its inputs)."""
-    kind, box = _place(prep, base, rng, _occlusion_box)
-    out = _hidden_variant(base, kind, box, i, "occlusion3d")
+    kind, box = place_hidden(prep, base, rng, _occlusion_box)
+    out = hidden_variant(base, kind, box, i, "occlusion3d")
     if rng.random() < 0.5 and np.degrees(base.camera.vfov) > NARROW_VFOV_DEG[0]:
         top = min(NARROW_VFOV_DEG[1], float(np.degrees(base.camera.vfov)))
         camera = dataclasses.replace(

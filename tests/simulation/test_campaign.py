@@ -336,3 +336,41 @@ def test_a_campaign_flies_a_registered_family(maps_dir, tmp_path):
     assert not any(r.collided for r in result.records)
     with pytest.raises(ConfigError, match="count"):
         run_campaign(base, 1, workers=1, out_dir=tmp_path, progress=False, kind="thin", count=2)
+
+
+def test_runs_files_carry_the_certificate_counts_and_older_files_still_read(tmp_path):
+    """Issue 16: each run records its plan calls the certificate judged and how many certified
+    their first solution; a runs.csv written before those columns reads back with zeros."""
+    import csv
+    import io
+
+    from secure3d.simulation.campaign import RunRecord
+    from secure3d.simulation.campaign_store import (
+        RUNS_FIELDS,
+        _header_line,
+        _row_values,
+        read_runs,
+    )
+
+    rec = RunRecord(0, "x", 0, "secure", "reached goal", plans_judged=4, certified_first_try=3)
+    new = tmp_path / "new.csv"
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerows([RUNS_FIELDS, _row_values(rec)])
+    new.write_text(_header_line({"n": 1}) + buf.getvalue())
+    _, [back] = read_runs(new)
+    assert (back.plans_judged, back.certified_first_try) == (4, 3)
+    keep = [
+        i for i, f in enumerate(RUNS_FIELDS) if f not in ("plans_judged", "certified_first_try")
+    ]
+    rows = [[row[i] for i in keep] for row in (RUNS_FIELDS, _row_values(rec))]
+    old = tmp_path / "old.csv"
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerows(rows)
+    old.write_text(_header_line({"n": 1}) + buf.getvalue())
+    _, [legacy] = read_runs(old)
+    assert (legacy.plans_judged, legacy.certified_first_try) == (0, 0)
+    assert legacy.outcome == "reached goal"
+    bad = tmp_path / "bad.csv"
+    bad.write_text(_header_line({"n": 1}) + "variant,nonsense\n")
+    with pytest.raises(ConfigError, match="unexpected columns"):
+        read_runs(bad)
