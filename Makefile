@@ -21,7 +21,7 @@ venv: $(STAMP)
 # Compile numba's kernels once into the user's cache (~/.cache/secure3d/numba), so that the first
 # plan or flight does not pay 10-20 s of compilation (issue 17); a no-op once they are cached.
 warm:
-	$(PY) -c "from secure3d._numba_cache import warm; print(f'secure3d: numba kernels ready ({warm():.1f} s)')"
+	$(PY) -c "from secure3d.warm import warm; print(f'secure3d: numba kernels ready ({warm():.1f} s)')"
 
 demo: $(STAMP)
 	$(PY) -m secure3d demo

@@ -156,20 +156,14 @@ def _finite_only(obj: object) -> object:
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and ``os.replace``,
-    so a reader never sees a half-written file (and an interrupted run leaves the old one)."""
+    """Write ``text`` to ``path`` (its folder created if needed) with the package's one atomic
+    writer (:func:`secure3d.outputs.atomic_write_text`): a reader never sees a half-written file
+    and an interrupted run leaves the old one."""
+    from secure3d import outputs
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    return path
+    return outputs.atomic_write_text(path, text)
 
 
 def atomic_write_json(path: str | os.PathLike[str], data: object) -> Path:

@@ -51,7 +51,7 @@ def _synthetic(i: int):
 
 def checkpoint(rows: int, old_rows: int) -> str:
     """Mean cost per row, per block, of the append-only writer and of the old full rewrite."""
-    from secure3d.simulation.campaign import _csv_text
+    from secure3d.simulation.campaign_records import _csv_text
     from secure3d.simulation.campaign_store import RUNS_NAME, open_runs, read_runs
 
     marks = [m for m in (1_000, 10_000, 50_000, 100_000, 200_000) if m <= rows]

@@ -61,7 +61,7 @@ def main() -> int:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         subprocess.run(
-            [sys.executable, "-c", "from secure3d._numba_cache import warm; warm()"],
+            [sys.executable, "-c", "from secure3d.warm import warm; warm()"],
             cwd=ROOT,
             env={**env, "PYTHONPATH": str(ROOT)},
             check=True,

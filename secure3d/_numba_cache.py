@@ -114,30 +114,6 @@ def install() -> bool:
     return True
 
 
-def warm() -> float:
-    """Compile (or load) the kernels of a secure plan, its certificate and a short closed-loop
-    flight over a voxel map, so that the first real run does not pay for it. Returns seconds."""
-    import time
-
-    import numpy as np
-
-    from secure3d.mapping.keys import morton_decode, morton_encode
-    from secure3d.planning import NLPCache
-    from secure3d.planning.solve import plan
-    from secure3d.simulation.closed_loop import simulate
-    from secure3d.world import load_scenario
-
-    t0 = time.perf_counter()
-    # array forms of the key kernels, which a flight over an OctoMap calls (observed regions)
-    for n in (1, 4):  # one point (contiguous columns) and several (strided columns)
-        morton_decode(morton_encode(np.zeros((n, 3), np.int64)))
-    maps = _PACKAGE.parent / "maps"
-    if (maps / "office_bt.yaml").exists():  # a source checkout: its shipped scenarios
-        plan(load_scenario(maps / "office_bt.yaml"), "secure", cache=NLPCache())
-        simulate(maps / "blind_corner.yaml", "secure")
-    return time.perf_counter() - t0
-
-
 install()
 
-__all__ = ["cache_root", "install", "kernel_digest", "warm"]
+__all__ = ["cache_root", "install", "kernel_digest"]

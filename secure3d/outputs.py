@@ -10,8 +10,8 @@
 - :func:`atomic_output` is the one writer: it opens the temporary file, yields it, and renames it
   over the target when the block ends normally, or removes it on any exception (Ctrl-C included).
   :func:`atomic_write_bytes` and :func:`atomic_write_text` use it for whole files; figures, map
-  files and campaign tables use it too. (Rerun's recordings stream into a :func:`temporary_path`
-  of their own, renamed when the recording is closed.)
+  files and campaign tables use it too. Rerun's recordings stream into a :func:`temporary_path`
+  of their own and end the same way, through :func:`commit_temporary` or :func:`discard_temporary`.
 """
 
 from __future__ import annotations
@@ -31,6 +31,8 @@ __all__ = [
     "atomic_write_bytes",
     "atomic_write_text",
     "check_output_path",
+    "commit_temporary",
+    "discard_temporary",
     "release_temporary",
     "remove_temporaries",
     "temporary_path",
@@ -120,6 +122,21 @@ def remove_temporaries() -> list[Path]:
     return removed
 
 
+def commit_temporary(tmp: str | os.PathLike[str], path: str | os.PathLike[str]) -> Path:
+    """Rename a finished temporary file of :func:`temporary_path` over ``path`` (atomic on one
+    file system) and forget it; returns ``path``."""
+    os.replace(tmp, path)
+    release_temporary(tmp)
+    return Path(path)
+
+
+def discard_temporary(tmp: str | os.PathLike[str]) -> None:
+    """Remove a temporary file of :func:`temporary_path` (if it exists) and forget it."""
+    with contextlib.suppress(FileNotFoundError):
+        Path(tmp).unlink()
+    release_temporary(tmp)
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike[str], mode: int = 0o666) -> Iterator[BinaryIO]:
     """Open a unique temporary file beside ``path`` for binary writing; on a normal exit of the
@@ -135,13 +152,10 @@ def atomic_output(path: str | os.PathLike[str], mode: int = 0o666) -> Iterator[B
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, p)
+        commit_temporary(tmp, p)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
+        discard_temporary(tmp)
         raise
-    finally:
-        release_temporary(tmp)
 
 
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes, mode: int = 0o666) -> Path:

@@ -25,6 +25,7 @@ from secure3d.dynamics import _symbolic as sym
 from secure3d.dynamics.integrate import rk4_step
 from secure3d.errors import ConfigError
 from secure3d.geometry import transforms
+from secure3d.validation import is_real
 
 Vec3 = tuple[float, float, float]
 
@@ -38,7 +39,7 @@ def check_positive(owner: str, name: str, value: Any, *, allow_zero: bool = Fals
     name : field name (the key scenario files use under ``vehicle.limits``).
     value : the user's value; must be a real number, finite and > 0 (>= 0 with ``allow_zero``).
     """
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+    if not is_real(value, numpy=True):
         raise ConfigError(f"{owner}.{name}: expected a number, got {value!r}")
     v = float(value)
     if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
@@ -74,7 +75,7 @@ class CameraMount:
 
     def __post_init__(self) -> None:
         p = self.pitch
-        if isinstance(p, bool) or not isinstance(p, (int, float, np.integer, np.floating)):
+        if not is_real(p, numpy=True):
             raise ConfigError(f"CameraMount.pitch: expected a number (rad), got {p!r}")
         if not (math.isfinite(float(p)) and abs(float(p)) < math.pi / 2):
             raise ConfigError(
@@ -113,6 +114,15 @@ class VehicleModel(ABC):
     state_names: ClassVar[tuple[str, ...]]
     control_names: ClassVar[tuple[str, ...]]
     limits_type: ClassVar[type]
+    #: Moves in a horizontal plane at a fixed height (the paper's planar robot).
+    planar: ClassVar[bool] = False
+    #: Its heading is its direction of travel (non-holonomic): a path's yaw is its tangent's.
+    heading_follows_path: ClassVar[bool] = False
+    #: p' = v, v' = u[:3]: position (0:3) and velocity (3:6) driven by an acceleration command (the
+    #: MPC reactive controller's prediction model).
+    double_integrator: ClassVar[bool] = False
+    #: State entries holding an attitude quaternion (w, x, y, z), or None without one.
+    quaternion_slice: ClassVar[slice | None] = None
 
     def __init__(
         self, limits: Any = None, body_radius: float = 0.2, mount: CameraMount | None = None
@@ -299,6 +309,107 @@ class VehicleModel(ABC):
     def nominal_control(self, x: np.ndarray) -> np.ndarray:
         """Control that keeps the velocity (zero acceleration, or hover): (nu,) or (N, nu)."""
         return np.zeros((*np.shape(x)[:-1], self.nu))
+
+    # -- capabilities (what callers used to learn by checking the vehicle's name) -----------------
+
+    @property
+    def speed_limit(self) -> float:
+        """Largest speed (m/s)."""
+        return float(self.limits.max_speed)
+
+    @property
+    def yaw_rate_limit(self) -> float:
+        """Largest rate of turn of the heading (rad/s)."""
+        return float(self.limits.max_yaw_rate)
+
+    @property
+    def nominal_accel(self) -> float:
+        """Acceleration (m/s^2) to time-parametrise an initial guess with (the bound where the
+        model has one)."""
+        return float(self.limits.max_accel)
+
+    def rest_residuals(self, x: Any) -> list[Any]:
+        """Entries of state ``x`` (numpy or CasADi) that must also vanish for the robot to be at
+        rest, beyond the velocity the planner already pins (e.g. a planar robot's turn rate)."""
+        return []
+
+    def turn_in_place_control(
+        self, u: np.ndarray, x: np.ndarray, yaw_error: float, rate_fraction: float, dt: float
+    ) -> np.ndarray:
+        """``u`` (a control holding still) changed to turn the heading by ``yaw_error`` (rad), at
+        up to ``rate_fraction`` of the yaw-rate limit, for a step of ``dt`` s (in place)."""
+        w = rate_fraction * self.yaw_rate_limit
+        u[3] = float(np.clip(3.0 * yaw_error, -w, w))
+        return u
+
+    def sample_states(
+        self, positions: np.ndarray, speeds: Any, rng: np.random.Generator
+    ) -> np.ndarray:
+        """Random states at ``positions`` (n, 3) within the limits: ``speeds(top)`` draws (n,)
+        magnitudes up to ``top``. (n, nx) float."""
+        raise ConfigError(f"sample_states: no sampler for model {self.name!r}")
+
+    def _sample_moving(
+        self, positions: np.ndarray, speeds: Any, rng: np.random.Generator
+    ) -> np.ndarray:
+        """States (n, nx) at ``positions`` with velocities (entries 3:6) of random direction and
+        magnitude ``speeds(max_speed)``; the rest zero (for the model to fill)."""
+        n = len(positions)
+        X = np.zeros((n, self.nx))
+        X[:, :3] = positions
+        X[:, 3:6] = speeds(self.limits.max_speed)[:, None] * sample_unit_vectors(n, rng)
+        return X
+
+    def sample_controls(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` random controls, uniform in the control box: (n, nu) float."""
+        return self.u_lo + (self.u_hi - self.u_lo) * rng.random((n, self.nu))
+
+    # -- the braking law of :class:`secure3d.reactive.controllers.BrakingController` ----------------
+    #: The closed-form reactive set of its braking (secure3d.reactive.reactive_set.closed_form_family):
+    #: "capsule" (braking along -v, bounded by :meth:`braking_capsule`), "heading_capsule" (a
+    #: wheeled robot braking along its heading), or None.
+    closed_form: ClassVar[str | None] = None
+    #: Default feature map of a fitted reactive-set family (a key of
+    #: ``secure3d.reactive.features.FEATURE_MAPS``).
+    feature_map: ClassVar[str]
+    #: Whether the model has a braking law (the methods below).
+    has_braking_law: ClassVar[bool] = False
+    #: Whether the law reads the controller's gains (then they are part of its configuration).
+    braking_uses_gains: ClassVar[bool] = False
+
+    def braking_deceleration_with(self, gains: Any) -> float:
+        """The deceleration (m/s^2) the law demands: ``max_accel`` unless the model says else."""
+        return self.limits.max_accel
+
+    def braking_durations(self, deceleration: float, gains: Any) -> tuple[float, float]:
+        """(twice the braking time from the top speed, settling time) in s."""
+        return 2.0 * self.limits.max_speed / deceleration, 0.5
+
+    def braking_capsule(
+        self, latency: float, deceleration: float, gains: Any
+    ) -> tuple[float, float, float, float, float]:
+        """The capsule bound on a braking manoeuvre after ``latency`` s (``closed_form ==
+        "capsule"``): deceleration, coast time, error acceleration, error time, extra growth, as
+        :class:`secure3d.reactive.reactive_set.CapsuleBound` takes them."""
+        raise NotImplementedError(f"{type(self).__name__} has no capsule bound")
+
+    def braking_controls(
+        self, X: np.ndarray, dt: float, deceleration: float, gains: Any
+    ) -> np.ndarray:
+        """Braking controls (N, nu) for states X (N, nx) held for ``dt`` s."""
+        raise NotImplementedError(f"{type(self).__name__} has no braking law")
+
+    def braking_at_rest(
+        self, X: np.ndarray, rest: float, deceleration: float, gains: Any
+    ) -> np.ndarray:
+        """(N,) bool: stopped (speeds below ``rest``, and whatever else the law settles)."""
+        raise NotImplementedError(f"{type(self).__name__} has no braking law")
+
+
+def sample_unit_vectors(n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` random directions, uniform on the sphere: (n, 3) float."""
+    u = rng.normal(size=(n, 3))
+    return u / np.linalg.norm(u, axis=1, keepdims=True)
 
 
 def _frozen(values: list[float]) -> np.ndarray:

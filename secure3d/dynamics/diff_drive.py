@@ -8,6 +8,7 @@ moves in the horizontal plane at the fixed height ``limits.height``; the camera 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
@@ -52,9 +53,12 @@ class DiffDrive(VehicleModel):
     """Differential drive (see module docstring). ``limits`` is a :class:`DiffDriveLimits`."""
 
     name = "diff_drive"
+    feature_map = "diff_drive/v1"
     state_names = ("x", "y", "theta", "v", "omega")
     control_names = ("a", "alpha")
     limits_type = DiffDriveLimits
+    planar = True
+    heading_follows_path = True
     limits: DiffDriveLimits
 
     def _control_bounds(self) -> tuple[list[float], list[float]]:
@@ -101,3 +105,59 @@ class DiffDrive(VehicleModel):
             raise ConfigError(f"DiffDrive.initial_state: yaw must be finite, got {yaw!r}")
         speed = float(v[0] * np.cos(yaw) + v[1] * np.sin(yaw))
         return np.array([p[0], p[1], yaw, speed, 0.0])
+
+    @property
+    def yaw_rate_limit(self) -> float:
+        return float(self.limits.max_ang_speed)
+
+    def rest_residuals(self, x: Any) -> list[Any]:
+        """The turn rate: a wheeled robot at rest does not spin in place."""
+        return [x[4]]
+
+    def turn_in_place_control(
+        self, u: np.ndarray, x: np.ndarray, yaw_error: float, rate_fraction: float, dt: float
+    ) -> np.ndarray:
+        """Accelerate the turn rate towards a rate proportional to ``yaw_error`` (saturated)."""
+        lim = self.limits
+        rate = float(np.clip(3.0 * yaw_error, -1, 1)) * rate_fraction * lim.max_ang_speed
+        u[1] = np.clip((rate - float(x[4])) / dt, -lim.max_ang_accel, lim.max_ang_accel)
+        return u
+
+    def sample_states(
+        self, positions: np.ndarray, speeds: Any, rng: np.random.Generator
+    ) -> np.ndarray:
+        """Random states in the plane; signed speed and turn rate of either sign."""
+        n = len(positions)
+        X = np.zeros((n, self.nx))
+        X[:, :2] = positions[:, :2]
+        X[:, 2] = rng.uniform(-math.pi, math.pi, n)
+        v = speeds(self.limits.max_speed) * rng.choice([-1.0, 1.0], n)
+        w = speeds(self.limits.max_ang_speed) * rng.choice([-1.0, 1.0], n)
+        X[:, 3], X[:, 4] = v, w
+        return X
+
+    # -- braking law (secure3d.reactive.controllers.BrakingController) ------------------------------
+    has_braking_law = True
+    closed_form = "heading_capsule"
+
+    def braking_durations(self, deceleration: float, gains: Any) -> tuple[float, float]:
+        """The longer of the speed's and the turn rate's braking times, doubled; settling 0.5 s."""
+        lim = self.limits
+        t_brake = 2.0 * lim.max_speed / deceleration
+        return max(t_brake, 2.0 * lim.max_ang_speed / lim.max_ang_accel), 0.5
+
+    def braking_controls(
+        self, X: np.ndarray, dt: float, deceleration: float, gains: Any
+    ) -> np.ndarray:
+        """The point mass's law on the signed speed (``max_accel``) and on the turn rate
+        (``max_ang_accel``)."""
+        v, w = X[:, 3], X[:, 4]
+        lim = self.limits
+        a = -np.sign(v) * np.minimum(lim.max_accel, np.abs(v) / dt)
+        alpha = -np.sign(w) * np.minimum(lim.max_ang_accel, np.abs(w) / dt)
+        return np.stack([a, alpha], axis=1)
+
+    def braking_at_rest(
+        self, X: np.ndarray, rest: float, deceleration: float, gains: Any
+    ) -> np.ndarray:
+        return (np.abs(X[:, 3]) < rest) & (np.abs(X[:, 4]) < rest)

@@ -8,6 +8,7 @@ looks along the yaw heading with the mount's downward pitch.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, Literal
@@ -15,7 +16,7 @@ from typing import Any, Literal
 import numpy as np
 
 from secure3d.dynamics import _symbolic as sym
-from secure3d.dynamics.base import VehicleModel, normalise_fields, vec3
+from secure3d.dynamics.base import VehicleModel, normalise_fields, sample_unit_vectors, vec3
 from secure3d.errors import ConfigError
 from secure3d.geometry.transforms import yaw_matrix
 
@@ -53,6 +54,8 @@ class PointMass(VehicleModel):
     """Point mass with yaw (see module docstring). ``limits`` is a :class:`PointMassLimits`."""
 
     name = "point_mass"
+    feature_map = "point_mass/v1"
+    double_integrator = True
     state_names = ("px", "py", "pz", "vx", "vy", "vz", "yaw")
     control_names = ("ax", "ay", "az", "yaw_rate")
     limits_type = PointMassLimits
@@ -114,7 +117,49 @@ class PointMass(VehicleModel):
             raise ConfigError("initial_states: positions and velocities must be finite")
         return out
 
+    def sample_states(
+        self, positions: np.ndarray, speeds: Any, rng: np.random.Generator
+    ) -> np.ndarray:
+        X = self._sample_moving(positions, speeds, rng)
+        n = len(X)
+        X[:, 6] = rng.uniform(-math.pi, math.pi, n)
+        return X
+
+    def sample_controls(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """Uniform in the control box; with a norm bound, the acceleration uniform in the ball."""
+        U = super().sample_controls(n, rng)
+        if self.limits.accel_norm == "ball":
+            a = self.limits.max_accel * rng.random(n) ** (1 / 3)
+            U[:, :3] = a[:, None] * sample_unit_vectors(n, rng)
+        return U
+
     @property
     def braking_deceleration(self) -> float:
         """Deceleration allowed along any direction (m/s^2): ``max_accel`` for both norms."""
         return self.limits.max_accel
+
+    # -- braking law (secure3d.reactive.controllers.BrakingController) ------------------------------
+    has_braking_law = True
+    closed_form = "capsule"
+
+    def braking_capsule(
+        self, latency: float, deceleration: float, gains: Any
+    ) -> tuple[float, float, float, float, float]:
+        """Coast for the latency while any held acceleration (the norm bound, or the box's
+        diagonal) pushes off the reference, then brake at ``max_accel``."""
+        a_hold = self.limits.max_accel * (1.0 if self.limits.accel_norm == "ball" else math.sqrt(3))
+        return self.braking_deceleration, latency, a_hold, latency, 0.0
+
+    def braking_controls(
+        self, X: np.ndarray, dt: float, deceleration: float, gains: Any
+    ) -> np.ndarray:
+        """``a = -min(a_b, s / dt) v_hat``: the last step lands exactly on v = 0."""
+        v = X[:, 3:6]
+        s = np.linalg.norm(v, axis=1)
+        scale = np.minimum(deceleration, s / dt) / np.maximum(s, 1e-300)
+        return np.concatenate([-scale[:, None] * v, np.zeros((len(X), 1))], axis=1)
+
+    def braking_at_rest(
+        self, X: np.ndarray, rest: float, deceleration: float, gains: Any
+    ) -> np.ndarray:
+        return np.linalg.norm(X[:, 3:6], axis=1) < rest

@@ -18,7 +18,42 @@ import numpy as np
 from secure3d.dynamics import _symbolic as sym
 from secure3d.dynamics.base import VehicleModel, normalise_fields, vec3
 from secure3d.errors import ConfigError
-from secure3d.geometry.transforms import quat_to_matrix
+from secure3d.geometry.transforms import quat_multiply, quat_to_matrix
+from secure3d.validation import is_real
+
+
+@dataclass(frozen=True)
+class QuadrotorBrakingGains:
+    """Gains of the quadrotor braking law.
+
+    Attributes
+    ----------
+    decel_fraction : float
+        Fraction of the largest deceleration the thrust range allows in every direction
+        (``min(thrust_max - g, g - thrust_min, g sin(max_tilt))``) that the law demands, in (0, 1];
+        the rest is margin for the attitude error.
+    velocity_time_constant : float
+        Below ``decel * tau`` m/s the demanded deceleration is ``v / tau`` (tau in s): a smooth,
+        chatter-free approach to rest.
+    attitude_gain : float
+        Body rate per radian of thrust-axis error (1/s), saturated at ``max_rate``.
+    """
+
+    decel_fraction: float = 0.9
+    velocity_time_constant: float = 0.25
+    attitude_gain: float = 12.0
+
+    def __post_init__(self) -> None:
+        for name in ("decel_fraction", "velocity_time_constant", "attitude_gain"):
+            v = getattr(self, name)
+            if not is_real(v) or not math.isfinite(v) or v <= 0:
+                raise ConfigError(
+                    f"QuadrotorBrakingGains.{name}: must be finite and > 0, got {v!r}"
+                )
+        if self.decel_fraction > 1:
+            raise ConfigError(
+                f"QuadrotorBrakingGains.decel_fraction: must be <= 1, got {self.decel_fraction}"
+            )
 
 
 @dataclass(frozen=True)
@@ -73,9 +108,11 @@ class Quadrotor(VehicleModel):
     """Quadrotor (see module docstring). ``limits`` is a :class:`QuadrotorLimits`."""
 
     name = "quadrotor"
+    feature_map = "quadrotor/v1"
     state_names = ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")
     control_names = ("thrust", "wx", "wy", "wz")
     limits_type = QuadrotorLimits
+    quaternion_slice = slice(6, 10)
     limits: QuadrotorLimits
 
     def _control_bounds(self) -> tuple[list[float], list[float]]:
@@ -160,3 +197,107 @@ class Quadrotor(VehicleModel):
         u = np.zeros((*np.shape(x)[:-1], self.nu))
         u[..., 0] = self.limits.gravity
         return u
+
+    @property
+    def nominal_accel(self) -> float:
+        """3 m/s^2: thrust and tilt bound the acceleration together, with no single limit; the
+        initial guess's time-parametrisation assumes this much."""
+        return 3.0
+
+    def sample_states(
+        self, positions: np.ndarray, speeds: Any, rng: np.random.Generator
+    ) -> np.ndarray:
+        """Random states; the attitude tilted about a random horizontal axis, then yawed."""
+        X = self._sample_moving(positions, speeds, rng)
+        n = len(X)
+        yaw = rng.uniform(-math.pi, math.pi, n)
+        tilt = speeds(self.limits.max_tilt)
+        axis_angle = rng.uniform(-math.pi, math.pi, n)
+        # Tilt about a random horizontal axis, then yaw: q = q_tilt * q_yaw.
+        ca, sa = np.cos(tilt / 2), np.sin(tilt / 2)
+        ax, ay = np.cos(axis_angle), np.sin(axis_angle)
+        cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
+        q_t = np.stack([ca, sa * ax, sa * ay, np.zeros(n)], axis=1)
+        q_y = np.stack([cy, np.zeros(n), np.zeros(n), sy], axis=1)
+        X[:, 6:10] = quat_multiply(q_t, q_y)
+        return X
+
+    # -- braking law (secure3d.reactive.controllers.BrakingController) ------------------------------
+    has_braking_law = True
+    closed_form = "capsule"
+
+    def braking_capsule(
+        self, latency: float, deceleration: float, gains: QuadrotorBrakingGains
+    ) -> tuple[float, float, float, float, float]:
+        """Braking at ``deceleration`` after the thrust axis has turned (saturated body rates,
+        then one attitude time constant), with the thrust error of that turn."""
+        lim = self.limits
+        g, a_b = lim.gravity, deceleration
+        brake_tilt = math.asin(min(1.0, a_b / g))
+        # Largest angle between the thrust axis (tilt <= max_tilt, plus what the held rates add
+        # during the latency) and any braking thrust direction (tilt <= brake_tilt).
+        turn = min(math.pi, lim.max_tilt + lim.max_rate * latency + brake_tilt)
+        # Saturated turn at max_rate, then one attitude time constant to settle.
+        t_turn = latency + turn / lim.max_rate + 1.0 / gains.attitude_gain
+        # The law's thrust error is |t| sin(angle) <= (g + a_b) sin(angle); a held command during
+        # the latency may use up to thrust_max and differs from the braking reference by a_b more.
+        if latency > 0:
+            err = lim.thrust_max * math.sin(min(turn, math.pi / 2)) + a_b
+        else:
+            err = (g + a_b) * math.sin(min(turn, math.pi / 2))
+        tau = gains.velocity_time_constant
+        return a_b, 0.0, err, t_turn, 0.5 * a_b * tau * tau
+
+    braking_uses_gains = True
+
+    def braking_deceleration_with(self, gains: QuadrotorBrakingGains) -> float:
+        """``decel_fraction`` of the deceleration the thrust range allows in every direction."""
+        lim = self.limits
+        g = lim.gravity
+        avail = min(lim.thrust_max - g, g - lim.thrust_min, g * math.sin(lim.max_tilt))
+        return gains.decel_fraction * avail
+
+    def braking_durations(
+        self, deceleration: float, gains: QuadrotorBrakingGains
+    ) -> tuple[float, float]:
+        """Twice the braking time from the top speed; settling: 12 velocity time constants."""
+        return 2.0 * self.limits.max_speed / deceleration, 12.0 * gains.velocity_time_constant
+
+    def braking_controls(
+        self, X: np.ndarray, dt: float, deceleration: float, gains: QuadrotorBrakingGains
+    ) -> np.ndarray:
+        return self._braking(X, deceleration, gains)[0]
+
+    def braking_at_rest(
+        self, X: np.ndarray, rest: float, deceleration: float, gains: QuadrotorBrakingGains
+    ) -> np.ndarray:
+        """Slow and with the thrust axis aligned (attitude settled)."""
+        stopped = np.linalg.norm(X[:, 3:6], axis=1) < rest
+        stopped &= self._braking(X, deceleration, gains)[1] < rest
+        return stopped
+
+    def _braking(
+        self, X: np.ndarray, deceleration: float, gains: QuadrotorBrakingGains
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Controls (N, 4) and the thrust-axis error angle (N,) of the quadrotor law."""
+        lim = self.limits
+        v = X[:, 3:6]
+        s = np.linalg.norm(v, axis=1)
+        k = np.minimum(deceleration / np.maximum(s, 1e-300), 1.0 / gains.velocity_time_constant)
+        t_des = -k[:, None] * v
+        t_des[:, 2] += lim.gravity
+        d = t_des / np.linalg.norm(t_des, axis=1, keepdims=True)
+        R = self.body_rotation(X)
+        z_b = R[:, :, 2]
+        cross = np.cross(z_b, d)
+        sin_e = np.linalg.norm(cross, axis=1)
+        angle = np.arctan2(sin_e, np.einsum("ij,ij->i", z_b, d))
+        # angle / sin(angle) -> 1 as the error vanishes; the axis is then irrelevant.
+        ratio = np.where(sin_e > 1e-12, angle / np.maximum(sin_e, 1e-300), 1.0)
+        w_world = (gains.attitude_gain * ratio)[:, None] * cross
+        w_body = np.einsum("nji,nj->ni", R, w_world)
+        rate = np.linalg.norm(w_body[:, :2], axis=1)
+        w_body *= np.minimum(1.0, lim.max_rate / np.maximum(rate, 1e-300))[:, None]
+        w_body[:, 2] = 0.0
+        thrust = np.clip(np.einsum("ij,ij->i", t_des, z_b), lim.thrust_min, lim.thrust_max)
+        return np.concatenate([thrust[:, None], w_body], axis=1), angle

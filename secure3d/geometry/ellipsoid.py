@@ -15,6 +15,7 @@ import numpy as np
 from secure3d.errors import GeometryError
 from secure3d.geometry import backend as B
 from secure3d.geometry.backend import ArrayOrSym
+from secure3d.validation import is_int_in
 
 #: Relative asymmetry ``max |M - M^T| / max |M|`` accepted (and removed) by check_ellipsoid.
 SYMMETRY_TOL = 1e-9
@@ -188,7 +189,7 @@ def surface_points(center: object, shape: object, n: int, rng: np.random.Generat
     (n, 3) float
     """
     c, M = check_ellipsoid(center, shape)
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+    if not is_int_in(n, 0, numpy=True):
         raise GeometryError(f"surface_points: n must be a non-negative integer, got {n!r}")
     z = rng.standard_normal((int(n), 3))
     z /= np.linalg.norm(z, axis=-1, keepdims=True)

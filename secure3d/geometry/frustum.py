@@ -25,12 +25,13 @@ from secure3d.geometry import backend as B
 from secure3d.geometry.backend import ArrayOrSym
 from secure3d.geometry.ellipsoid import halfspace_margins
 from secure3d.geometry.transforms import check_rotation
+from secure3d.validation import is_real
 
 FAR_KINDS = ("depth", "range")
 
 
 def _finite(value: object, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+    if not is_real(value, numpy=True):
         raise ConfigError(f"PinholeFrustum.{name}: expected a number, got {value!r}")
     v = float(value)
     if not math.isfinite(v):
@@ -104,7 +105,7 @@ class PinholeFrustum:
         and principal point ``(cx, cy)`` (px, default the image centre ``width/2, height/2``)."""
         vals = {"fx": fx, "fy": fy, "width": width, "height": height}
         for name, v in vals.items():
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+            if not is_real(v, numpy=True):
                 raise ConfigError(f"from_intrinsics: {name} must be a number, got {v!r}")
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"from_intrinsics: {name} must be finite and > 0, got {v!r}")

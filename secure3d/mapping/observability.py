@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 from secure3d.errors import ConfigError
+from secure3d.validation import is_real
 
 #: Default smallest obstacle (m) the guarantee covers (see PlannerSpec.min_obstacle_size for why).
 DEFAULT_MIN_OBSTACLE_SIZE = 0.15
@@ -21,7 +22,7 @@ DROPOUT_MISS_PROBABILITY = 1e-6
 
 
 def _number(value: object, name: str, *, positive: bool = True) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if not is_real(value):
         raise ConfigError(f"observed_range: {name} must be a number, got {value!r}")
     v = float(value)
     if not math.isfinite(v) or (positive and v <= 0.0):

@@ -6,9 +6,17 @@
 - :func:`certify`: the independent safety check (shares no constraint code with the NLP).
 """
 
+# The two transcriptions register themselves in nlp_cache.TRANSCRIPTIONS when imported.
+from secure3d.planning import collocation, fatrop_transcription  # noqa: F401
 from secure3d.planning.certificate import CertificateSettings, certify
-from secure3d.planning.collocation import NLPCache
-from secure3d.planning.problem import PlannerOptions, PlanningProblem, problem_from_scenario
+from secure3d.planning.nlp_cache import NLPCache
+from secure3d.planning.problem import (
+    Planner,
+    PlannerOptions,
+    PlanningProblem,
+    Solver,
+    problem_from_scenario,
+)
 from secure3d.planning.result import Certificate, PlanResult, PlanStatus, Violation
 from secure3d.planning.solve import plan, plan_problem
 
@@ -18,8 +26,10 @@ __all__ = [
     "NLPCache",
     "PlanResult",
     "PlanStatus",
+    "Planner",
     "PlannerOptions",
     "PlanningProblem",
+    "Solver",
     "Violation",
     "certify",
     "plan",

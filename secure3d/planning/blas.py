@@ -20,6 +20,7 @@ import os
 from pathlib import Path
 
 from secure3d.errors import ConfigError
+from secure3d.validation import is_int_in
 
 __all__ = ["DEFAULT_THREADS", "ENV", "blas_threads", "pin_blas_threads"]
 
@@ -70,7 +71,7 @@ def pin_blas_threads(threads: int | None = None) -> int:
     in which case nothing is changed).
     """
     n = _wanted() if threads is None else threads
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+    if not is_int_in(n, 1):
         raise ConfigError(f"pin_blas_threads: threads must be a positive integer, got {n!r}")
     lib = _openblas()
     if lib is None:

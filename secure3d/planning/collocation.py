@@ -22,18 +22,35 @@ constraints, boundary conditions, obstacle and visibility constraints, solver.
 from __future__ import annotations
 
 import time
-from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
 
-from secure3d.errors import ConfigError
 from secure3d.planning import constraints as cons
 from secure3d.planning.assembled_derivatives import KernelCall, assembled_derivatives
 from secure3d.planning.interrupt import stop_callback
-from secure3d.planning.problem import PlanningProblem
+from secure3d.planning.nlp_cache import (  # noqa: F401  (NLPCache, the identities: re-exported)
+    NLPCache,
+    family_identity,
+    model_identity,
+    nlp_key,
+    register_transcription,
+    transcription,
+)
+from secure3d.planning.problem import Planner, PlanningProblem, Solver
+from secure3d.planning.transcribed import (  # noqa: F401  (re-exported: the former home of these)
+    NO_PARAMETER_MULTIPLIERS,
+    T_MAX,
+    T_MIN,
+    NLPLayout,
+    TranscribedNLP,
+    node_fractions,
+    parameter_vector,
+    selection_matrix,
+    viewing_states,
+)
 
 #: Symbol type of the transcription. Measured on blind_corner (K=40): MX builds in ~0.2 s but its
 #: Hessian costs ~18 ms per iteration; SX builds in ~0.6 s and iterates in ~1.5 ms. Builds are
@@ -44,216 +61,6 @@ SYM = ca.SX
 #: (:mod:`secure3d.planning.assembled_derivatives`) instead of CasADi's whole-graph derivatives:
 #: same values to rounding, same sparsity, a third of the compilation time (benchmarks/results/README.md).
 ASSEMBLED_DERIVATIVES = True
-
-#: Bounds on the final time (s): below is numerically meaningless, above is a unit error.
-T_MIN, T_MAX = 0.05, 300.0
-
-
-@dataclass
-class NLPLayout:
-    """Where each variable block lives in the NLP's decision vector w."""
-
-    K: int
-    nx: int
-    nu: int
-    slots: int
-    hermite: bool
-    viewing: bool = False
-    #: one dual per box axis and slot (the side comes as a parameter), else six
-    one_sided: bool = False
-    #: state coordinates the camera pose depends on (the viewing states hold only these)
-    view_dims: tuple[int, ...] = ()
-    #: the K-1 interval lengths, in units of T/(K-1), are the last parameters (else all 1)
-    grid: bool = False
-    i_T: int = 0
-    i_X: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
-    i_U: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
-    i_Um: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
-    i_L: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
-    i_Y: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), int))
-    n_w: int = 0
-
-    def __post_init__(self) -> None:
-        K, nx, nu, S = self.K, self.nx, self.nu, self.slots
-        # Block order [T, X, U, Um, Lam, Y], each block column-major by node, so that CasADi can
-        # view every block as one matrix (one graph node) and map the node kernels over its columns.
-        n = 1
-        self.i_X = (n + np.arange(K * nx)).reshape(K, nx)
-        n += K * nx
-        self.i_U = (n + np.arange(K * nu)).reshape(K, nu)
-        n += K * nu
-        n_m = (K - 1) if self.hermite else 0
-        self.i_Um = (n + np.arange(n_m * nu)).reshape(n_m, nu)
-        n += n_m * nu
-        n_l = 3 if self.one_sided else 6
-        self.i_L = (n + np.arange(K * S * n_l)).reshape(K, S, n_l)
-        n += K * S * n_l
-        n_y, n_d = (K, len(self.view_dims)) if self.viewing else (0, 0)
-        self.i_Y = (n + np.arange(n_y * n_d)).reshape(n_y, n_d)
-        n += n_y * n_d
-        self.n_w = n
-
-    def unpack(
-        self, w: np.ndarray, sides: np.ndarray | None = None
-    ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-        """(T, X, U, L) with L the (K, S, 6) duals; one-sided duals need their ``sides``."""
-        w = np.asarray(w, dtype=float).ravel()
-        return float(w[self.i_T]), w[self.i_X], w[self.i_U], self._six(w[self.i_L], sides)
-
-    def _six(self, L: np.ndarray, sides: np.ndarray | None) -> np.ndarray:
-        if not self.one_sided:
-            return L
-        if sides is None:
-            raise ValueError("one-sided duals need the sides they were solved with")
-        pos = np.asarray(sides, dtype=bool)
-        return np.concatenate([np.where(pos, L, 0.0), np.where(pos, 0.0, L)], axis=-1)
-
-    def pack(
-        self,
-        T: float,
-        X: np.ndarray,
-        U: np.ndarray,
-        L: np.ndarray,
-        Um: np.ndarray | None = None,
-        assignment: tuple[int, ...] | None = None,
-    ) -> np.ndarray:
-        """The decision vector; ``L`` holds (K, S, 6) duals (folded to one side if one-sided)."""
-        w = np.zeros(self.n_w)
-        w[self.i_T] = T
-        w[self.i_X] = X
-        w[self.i_U] = U
-        L = np.asarray(L, dtype=float)
-        w[self.i_L] = L[..., :3] + L[..., 3:] if self.one_sided else L
-        if self.hermite:
-            w[self.i_Um] = 0.5 * (U[:-1] + U[1:]) if Um is None else Um
-        if self.viewing and assignment is not None:
-            w[self.i_Y] = viewing_states(X, assignment)[:, list(self.view_dims)]
-        return w
-
-
-def selection_matrix(assignment: tuple[int, ...]) -> np.ndarray:
-    """(K, K) one-hot rows: S[i, j] = 1 where node i is seen from node j (zero row: start region)."""
-    K = len(assignment)
-    S = np.zeros((K, K))
-    for i, j in enumerate(assignment):
-        if j >= 0:
-            S[i, j] = 1.0
-    return S
-
-
-def viewing_states(X: np.ndarray, assignment: tuple[int, ...]) -> np.ndarray:
-    """(K, nx) state of the node each node is seen from (zeros for the start region)."""
-    return selection_matrix(assignment) @ np.asarray(X, dtype=float)
-
-
-@dataclass
-class TranscribedNLP:
-    """A built NLP: the solver, its layout, bounds, and per-family row indices of g."""
-
-    key: tuple
-    layout: NLPLayout
-    solver: ca.Function
-    g_fun: ca.Function
-    lbg: np.ndarray
-    ubg: np.ndarray
-    families: dict[str, np.ndarray]
-    n_p: int
-    build_time: float
-    #: rows that only hold for nodes seen from an earlier node / only for start-region nodes, and
-    #: the node of every row (-1: not node-specific); used by :meth:`bounds_for`.
-    view_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
-    start_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
-    row_node: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
-    warm_solver: ca.Function | None = None
-    #: IPOPT's iteration callback (Ctrl-C); CasADi does not own Python callbacks, so the record does
-    stop_callback: ca.Callback | None = None
-    nlp: dict | None = None
-    solver_name: str = "ipopt"
-    solver_options: dict = field(default_factory=dict)
-
-    def bounds_for(self, assignment: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
-        """Row bounds (lbg, ubg) for a look-back assignment: a node's frustum and occlusion rows are
-        switched off (lower bound -inf) where it lies in the start region, its start-region rows
-        where it is seen from an earlier node."""
-        if not len(self.row_node):
-            return self.lbg, self.ubg
-        is_view = np.asarray(assignment, dtype=int) >= 0
-        node_view = np.where(self.row_node >= 0, is_view[np.maximum(self.row_node, 0)], False)
-        node_start = (self.row_node >= 0) & ~node_view
-        lbg = self.lbg.copy()
-        lbg[(self.view_rows & node_start) | (self.start_rows & node_view)] = -np.inf
-        return lbg, self.ubg
-
-    def parameters(
-        self,
-        problem: PlanningProblem,
-        slot_boxes: np.ndarray,
-        assignment,
-        sides: np.ndarray | None = None,
-        grid: np.ndarray | None = None,
-    ) -> np.ndarray:
-        """The NLP's parameter vector (see :func:`parameter_vector`), then the dual sides
-        (one-sided duals), the selection matrix (look-back as a parameter) and the interval
-        ratios of the node time fractions ``grid`` (default, None: evenly spaced)."""
-        parts = [parameter_vector(problem, slot_boxes)]
-        if getattr(self.layout, "one_sided", False):
-            if sides is None:
-                raise ValueError("one-sided duals need their sides")
-            parts.append(np.asarray(sides, dtype=float).ravel())
-        if getattr(self.layout, "viewing", False):
-            parts.append(selection_matrix(assignment).ravel(order="F"))
-        if getattr(self.layout, "grid", False):
-            K = self.layout.K
-            parts.append(
-                np.ones(K - 1) if grid is None else (K - 1) * np.diff(node_fractions(grid, K))
-            )
-        return np.concatenate(parts)
-
-    def get_warm_solver(self) -> ca.Function:
-        """Same NLP, solver options tuned for a warm start from a primal-dual guess."""
-        if self.warm_solver is None:
-            opts = dict(self.solver_options)
-            if self.solver_name == "ipopt":
-                # Measured on blind_corner (K=40, replan 0.1 s along the plan, 3 runs): 41
-                # iterations with mu_init 1e-4 and pushes 1e-6; 28 with these settings.
-                opts.update(
-                    {
-                        "ipopt.warm_start_init_point": "yes",
-                        "ipopt.warm_start_bound_push": 1e-8,
-                        "ipopt.warm_start_mult_bound_push": 1e-8,
-                        "ipopt.warm_start_slack_bound_push": 1e-8,
-                        "ipopt.mu_init": 1e-5,
-                        "ipopt.tol": 1e-5,
-                        # Warm replans were slower without the monotone fall-back.
-                        "ipopt.adaptive_mu_globalization": "obj-constr-filter",
-                    }
-                )
-            self.warm_solver = ca.nlpsol("secure3d_warm", self.solver_name, self.nlp, opts)
-        return self.warm_solver
-
-
-def node_fractions(times: np.ndarray, K: int) -> np.ndarray:
-    """Node times (K,) as fractions of the last, checked: 0 first, 1 last, increasing."""
-    t = np.asarray(times, dtype=float).ravel()
-    if t.shape != (K,) or t[0] != 0.0 or t[-1] <= 0.0 or np.any(np.diff(t) <= 0.0):
-        raise ValueError(f"node times must be {K} increasing values from 0, got {t}")
-    return t / t[-1]
-
-
-def parameter_vector(problem: PlanningProblem, slot_boxes: np.ndarray) -> np.ndarray:
-    """NLP parameters: start box lo (3), hi (3), goal (3), slot boxes (K*S*6)."""
-    return np.concatenate(
-        [problem.start_region_lo, problem.start_region_hi, problem.goal, slot_boxes.ravel()]
-    )
-
-
-#: nlpsol options: no multipliers of the parameters (``lam_p``, which nothing here reads), so no
-#: ``nlp_grad`` Function. CasADi builds it by default, by reverse mode over every row (173k
-#: instructions for the closed loop's NLP), and evaluates it after every solve: nlpsol took
-#: 0.11 s of the 0.42 s build, 0.014 s without. The solution is otherwise unchanged: x, f, g,
-#: lam_x and lam_g come from the solver itself either way. (IPOPT only: CasADi 3.8.2's fatrop
-#: interface aborts in free() without ``nlp_grad``.)
-NO_PARAMETER_MULTIPLIERS = {"calc_lam_p": False, "no_nlp_grad": True}
 
 
 def _solver_options(problem: PlanningProblem, planner: str = "secure") -> tuple[str, dict]:
@@ -277,7 +84,7 @@ def _solver_options(problem: PlanningProblem, planner: str = "secure") -> tuple[
         "ipopt.adaptive_mu_globalization": "never-monotone-mode",
         "ipopt.linear_solver": "mumps",
     }
-    if planner == "secure":
+    if planner == Planner.SECURE:
         # No gradient-based row scaling for the secure NLP. Measured over the ten scenarios in
         # maps/ (cold, 1 run each, every plan certified): total cold secure solve 11.1 s -> 9.6 s,
         # blind_corner 0.29 s / 33 iterations -> 0.18 s / 21, six scenarios faster, three the
@@ -429,20 +236,32 @@ def build_nlp(
 
     Every constraint family is one mapped call of its node kernel over the nodes it applies to, so
     the expression graph (and the solver set-up time) does not grow with K.
-    With ``options.solver == "fatrop"`` the stage-wise transcription of
-    :mod:`secure3d.planning.fatrop_transcription` is built instead.
+    With another ``options.solver`` (``"fatrop"``) that solver's transcription is built instead
+    (:data:`secure3d.planning.nlp_cache.TRANSCRIPTIONS`).
     """
-    if problem.options.solver == "fatrop":
-        from secure3d.planning.fatrop_transcription import build_fatrop_nlp  # imports this module
-
-        return build_fatrop_nlp(problem, planner, assignment, kernels)
+    if problem.options.solver != Solver.IPOPT:  # another transcription (nlp_cache.TRANSCRIPTIONS)
+        return transcription(problem.options.solver).build(problem, planner, assignment, kernels)
     t0 = time.perf_counter()
+    lay = _layout(problem, planner == Planner.SECURE)
+    kern = kernels if kernels is not None else node_kernels(problem)
+    v = _symbols(problem, lay)
+    rows = _NLPRows()
+    J = _objective(problem, v)
+    _dynamics_rows(rows, kern, v)
+    _path_rows(rows, kern, v)
+    _terminal_rows(rows, problem, v)
+    _obstacle_and_visibility_rows(rows, problem, kern, v, planner, assignment)
+    return _transcribed(problem, planner, assignment, kern, v, J, rows, t0)
+
+
+def _layout(problem: PlanningProblem, secure: bool) -> NLPLayout:
+    """Where each variable sits in the decision vector (viewing states for look-backs passed as
+    parameters, the secure planner's ``lookback_encoding="parameter"``)."""
     model, o = problem.model, problem.options
     K, nx, nu, S = o.nodes, model.nx, model.nu, o.obstacle_slots
     hermite = o.collocation == "hermite_simpson"
-    secure = planner == "secure"
     parametric = secure and o.lookback_encoding == "parameter"
-    lay = NLPLayout(
+    return NLPLayout(
         K=K,
         nx=nx,
         nu=nu,
@@ -453,7 +272,65 @@ def build_nlp(
         view_dims=camera_dims(model) if parametric else (),
         grid=True,
     )
-    kern = kernels if kernels is not None else node_kernels(problem)
+
+
+@dataclass
+class _Symbols:
+    """The NLP's symbols: decision vector ``w`` (final time ``T``, states ``X`` (nx, K), controls
+    ``U`` (nu, K), midpoint controls ``Um`` (nu, K-1)), parameters ``p`` (start box, goal, slot
+    boxes ``Boxes`` (6S, K), dual sides, look-back selection, interval ratios; ``n_*`` their sizes),
+    the obstacle duals ``Lam`` (6S, K), the mean step ``h`` and the interval lengths ``steps``."""
+
+    lay: NLPLayout
+    w: ca.SX
+    T: ca.SX
+    X: ca.SX
+    U: ca.SX
+    Um: ca.SX
+    p: ca.SX
+    start_lo: ca.SX
+    start_hi: ca.SX
+    goal: ca.SX
+    Boxes: ca.SX
+    Lam: ca.SX
+    h: ca.SX
+    steps: ca.SX
+    n_boxes: int
+    n_sides: int
+    n_sel: int
+    n_p: int
+
+
+@dataclass
+class _NLPRows:
+    """Constraint rows in the order they are added: each block's expression and what it is (for
+    the assembled derivatives), each row's family name and bounds, and its node (-1: none)."""
+
+    exprs: list = field(default_factory=list)
+    parts: list = field(default_factory=list)
+    meta: list[tuple[str, float, float]] = field(default_factory=list)
+    row_node: list[int] = field(default_factory=list)
+
+    def add(
+        self,
+        out: object,
+        rows: list[tuple[str, float, float]],
+        n_cols: int,
+        nodes: list[int] | None = None,
+    ) -> None:
+        call = isinstance(out, KernelCall)
+        self.exprs.append(out.rows() if call else ca.vec(out))
+        self.parts.append(out if call else self.exprs[-1])
+        self.meta.extend(rows * n_cols)
+        self.row_node.extend(
+            np.repeat(nodes, len(rows)) if nodes is not None else [-1] * (len(rows) * n_cols)
+        )
+
+
+def _symbols(problem: PlanningProblem, lay: NLPLayout) -> _Symbols:
+    """Decision variables and parameters (see :class:`_Symbols`)."""
+    K, nx, nu, S = lay.K, lay.nx, lay.nu, lay.slots
+    hermite, parametric = lay.hermite, lay.viewing
 
     # ---- decision variables and parameters ----------------------------------------------------
     w = SYM.sym("w", lay.n_w)
@@ -492,38 +369,59 @@ def build_nlp(
         Lam = ca.reshape(L_w, 6 * S, K)
     h = T / (K - 1)  # the mean step
     steps = h * ratios
-    exprs: list = []
-    parts: list = []  # what each block of rows is, for the assembled derivatives
-    meta: list[tuple[str, float, float]] = []
-    row_node: list[int] = []
+    return _Symbols(
+        lay,
+        w,
+        T,
+        X,
+        U,
+        Um,
+        p,
+        start_lo,
+        start_hi,
+        goal,
+        Boxes,
+        Lam,
+        h,
+        steps,
+        n_boxes,
+        n_sides,
+        n_sel,
+        n_p,
+    )
 
-    def add(
-        out: object,
-        rows: list[tuple[str, float, float]],
-        n_cols: int,
-        nodes: list[int] | None = None,
-    ) -> None:
-        call = isinstance(out, KernelCall)
-        exprs.append(out.rows() if call else ca.vec(out))
-        parts.append(out if call else exprs[-1])
-        meta.extend(rows * n_cols)
-        row_node.extend(
-            np.repeat(nodes, len(rows)) if nodes is not None else [-1] * (len(rows) * n_cols)
-        )
 
+def _objective(problem: PlanningProblem, v: _Symbols) -> ca.SX:
+    """Minimum time (+ a small normalised effort term)."""
+    model, o, K = problem.model, problem.options, v.lay.K
+    T, U, h = v.T, v.U, v.h
     # ---- objective: minimum time (+ a small normalised effort term) -------------------------------
     u_mid = 0.5 * (model.u_lo + model.u_hi)
     u_scale = np.maximum(0.5 * (model.u_hi - model.u_lo), 1e-6)
     J = T + o.effort_weight * h * ca.sumsqr((U - ca.repmat(u_mid, 1, K)) / ca.repmat(u_scale, 1, K))
+    return J
 
+
+def _dynamics_rows(rows: _NLPRows, kern: NodeKernels, v: _Symbols) -> None:
+    """Dynamics defects between consecutive nodes."""
+    K, nx, add = v.lay.K, v.lay.nx, rows.add
+    X, U, Um, steps = v.X, v.U, v.Um, v.steps
     # ---- dynamics defects ------------------------------------------------------------------------
     dyn = KernelCall(kern.dyn, [X[:, : K - 1], U[:, : K - 1], X[:, 1:], U[:, 1:], Um, steps], K - 1)
     add(dyn, [("dynamics", 0.0, 0.0)] * nx, K - 1)
 
+
+def _path_rows(rows: _NLPRows, kern: NodeKernels, v: _Symbols) -> None:
+    """Model limits and world bounds at nodes 1..K-1."""
+    K, X, U, add = v.lay.K, v.X, v.U, rows.add
     # ---- path constraints: model limits and world bounds -----------------------------------------
     if kern.path_rows:
         add(KernelCall(kern.path, [X[:, 1:], U[:, 1:]], K - 1), kern.path_rows, K - 1)
 
+
+def _terminal_rows(rows: _NLPRows, problem: PlanningProblem, v: _Symbols) -> None:
+    """At rest at the goal (x(0) is fixed through the variable bounds)."""
+    model, K, X, w, goal, add = problem.model, v.lay.K, v.X, v.w, v.goal, rows.add
     # ---- boundary conditions: x(0) fixed through variable bounds; at rest at the goal -------------
     x_end = X[:, K - 1]
     pos_end, vel_end = model.position(x_end), model.velocity(x_end)
@@ -536,6 +434,21 @@ def build_nlp(
     for extra in model_terminal_rows(model, x_end):
         add(extra, [("terminal", 0.0, 0.0)], 1)
 
+
+def _obstacle_and_visibility_rows(
+    rows: _NLPRows,
+    problem: PlanningProblem,
+    kern: NodeKernels,
+    v: _Symbols,
+    planner: str,
+    assignment: tuple[int, ...],
+) -> None:
+    """The baseline's obstacle rows, or the secure planner's visibility and obstacle rows (eq. NLP)
+    for a look-back assignment that is structure, or passed as parameters (viewing states)."""
+    o, lay, K, nx, add = problem.options, v.lay, v.lay.K, v.lay.nx, rows.add
+    secure, parametric = planner == Planner.SECURE, v.lay.viewing
+    X, w, p, Boxes, Lam, start_lo, start_hi = v.X, v.w, v.p, v.Boxes, v.Lam, v.start_lo, v.start_hi
+    n_boxes, n_sides, n_sel = v.n_boxes, v.n_sides, v.n_sel
     # ---- obstacles and visibility (eq. NLP: S_r(x_i) inside S_s(x_j), clear of Ĉ_obst) ----------
     nodes = list(range(1, K))
     if not secure:
@@ -624,6 +537,20 @@ def build_nlp(
             add(KernelCall(kern.vis, [Xn, Yc], n_c), vis_rows, n_c, cur)
             add(KernelCall(kern.obs_view, [Xn, Yc, Bc, Lc], n_c), kern.obs_view_rows, n_c, cur)
 
+
+def _transcribed(
+    problem: PlanningProblem,
+    planner: str,
+    assignment: tuple[int, ...],
+    kern: NodeKernels,
+    v: _Symbols,
+    J: ca.SX,
+    rows: _NLPRows,
+    t0: float,
+) -> TranscribedNLP:
+    """The solver (assembled derivatives, Ctrl-C callback) and the record solve.py reads."""
+    w, p, n_p, lay = v.w, v.p, v.n_p, v.lay
+    exprs, parts, meta, row_node = rows.exprs, rows.parts, rows.meta, rows.row_node
     names = [m_[0] for m_ in meta]
     g_all = ca.vertcat(*exprs)
     lbg = np.array([m_[1] for m_ in meta])
@@ -638,7 +565,7 @@ def build_nlp(
         if derivatives is not None:
             opts["jac_g"], opts["hess_lag"] = derivatives
     stop = None
-    if solver_name == "ipopt":
+    if solver_name == Solver.IPOPT:
         stop = stop_callback(w.numel(), g_all.numel(), p.numel())
         opts["iteration_callback"] = stop  # Ctrl-C stops the solve (planning/interrupt.py)
     solver = ca.nlpsol(f"secure3d_{planner}", solver_name, nlp, opts)
@@ -674,116 +601,7 @@ def camera_dims(model: object) -> tuple[int, ...]:
 
 def model_terminal_rows(model: object, x_end: ca.SX) -> list[ca.SX]:
     """Extra terminal equalities so the robot is really at rest (angular rates of planar models)."""
-    if getattr(model, "name", "") == "diff_drive":
-        return [x_end[4]]
-    return []
+    return list(model.rest_residuals(x_end))
 
 
-def model_identity(model: object) -> tuple:
-    """What makes two vehicle models interchangeable in an NLP (their frozen configuration)."""
-    return (type(model).__name__, model.name, model.limits, float(model.body_radius), model.mount)
-
-
-def family_identity(family: object) -> tuple:
-    """What makes two reactive-set families interchangeable: class, model, controller, latency and,
-    for fitted families, the coefficients' data file content."""
-    coefs = [
-        getattr(family, a)
-        for a in ("centre_coef", "beta_coef", "gamma_coef", "eta_coef")
-        if hasattr(family, a)
-    ]
-    digest = (
-        hash(b"".join(np.asarray(c_, dtype=float).tobytes() for c_ in coefs)) if coefs else None
-    )
-    return (
-        type(family).__name__,
-        getattr(family, "kind", None),
-        getattr(family, "controller_name", None),
-        float(getattr(family, "latency", 0.0)),
-        model_identity(family.model),
-        digest,
-    )
-
-
-def nlp_key(problem: PlanningProblem, planner: str, assignment: tuple[int, ...]) -> tuple:
-    """What determines the NLP's structure: the same key means the compiled NLP can be reused."""
-    o = problem.options
-    return (
-        model_identity(problem.model),
-        family_identity(problem.family),
-        problem.frustum,
-        planner,
-        o.nodes,
-        o.obstacle_slots,
-        o.one_sided_duals and o.solver == "ipopt",
-        o.collocation,
-        o.margin,
-        o.occlusion if planner == "secure" else False,
-        o.interval_rows if planner == "secure" else False,
-        o.effort_weight,
-        o.solver,
-        o.max_iter,
-        o.time_limit,
-        o.verbose,
-        tuple(problem.bounds_lo),
-        tuple(problem.bounds_hi),
-        o.lookback_encoding if planner == "secure" else "",
-        # the assignment is structure unless it is passed as a parameter (never for fatrop)
-        tuple(assignment)
-        if planner == "secure" and (o.solver == "fatrop" or o.lookback_encoding == "structure")
-        else (),
-    )
-
-
-class NLPCache:
-    """Least-recently-used cache of built NLPs, keyed by structure (see :func:`nlp_key`).
-
-    The cache holds the model and family objects its keys refer to (by id), so those ids stay valid.
-    A simulator keeps one cache for a whole flight; :func:`secure3d.plan` uses a shared default.
-    """
-
-    def __init__(self, max_size: int = 24) -> None:
-        self.max_size = max_size
-        self._items: OrderedDict[tuple, tuple[TranscribedNLP, object, object]] = OrderedDict()
-        self._kernels: OrderedDict[tuple, tuple[NodeKernels, object, object]] = OrderedDict()
-        self.hits = 0
-        self.misses = 0
-
-    def get(
-        self, problem: PlanningProblem, planner: str, assignment: tuple[int, ...]
-    ) -> tuple[TranscribedNLP, bool]:
-        """The NLP for this structure and whether it came from the cache."""
-        key = nlp_key(problem, planner, assignment)
-        item = self._items.get(key)
-        if item is not None:
-            self._items.move_to_end(key)
-            self.hits += 1
-            return item[0], True
-        self.misses += 1
-        kkey = nlp_key(problem, "kernels", ())
-        if kkey not in self._kernels:
-            self._kernels[kkey] = (node_kernels(problem), problem.model, problem.family)
-            while len(self._kernels) > self.max_size:
-                self._kernels.popitem(last=False)
-        built = build_nlp(problem, planner, assignment, self._kernels[kkey][0])
-        self._items[key] = (built, problem.model, problem.family)
-        while len(self._items) > self.max_size:
-            self._items.popitem(last=False)
-        return built, False
-
-    def prepare(self, problem: PlanningProblem, planner: str) -> bool:
-        """Compile ahead the NLP ``planner`` will solve for ``problem``'s structure, so that the
-        first plan does not pay for it. Possible only when the structure does not depend on the
-        look-back assignment (the baseline, or look-backs passed as parameters to IPOPT); returns
-        whether the NLP is cached."""
-        if planner not in ("secure", "baseline"):
-            raise ConfigError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
-        K = problem.options.nodes
-        start_only, first_node = (-1,) * K, (0,) * K
-        if nlp_key(problem, planner, start_only) != nlp_key(problem, planner, first_node):
-            return False  # one NLP per assignment: which one is known only at plan time
-        self.get(problem, planner, start_only)
-        return True
-
-    def __len__(self) -> int:
-        return len(self._items)
+register_transcription("ipopt", build_nlp, node_kernels)

@@ -70,15 +70,11 @@ import casadi as ca
 import numpy as np
 
 from secure3d.errors import ConfigError
-from secure3d.planning.collocation import (
-    NodeKernels,
-    TranscribedNLP,
-    model_terminal_rows,
-    nlp_key,
-    node_kernels,
-)
-from secure3d.planning.problem import PlanningProblem
+from secure3d.planning.collocation import NodeKernels, model_terminal_rows, node_kernels
+from secure3d.planning.nlp_cache import nlp_key, register_transcription
+from secure3d.planning.problem import Planner, PlanningProblem
 from secure3d.planning.result import PlanStatus
+from secure3d.planning.transcribed import TranscribedNLP
 
 #: RK4 steps per node interval. One is exact for the point mass (piecewise-cubic positions). For
 #: the quadrotor (the only nonlinear dynamics) at h = 0.115 s and full body rates, the largest state
@@ -359,10 +355,29 @@ def build_fatrop_nlp(
     """
     t0 = time.perf_counter()
     check_fatrop_options(problem, planner)
+    secure = planner == Planner.SECURE
+    kern = kernels if kernels is not None else node_kernels(problem)
+    v = _stage_variables(problem, _stage_layout(problem, secure, assignment, kern))
+    rows = _Rows()
+    J = _objective(problem, v)
+    _gap_rows(rows, problem, v)
+    _first_stage_rows(rows, kern, v)
+    _path_rows(rows, kern, v)
+    _terminal_rows(rows, problem, v)
+    if secure:
+        _visibility_rows(rows, problem, kern, v, assignment)
+    else:
+        _segment_rows(rows, kern, v)
+    return _transcribed(problem, planner, assignment, v, J, rows, t0)
+
+
+def _stage_layout(
+    problem: PlanningProblem, secure: bool, assignment: tuple[int, ...], kern: NodeKernels
+) -> StageLayout:
+    """The stages' layout: the register holds what later stages read of earlier ones (the
+    secure planner's camera states over the deepest look-back; the baseline's previous node)."""
     model, o = problem.model, problem.options
     K, nx, nu, S = o.nodes, model.nx, model.nu, o.obstacle_slots
-    secure = planner == "secure"
-    kern = kernels if kernels is not None else node_kernels(problem)
     if len(assignment) != K:
         raise ConfigError(f"assignment: expected {K} look-back entries, got {len(assignment)}")
     spans = [k - j for k, j in enumerate(assignment) if secure and k > 0 and j >= 0]
@@ -376,40 +391,77 @@ def build_fatrop_nlp(
         depth, reg_idx = 1, read_indices(kern.obs_base, 0, nx)
         lam_stage = np.minimum(np.arange(K) + 1, K - 1)
         lam_stage[0] = 0
-    lay = StageLayout(K=K, nx=nx, nu=nu, slots=S, depth=depth, reg_idx=reg_idx, lam_stage=lam_stage)
-    nc = len(reg_idx)
-    # x rebuilt from register entries: c(x) in place, zeros elsewhere (the kernels skip them)
-    scatter = ca.DM(ca.Sparsity.triplet(nx, nc, reg_idx.tolist(), list(range(nc))), 1.0)
-
-    # ---- decision variables and parameters ----------------------------------------------------
-    w = ca.SX.sym("w", lay.n_w)
-
-    def block(idx: np.ndarray) -> ca.SX:
-        """Columns c = w[idx[c]]: idx (n_cols, n_rows) -> SX (n_rows, n_cols)."""
-        idx = np.asarray(idx, dtype=int)
-        return ca.reshape(w[idx.ravel().tolist()], idx.shape[1], idx.shape[0])
-
-    X, U, L = block(lay.i_X), block(lay.i_U), block(lay.i_L.reshape(K, 6 * S))
-    Ts = block(lay.i_Ts[:, None])  # (1, K)
-    Un = block(lay.i_Unext)  # (nu, K-1)
-    n_p = 9 + K * S * 6
-    p = ca.SX.sym("p", n_p)
-    start_lo, start_hi, goal = p[0:3], p[3:6], p[6:9]
-    Boxes = ca.reshape(p[9:], 6 * S, K)
-    rows = _Rows()
-    nodes = list(range(1, K))
-
-    # ---- objective: final time (last stage) + the collocation transcription's effort term --------
-    u_mid = 0.5 * (model.u_lo + model.u_hi)
-    u_scale = np.maximum(0.5 * (model.u_hi - model.u_lo), 1e-6)
-    effort = ca.sum1(((U - ca.repmat(u_mid, 1, K)) / ca.repmat(u_scale, 1, K)) ** 2)
-    J = (
-        Ts[K - 1]
-        + o.effort_weight / (K - 1) * ca.dot(Ts, effort)
-        + UNUSED_DUAL_WEIGHT * ca.sum1(L[:, 0])
+    return StageLayout(
+        K=K, nx=nx, nu=nu, slots=S, depth=depth, reg_idx=reg_idx, lam_stage=lam_stage
     )
 
-    # ---- gap-closing rows z_{k+1} - F(z_k, v_k): RK4 state, next control, T copy, register -------
+
+@dataclass
+class _StageVariables:
+    """The stage-wise NLP's symbols: the decision vector ``w`` and its blocks (X (nx, K), U (nu,
+    K), L (6S, K) duals, Ts (1, K) final-time copies, Un (nu, K-1) next controls, R (depth*nc, K)
+    registers), the parameters ``p`` and theirs, and ``scatter`` (nx, nc), which rebuilds a state
+    from register entries (c(x) in place, zeros elsewhere: the kernels skip them)."""
+
+    lay: StageLayout
+    w: ca.SX
+    X: ca.SX
+    U: ca.SX
+    L: ca.SX
+    Ts: ca.SX
+    Un: ca.SX
+    R: ca.SX
+    p: ca.SX
+    start_lo: ca.SX
+    start_hi: ca.SX
+    goal: ca.SX
+    Boxes: ca.SX
+    scatter: ca.DM
+
+    def block(self, idx: np.ndarray) -> ca.SX:
+        """Columns c = w[idx[c]] (see :func:`_columns`)."""
+        return _columns(self.w, idx)
+
+
+def _stage_variables(problem: PlanningProblem, lay: StageLayout) -> _StageVariables:
+    """Decision variables and parameters (see :class:`_StageVariables`)."""
+    K, nx, S, reg_idx = lay.K, lay.nx, lay.slots, lay.reg_idx
+    nc = len(reg_idx)
+    scatter = ca.DM(ca.Sparsity.triplet(nx, nc, reg_idx.tolist(), list(range(nc))), 1.0)
+    w = ca.SX.sym("w", lay.n_w)
+    X, U, L = _columns(w, lay.i_X), _columns(w, lay.i_U), _columns(w, lay.i_L.reshape(K, 6 * S))
+    Ts = _columns(w, lay.i_Ts[:, None])  # (1, K)
+    Un = _columns(w, lay.i_Unext)  # (nu, K-1)
+    p = ca.SX.sym("p", 9 + K * S * 6)
+    R = _columns(w, lay.i_R.reshape(K, lay.depth * nc)) if lay.depth else ca.SX(0, K)
+    Boxes = ca.reshape(p[9:], 6 * S, K)
+    return _StageVariables(lay, w, X, U, L, Ts, Un, R, p, p[0:3], p[3:6], p[6:9], Boxes, scatter)
+
+
+def _columns(w: ca.SX, idx: np.ndarray) -> ca.SX:
+    """Columns c = w[idx[c]]: idx (n_cols, n_rows) -> SX (n_rows, n_cols)."""
+    idx = np.asarray(idx, dtype=int)
+    return ca.reshape(w[idx.ravel().tolist()], idx.shape[1], idx.shape[0])
+
+
+def _objective(problem: PlanningProblem, v: _StageVariables) -> ca.SX:
+    """Final time (last stage) + the collocation transcription's effort term."""
+    model, o, K = problem.model, problem.options, v.lay.K
+    u_mid = 0.5 * (model.u_lo + model.u_hi)
+    u_scale = np.maximum(0.5 * (model.u_hi - model.u_lo), 1e-6)
+    effort = ca.sum1(((v.U - ca.repmat(u_mid, 1, K)) / ca.repmat(u_scale, 1, K)) ** 2)
+    return (
+        v.Ts[K - 1]
+        + o.effort_weight / (K - 1) * ca.dot(v.Ts, effort)
+        + UNUSED_DUAL_WEIGHT * ca.sum1(v.L[:, 0])
+    )
+
+
+def _gap_rows(rows: _Rows, problem: PlanningProblem, v: _StageVariables) -> None:
+    """Gap-closing rows z_{k+1} - F(z_k, v_k): RK4 state, next control, T copy, register."""
+    model, lay = problem.model, v.lay
+    K, nx, nu, depth, reg_idx = lay.K, lay.nx, lay.nu, lay.depth, lay.reg_idx
+    nc = len(reg_idx)
     xs, u0s, u1s, Tsym = (
         ca.SX.sym("x", nx),
         ca.SX.sym("u0", nu),
@@ -423,92 +475,129 @@ def build_fatrop_nlp(
         [xs, u0s, u1s, Tsym, rs],
         [ca.vertcat(rk4_foh(model, xs, u0s, u1s, Tsym / (K - 1)), u1s, Tsym, r_next)],
     )
-    R = block(lay.i_R.reshape(K, depth * nc)) if depth else ca.SX(0, K)
+    X, U, Ts, R = v.X, v.U, v.Ts, v.R
     Z_next = ca.vertcat(X[:, 1:], U[:, 1:], Ts[:, 1:], R[:, 1:])
-    F = step.map(K - 1)(X[:, : K - 1], U[:, : K - 1], Un, Ts[:, : K - 1], R[:, : K - 1])
+    F = step.map(K - 1)(X[:, : K - 1], U[:, : K - 1], v.Un, Ts[:, : K - 1], R[:, : K - 1])
     gap_rows = [("dynamics", 0.0, 0.0)] * nx + [("stage_copy", 0.0, 0.0)] * (nu + 1 + depth * nc)
     rows.add(Z_next - F, gap_rows, list(range(K - 1)), gap=True)
 
-    # ---- stage 0: register filled with the start state, control limits over the first interval --
+
+def _first_stage_rows(rows: _Rows, kern: NodeKernels, v: _StageVariables) -> None:
+    """Stage 0: the register filled with the start state, control limits over the first interval."""
+    lay = v.lay
+    depth, reg_idx = lay.depth, lay.reg_idx
     if depth:
-        fill = ca.repmat(X[reg_idx.tolist(), 0], depth, 1)
-        rows.add(R[:, 0] - fill, [("stage_copy", 0.0, 0.0)] * (depth * nc), [0])
-    us = ca.SX.sym("u", nu)
+        fill = ca.repmat(v.X[reg_idx.tolist(), 0], depth, 1)
+        rows.add(v.R[:, 0] - fill, [("stage_copy", 0.0, 0.0)] * (depth * len(reg_idx)), [0])
+    xs, us = ca.SX.sym("x", lay.nx), ca.SX.sym("u", lay.nu)
     path_sym = kern.path(xs, us)
     u_rows = [i for i in range(path_sym.shape[0]) if ca.depends_on(path_sym[i], us)]
     if u_rows:
-        rows.add(kern.path(X[:, 0], U[:, 0])[u_rows, :], [kern.path_rows[i] for i in u_rows], [0])
+        rows.add(
+            kern.path(v.X[:, 0], v.U[:, 0])[u_rows, :], [kern.path_rows[i] for i in u_rows], [0]
+        )
 
-    # ---- path constraints at nodes 1..K-1: model limits and world bounds -------------------------
+
+def _path_rows(rows: _Rows, kern: NodeKernels, v: _StageVariables) -> None:
+    """Path constraints at nodes 1..K-1: model limits and world bounds."""
+    K = v.lay.K
     if kern.path_rows:
-        rows.add(kern.path.map(K - 1)(X[:, 1:], U[:, 1:]), kern.path_rows, nodes)
+        rows.add(kern.path.map(K - 1)(v.X[:, 1:], v.U[:, 1:]), kern.path_rows, list(range(1, K)))
 
-    # ---- boundary conditions: at rest at the goal (last stage) -----------------------------------
-    x_end = X[:, K - 1]
+
+def _terminal_rows(rows: _Rows, problem: PlanningProblem, v: _StageVariables) -> None:
+    """Boundary conditions: at rest at the goal (last stage)."""
+    model, K = problem.model, v.lay.K
+    x_end = v.X[:, K - 1]
     pos_end, vel_end = model.position(x_end), model.velocity(x_end)
-    terminal = [pos_end[d] - goal[d] for d in range(3) if ca.depends_on(pos_end[d], w)]
-    terminal += [vel_end[d] for d in range(3) if ca.depends_on(vel_end[d], w)]
+    terminal = [pos_end[d] - v.goal[d] for d in range(3) if ca.depends_on(pos_end[d], v.w)]
+    terminal += [vel_end[d] for d in range(3) if ca.depends_on(vel_end[d], v.w)]
     terminal += list(model_terminal_rows(model, x_end))
     rows.add(ca.vertcat(*terminal), [("terminal", 0.0, 0.0)] * len(terminal), [K - 1])
 
-    # ---- obstacles and visibility (eq. NLP), stage-local through the register --------------------
-    if not secure:
-        seg = nodes[:-1]  # node k: segment p_k -> p_{k+1}, in stage k+1
-        Xk = ca.mtimes(scatter, block(lay.i_R[[k + 1 for k in seg], 0]))
-        Xk1 = X[:, [k + 1 for k in seg]]
-        rows.add(
-            kern.obs_base.map(len(seg))(Xk, Xk1, Boxes[:, seg], L[:, seg]),
-            kern.obs_base_rows,
-            [k + 1 for k in seg],
-        )
-        x_last = X[:, K - 1]  # the last node's "segment" is the node itself
-        rows.add(
-            kern.obs_base(x_last, x_last, Boxes[:, K - 1], L[:, K - 1]), kern.obs_base_rows, [K - 1]
-        )
-    else:
-        view = [k for k in nodes if assignment[k] >= 0]
-        start = [k for k in nodes if assignment[k] < 0]
-        if view:
-            cam = block(np.stack([lay.i_R[k, k - assignment[k] - 1] for k in view]))
-            Xi, Xj = X[:, view], ca.mtimes(scatter, cam)
-            n_faces = problem.frustum.n_faces
-            rows.add(
-                kern.vis.map(len(view))(Xi, Xj), [("visibility", o.margin, ca.inf)] * n_faces, view
-            )
-            rows.add(
-                kern.obs_view.map(len(view))(Xi, Xj, Boxes[:, view], L[:, view]),
-                kern.obs_view_rows,
-                view,
-            )
-        if start:
-            Xs = X[:, start]
-            lo, hi = ca.repmat(start_lo, 1, len(start)), ca.repmat(start_hi, 1, len(start))
-            rows.add(
-                kern.start.map(len(start))(Xs, lo, hi),
-                [("start_region", o.margin, ca.inf)] * 6,
-                start,
-            )
-            rows.add(
-                kern.obs_start.map(len(start))(Xs, Boxes[:, start], L[:, start]),
-                kern.obs_start_rows,
-                start,
-            )
 
-    # ---- solver ---------------------------------------------------------------------------------
+def _segment_rows(rows: _Rows, kern: NodeKernels, v: _StageVariables) -> None:
+    """The baseline's obstacle rows, stage-local through the register: node k's segment
+    p_k -> p_{k+1} in stage k+1, the last node's "segment" the node itself."""
+    K, lay = v.lay.K, v.lay
+    seg = list(range(1, K))[:-1]
+    Xk = ca.mtimes(v.scatter, v.block(lay.i_R[[k + 1 for k in seg], 0]))
+    Xk1 = v.X[:, [k + 1 for k in seg]]
+    rows.add(
+        kern.obs_base.map(len(seg))(Xk, Xk1, v.Boxes[:, seg], v.L[:, seg]),
+        kern.obs_base_rows,
+        [k + 1 for k in seg],
+    )
+    x_last = v.X[:, K - 1]
+    rows.add(
+        kern.obs_base(x_last, x_last, v.Boxes[:, K - 1], v.L[:, K - 1]), kern.obs_base_rows, [K - 1]
+    )
+
+
+def _visibility_rows(
+    rows: _Rows,
+    problem: PlanningProblem,
+    kern: NodeKernels,
+    v: _StageVariables,
+    assignment: tuple[int, ...],
+) -> None:
+    """The secure planner's rows (eq. NLP), stage-local through the register: each node's reactive
+    set inside its look-back camera's frustum (or the start region) and clear of the obstacles."""
+    o, lay = problem.options, v.lay
+    nodes = list(range(1, lay.K))
+    view = [k for k in nodes if assignment[k] >= 0]
+    start = [k for k in nodes if assignment[k] < 0]
+    if view:
+        cam = v.block(np.stack([lay.i_R[k, k - assignment[k] - 1] for k in view]))
+        Xi, Xj = v.X[:, view], ca.mtimes(v.scatter, cam)
+        n_faces = problem.frustum.n_faces
+        rows.add(
+            kern.vis.map(len(view))(Xi, Xj), [("visibility", o.margin, ca.inf)] * n_faces, view
+        )
+        rows.add(
+            kern.obs_view.map(len(view))(Xi, Xj, v.Boxes[:, view], v.L[:, view]),
+            kern.obs_view_rows,
+            view,
+        )
+    if start:
+        Xs = v.X[:, start]
+        lo, hi = ca.repmat(v.start_lo, 1, len(start)), ca.repmat(v.start_hi, 1, len(start))
+        rows.add(
+            kern.start.map(len(start))(Xs, lo, hi),
+            [("start_region", o.margin, ca.inf)] * 6,
+            start,
+        )
+        rows.add(
+            kern.obs_start.map(len(start))(Xs, v.Boxes[:, start], v.L[:, start]),
+            kern.obs_start_rows,
+            start,
+        )
+
+
+def _transcribed(
+    problem: PlanningProblem,
+    planner: str,
+    assignment: tuple[int, ...],
+    v: _StageVariables,
+    J: ca.SX,
+    rows: _Rows,
+    t0: float,
+) -> TranscribedNLP:
+    """The rows in fatrop's order, the solver, and the record :mod:`secure3d.planning.solve` reads."""
     g, lbg, ubg, names = rows.ordered()
     families = {n: np.flatnonzero(np.array(names) == n) for n in dict.fromkeys(names)}
-    nlp = {"x": w, "p": p, "f": J, "g": g}
+    nlp = {"x": v.w, "p": v.p, "f": J, "g": g}
     opts = _solver_options(problem, [bool(lo == hi) for lo, hi in zip(lbg, ubg, strict=True)])
     solver = ca.nlpsol(f"secure3d_{planner}_fatrop", "fatrop", nlp, opts)
     return TranscribedNLP(
         key=nlp_key(problem, planner, assignment),
-        layout=lay,
+        layout=v.lay,
         solver=solver,
-        g_fun=ca.Function("g", [w, p], [g]),
+        g_fun=ca.Function("g", [v.w, v.p], [g]),
         lbg=lbg,
         ubg=ubg,
         families=families,
-        n_p=n_p,
+        n_p=int(v.p.numel()),
         build_time=time.perf_counter() - t0,
         # fatrop takes no multiplier warm start: the "warm" solver is the same one (no rebuild)
         warm_solver=solver,
@@ -516,3 +605,6 @@ def build_fatrop_nlp(
         solver_name="fatrop",
         solver_options=opts,
     )
+
+
+register_transcription("fatrop", build_fatrop_nlp, node_kernels)

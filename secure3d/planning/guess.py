@@ -39,7 +39,7 @@ class NoPathError(RuntimeError):
 
 def _planar(problem: PlanningProblem) -> float | None:
     """Fixed height of a planar model, or None for 3D models."""
-    if problem.model.name == "diff_drive":
+    if problem.model.planar:
         return float(problem.start_position[2])
     return None
 
@@ -315,10 +315,10 @@ def stop_and_turn(
 def _turn_round(
     problem: PlanningProblem, pts: np.ndarray, arc: np.ndarray, a_max: float, yaw_rate: float
 ):
-    """The stop-and-turn samples for a turn-in-place model whose path ``pts`` leaves against its
-    heading (see :data:`TURN_ROUND_ANGLE`), or None."""
+    """The stop-and-turn samples for a model that heads along its path (a turn-in-place vehicle)
+    whose path ``pts`` leaves against its heading (see :data:`TURN_ROUND_ANGLE`), or None."""
     model = problem.model
-    if model.name != "diff_drive" or arc[-1] <= 0.0:
+    if not model.heading_follows_path or arc[-1] <= 0.0:
         return None
     yaw0 = float(model.yaw(problem.x0))
     d = pts[min(np.searchsorted(arc, 0.3), len(pts) - 1)] - pts[0]
@@ -341,11 +341,7 @@ def profile_guess(
     model = problem.model
     K = problem.options.nodes
     pts, arc = _densify(path, 0.2)
-    v_max = float(getattr(model.limits, "max_speed", 2.0))
-    a_max = 0.6 * float(getattr(model.limits, "max_accel", 3.0))
-    yaw_rate = float(
-        getattr(model.limits, "max_yaw_rate", getattr(model.limits, "max_ang_speed", 2.0))
-    )
+    v_max, a_max, yaw_rate = model.speed_limit, 0.6 * model.nominal_accel, model.yaw_rate_limit
     yaw0 = float(model.yaw(problem.x0))
     v_start = min(float(np.linalg.norm(model.velocity(problem.x0))), v_max)
     prefix = _turn_round(problem, pts, arc, a_max, yaw_rate)
@@ -392,15 +388,11 @@ def _speed_profile(
     model = problem.model
     tang = np.gradient(pts, arc, axis=0)
     tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
-    v_max = float(getattr(model.limits, "max_speed", 2.0))
-    a_max = 0.6 * float(getattr(model.limits, "max_accel", 3.0))
-    yaw_rate = float(
-        getattr(model.limits, "max_yaw_rate", getattr(model.limits, "max_ang_speed", 2.0))
-    )
-    if model.name == "diff_drive":
-        yaw = look_ahead_yaw(pts, arc, 0.0, yaw0)
-    else:
-        yaw = look_ahead_yaw(pts, arc, 1.5, yaw0)
+    v_max = model.speed_limit
+    a_max = 0.6 * model.nominal_accel
+    yaw_rate = model.yaw_rate_limit
+    # A robot that heads where it goes faces the path's tangent; the others look 1.5 m ahead.
+    yaw = look_ahead_yaw(pts, arc, 0.0 if model.heading_follows_path else 1.5, yaw0)
     cap = np.full(len(pts), speed_fraction * v_max)
     dyaw = np.abs(np.gradient(yaw, arc))
     cap = np.minimum(cap, 0.7 * yaw_rate / np.maximum(dyaw, 1e-6))

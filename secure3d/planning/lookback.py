@@ -13,7 +13,7 @@ import numpy as np
 
 from secure3d.geometry.frustum import frustum_halfspaces
 from secure3d.geometry.polytope import box_pair_distances
-from secure3d.planning.problem import PlanningProblem
+from secure3d.planning.problem import Planner, PlanningProblem
 
 #: Penalty (m) on a candidate camera whose line of sight to the reactive set crosses a known obstacle.
 OCCLUSION_PENALTY = 5.0
@@ -129,7 +129,7 @@ def _hull_box_distances(
     o = problem.options
     K = len(states)
     geo = node_geometry(problem, states)
-    if planner == "secure":
+    if planner == Planner.SECURE:
         reach = np.linalg.norm(geo["M"], ord=2, axis=(1, 2))
         samples = []
         for k in range(K):
@@ -158,7 +158,7 @@ def _constrained_sets(
     E_k (secure, seen from node j), E_k alone (secure, start region or no occlusion), or the segment
     from the body at node k to node k+1 (baseline: one plane keeps both clear)."""
     K = len(states)
-    if planner == "secure":
+    if planner == Planner.SECURE:
         geo = node_geometry(problem, states)
         j = np.full(K, -1) if assignment is None else np.asarray(assignment, dtype=int)
         los = (j >= 0) & bool(problem.options.occlusion)
@@ -232,7 +232,7 @@ def slots_missing(
     boxes = np.concatenate([problem.boxes_lo, problem.boxes_hi], axis=1)[flagged[:, 1]]  # (f, 6)
     slotted = np.isclose(slots[flagged[:, 0]], boxes[:, None, :]).all(axis=-1).any(axis=1)
     flagged = flagged[~slotted]
-    if len(flagged) == 0 or planner != "secure":
+    if len(flagged) == 0 or planner != Planner.SECURE:
         return bool(len(flagged))
     # the screening bound is loose for elongated reactive sets: confirm with exact distances,
     # nearest screened pairs first, stopping at the first pair below the limit (the same answer)
@@ -266,7 +266,7 @@ def select_slots(
     if n == 0:
         return slots
     d = _hull_box_distances(problem, planner, states, assignment)
-    if planner == "secure":
+    if planner == Planner.SECURE:
         d = _refine_distances(problem, states, assignment, d, 2 * S)
     order = np.argsort(d, axis=1)[:, :S]
     for k in range(K):
@@ -356,7 +356,7 @@ def initial_duals(
     split into its positive face components (so |A^T lam| = 1 and lam.(A c - b) = distance)."""
     geo = node_geometry(problem, states)
     K, S = slots.shape[:2]
-    centres = geo["C"] if planner == "secure" else geo["P"]
+    centres = geo["C"] if planner == Planner.SECURE else geo["P"]
     lo, hi = slots[:, :, 0:3], slots[:, :, 3:6]
     q = np.clip(centres[:, None, :], lo, hi)
     n = centres[:, None, :] - q

@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from secure3d.errors import ConfigError
 from secure3d.geometry.box_index import BoxIndex
+from secure3d.validation import is_int_in, is_real
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.dynamics.base import VehicleModel
@@ -28,7 +30,7 @@ PlannerKind = Literal["secure", "baseline"]
 
 
 def _check_positive(name: str, value: float, *, allow_zero: bool = False) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not is_real(value) or not math.isfinite(value):
         raise ConfigError(f"planner option {name}: expected a finite number, got {value!r}")
     if value < 0 or (value == 0 and not allow_zero):
         raise ConfigError(
@@ -38,6 +40,23 @@ def _check_positive(name: str, value: float, *, allow_zero: bool = False) -> Non
 
 #: Farthest look-back of the adaptive rule with fatrop (its register depth), unless set.
 FATROP_MAX_SPAN = 6
+
+
+class Planner(StrEnum):
+    """Which problem is solved: the paper's secure NLP (visibility of every reactive set, eq. NLP)
+    or the baseline (the same minimum-time problem without the visibility rows). A ``StrEnum``:
+    ``"secure"`` and ``Planner.SECURE`` compare equal, so callers may pass either."""
+
+    SECURE = "secure"
+    BASELINE = "baseline"
+
+
+class Solver(StrEnum):
+    """The NLP solver (``PlannerOptions.solver``); each has its transcription
+    (:data:`secure3d.planning.nlp_cache.TRANSCRIPTIONS`)."""
+
+    IPOPT = "ipopt"
+    FATROP = "fatrop"
 
 
 @dataclass(frozen=True)
@@ -136,14 +155,10 @@ class PlannerOptions:
         """The adaptive rule's farthest look-back in effect (None: unlimited)."""
         if self.lookback_max_span is not None:
             return self.lookback_max_span
-        return FATROP_MAX_SPAN if self.solver == "fatrop" else None
+        return FATROP_MAX_SPAN if self.solver == Solver.FATROP else None
 
     def __post_init__(self) -> None:
-        if (
-            isinstance(self.nodes, bool)
-            or not isinstance(self.nodes, int)
-            or not 5 <= self.nodes <= 400
-        ):
+        if not is_int_in(self.nodes, 5, 400):
             raise ConfigError(
                 f"planner option nodes: must be an integer in [5, 400], got {self.nodes!r}"
             )
@@ -151,11 +166,7 @@ class PlannerOptions:
             raise ConfigError(
                 f"planner option collocation: 'trapezoidal' or 'hermite_simpson', got {self.collocation!r}"
             )
-        if self.lookback_max_span is not None and (
-            isinstance(self.lookback_max_span, bool)
-            or not isinstance(self.lookback_max_span, int)
-            or self.lookback_max_span < 1
-        ):
+        if self.lookback_max_span is not None and not is_int_in(self.lookback_max_span, 1):
             raise ConfigError(
                 "planner option lookback_max_span: must be None or an integer >= 1, got"
                 f" {self.lookback_max_span!r}"
@@ -197,11 +208,7 @@ class PlannerOptions:
             )
         _check_positive("time_limit", self.time_limit)
         _check_positive("plan_budget", self.plan_budget)
-        if (
-            isinstance(self.close_gaps, bool)
-            or not isinstance(self.close_gaps, int)
-            or self.close_gaps < 0
-        ):
+        if not is_int_in(self.close_gaps, 0):
             raise ConfigError(
                 f"planner option close_gaps: must be an integer >= 0, got {self.close_gaps!r}"
             )
@@ -369,7 +376,7 @@ def observed_frustum(scenario: Scenario, min_obstacle_size: object | None = None
 
     cam = scenario.camera
     w = scenario.planner.min_obstacle_size if min_obstacle_size is None else min_obstacle_size
-    if isinstance(w, bool) or not isinstance(w, (int, float)) or not (math.isfinite(w) and w > 0):
+    if not is_real(w) or not (math.isfinite(w) and w > 0):
         raise ConfigError(f"planner option min_obstacle_size: must be a number > 0, got {w!r}")
     far = observed_range(
         cam.fx,

@@ -88,6 +88,42 @@ class Certificate:
 
 
 @dataclass(frozen=True, eq=False)
+class WarmStart:
+    """What a replan from a plan starts from: the solver's primal-dual solution and the structure
+    it belongs to.
+
+    Attributes
+    ----------
+    key : the NLP's structure key (:func:`secure3d.planning.nlp_cache.nlp_key`): multipliers are
+        reused only by an NLP with the same key.
+    w : (n_w,) float, the decision vector; lam_x : (n_w,), lam_g : (n_g,) its multipliers.
+    L : (K, S, 6) float, the obstacle duals per node and slot.
+    assignment : K ints, the look-back assignment (-1 = the start region).
+    slots : (K, S, 6) float, the obstacle boxes in each node's slots.
+    T : final time (s); X : (K, nx) states; U : (K, nu) controls.
+    grid : (K,) node times as fractions of T, or None (evenly spaced).
+    """
+
+    key: tuple
+    w: np.ndarray
+    lam_x: np.ndarray
+    lam_g: np.ndarray
+    L: np.ndarray
+    assignment: tuple[int, ...]
+    slots: np.ndarray
+    T: float
+    X: np.ndarray
+    U: np.ndarray
+    grid: np.ndarray | None
+
+    def __getitem__(self, name: str) -> object:
+        """``warm["w"]``: the read of the dict this record replaces (its keys are the fields)."""
+        if name not in self.__dataclass_fields__:
+            raise KeyError(name)
+        return getattr(self, name)
+
+
+@dataclass(frozen=True, eq=False)
 class PlanResult:
     """A planned trajectory and everything known about how it was obtained.
 
@@ -132,7 +168,7 @@ class PlanResult:
     solver: str = "ipopt"
     violations: dict[str, float] = field(default_factory=dict)
     certificate: Certificate | None = None
-    warm: dict | None = field(default=None, repr=False)
+    warm: WarmStart | None = field(default=None, repr=False)
     rejections: tuple[Certificate, ...] = field(default=(), repr=False)
 
     @property

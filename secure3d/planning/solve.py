@@ -6,7 +6,8 @@ Pipeline (each step a function, the problem itself in :mod:`.problem`):
    plan (warm replan, primal and multipliers);
 2. look-back assignment: the paper's fixed Δi or the adaptive rule (:mod:`.lookback`);
 3. obstacle slots: nearest known boxes per node, as NLP parameters;
-4. solve the NLP (:mod:`.collocation`, compiled once per structure and cached);
+4. solve the NLP (:mod:`.nlp_solve`; built by a transcription of :mod:`.nlp_cache`, compiled once
+   per structure and cached);
 5. adaptive rule only: re-assign on the solution and re-solve warm until stable;
 6. certify the result independently (:mod:`.certificate`); a plan that does not certify is reported
    as ``NOT_CERTIFIED``, never as success.
@@ -14,8 +15,7 @@ Pipeline (each step a function, the problem itself in :mod:`.problem`):
 
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -23,17 +23,19 @@ import numpy as np
 from secure3d.errors import ConfigError
 from secure3d.planning import lookback as lb
 from secure3d.planning.blas import pin_blas_threads
-from secure3d.planning.collocation import T_MAX, T_MIN, NLPCache, TranscribedNLP
-from secure3d.planning.fatrop_transcription import fatrop_status
 from secure3d.planning.guess import Guess, NoPathError, initial_guess, profile_guess
-from secure3d.planning.interrupt import (
-    budget_spent,
-    deadline,
-    interruptible,
-    stopped_for_budget,
+from secure3d.planning.interrupt import budget_spent, deadline
+from secure3d.planning.nlp_cache import NLPCache
+from secure3d.planning.nlp_solve import (  # noqa: F401  (the constants: re-exported)
+    FEASIBILITY_TOL,
+    MARGIN_FAMILIES,
+    T_GUESS_FACTOR,
+    SolveCost,
+    _Solve,
+    _solve_once,
 )
-from secure3d.planning.problem import PlanningProblem, problem_from_scenario
-from secure3d.planning.result import Certificate, PlanResult, PlanStatus
+from secure3d.planning.problem import Planner, PlanningProblem, Solver, problem_from_scenario
+from secure3d.planning.result import Certificate, PlanResult, PlanStatus, WarmStart
 from secure3d.planning.trajectory import remainder_keeping_nodes, resample
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -48,210 +50,10 @@ DEFAULT_CACHE = NLPCache(max_size=8)
 #: Re-selections of the obstacle slots on a solution before it is accepted.
 SLOT_REFRESHES = 3
 
-#: Largest constraint violation accepted from a solver that reports success.
-FEASIBILITY_TOL = 1e-4
-
 #: A secure solution the certificate rejects (it samples between the nodes and rolls out the real
 #: manoeuvres; the NLP sees ellipsoids at the nodes) is re-solved warm with every clearance and
 #: visibility row tightened by this much more (m), up to this many times.
 CERTIFY_TIGHTENING = (0.03, 0.08)
-
-#: Row families whose lower bound is a safety margin, tightened by the retries above (not the start
-#: region: it is often only just large enough for the first reactive sets).
-MARGIN_FAMILIES = ("visibility", "obstacle", "occlusion")
-
-_IPOPT_STATUS = {
-    "Solve_Succeeded": PlanStatus.SUCCESS,
-    "Solved_To_Acceptable_Level": PlanStatus.SUCCESS,
-    "Infeasible_Problem_Detected": PlanStatus.INFEASIBLE,
-    "Maximum_Iterations_Exceeded": PlanStatus.ITERATION_LIMIT,
-    "Maximum_WallTime_Exceeded": PlanStatus.ITERATION_LIMIT,
-    "Maximum_CpuTime_Exceeded": PlanStatus.ITERATION_LIMIT,
-}
-
-
-@dataclass
-class _Solve:
-    """One NLP solve: solution arrays, status and bookkeeping."""
-
-    status: PlanStatus
-    message: str
-    T: float
-    X: np.ndarray
-    U: np.ndarray
-    L: np.ndarray
-    w: np.ndarray
-    lam_x: np.ndarray
-    lam_g: np.ndarray
-    nlp: TranscribedNLP
-    assignment: tuple[int, ...]
-    slots: np.ndarray
-    violations: dict[str, float]
-    solve_time: float
-    iterations: int
-    cached: bool
-    #: time spent compiling the warm-start solver for this call (once per NLP; 0 otherwise)
-    warm_build: float = 0.0
-    #: node times as fractions of T; None: evenly spaced (a warm replan keeps earlier nodes)
-    grid: np.ndarray | None = None
-
-
-#: The final time may not exceed this multiple of the initial guess's (a feasible-ish flight): keeps
-#: IPOPT from wandering to absurd durations when it struggles.
-T_GUESS_FACTOR = 3.0
-
-
-def _variable_bounds(
-    problem: PlanningProblem, nlp: TranscribedNLP, T_guess: float
-) -> tuple[np.ndarray, np.ndarray]:
-    lay, model = nlp.layout, problem.model
-    lbx = np.full(lay.n_w, -np.inf)
-    ubx = np.full(lay.n_w, np.inf)
-    lbx[lay.i_T], ubx[lay.i_T] = T_MIN, min(T_MAX, max(T_GUESS_FACTOR * T_guess, 10.0))
-    lbx[lay.i_X] = np.broadcast_to(model.x_lo, lay.i_X.shape)
-    ubx[lay.i_X] = np.broadcast_to(model.x_hi, lay.i_X.shape)
-    lbx[lay.i_X[0]] = problem.x0
-    ubx[lay.i_X[0]] = problem.x0
-    lbx[lay.i_U] = np.broadcast_to(model.u_lo, lay.i_U.shape)
-    ubx[lay.i_U] = np.broadcast_to(model.u_hi, lay.i_U.shape)
-    if lay.hermite:
-        lbx[lay.i_Um] = np.broadcast_to(model.u_lo, lay.i_Um.shape)
-        ubx[lay.i_Um] = np.broadcast_to(model.u_hi, lay.i_Um.shape)
-    lbx[lay.i_L] = 0.0
-    if getattr(lay, "viewing", False):
-        lbx[lay.i_Y[0]] = ubx[lay.i_Y[0]] = 0.0  # node 0 is never judged: no viewing state
-    return lbx, ubx
-
-
-def _violations(
-    nlp: TranscribedNLP, w: np.ndarray, p: np.ndarray, lbg: np.ndarray, ubg: np.ndarray
-) -> dict[str, float]:
-    g = np.asarray(nlp.g_fun(w, p)).ravel()
-    excess = np.maximum(np.maximum(lbg - g, g - ubg), 0.0)
-    return {
-        name: float(excess[idx].max()) if len(idx) else 0.0 for name, idx in nlp.families.items()
-    }
-
-
-def _solve_once(
-    problem: PlanningProblem,
-    planner: str,
-    assignment: tuple[int, ...],
-    T: float,
-    X: np.ndarray,
-    U: np.ndarray,
-    cache: NLPCache,
-    L: np.ndarray | None = None,
-    multipliers: tuple[tuple, np.ndarray, np.ndarray] | None = None,
-    prev_slots: np.ndarray | None = None,
-    extra_margin: float = 0.0,
-    grid: np.ndarray | None = None,
-) -> _Solve:
-    """One NLP solve from the guess (T, X, U) on node time fractions ``grid`` (None: evenly
-    spaced; only NLPs with a time-grid parameter take others)."""
-    nlp, cached = cache.get(problem, planner, assignment)
-    lay = nlp.layout
-    if not getattr(lay, "grid", False):
-        grid = None
-    X = np.array(X, dtype=float)
-    X[0] = problem.x0
-    U = np.clip(U, problem.model.u_lo, problem.model.u_hi)
-    slots = lb.keep_slot_positions(prev_slots, lb.select_slots(problem, planner, X, assignment))
-    fresh = lb.initial_duals(problem, planner, X, slots, assignment)
-    if L is None or prev_slots is None or L.shape != fresh.shape:
-        L = fresh
-    else:  # keep the previous duals only for slots that still hold the same box
-        same = np.all(np.isclose(prev_slots, slots), axis=-1)
-        L = np.where(same[..., None], L, fresh)
-    if getattr(lay, "viewing", False):
-        w0 = lay.pack(float(np.clip(T, T_MIN, T_MAX)), X, U, L, assignment=assignment)
-    else:
-        w0 = lay.pack(float(np.clip(T, T_MIN, T_MAX)), X, U, L)
-    one_sided = getattr(lay, "one_sided", False)
-    sides = lb.slot_sides(problem, planner, X, slots, assignment) if one_sided else None
-    p = nlp.parameters(problem, slots, assignment, sides, grid)
-    lbx, ubx = _variable_bounds(problem, nlp, T)
-    lbg, ubg = nlp.bounds_for(assignment)
-    if extra_margin:
-        lbg = lbg.copy()
-        for name in MARGIN_FAMILIES:
-            idx = nlp.families.get(name, np.zeros(0, int))
-            lbg[idx] += extra_margin  # -inf rows (switched off) stay off
-    args = {"x0": w0, "p": p, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
-    solver = nlp.solver
-    warm_build = 0.0
-    if multipliers is not None and multipliers[0] == nlp.key:
-        args["lam_x0"], args["lam_g0"] = multipliers[1], multipliers[2]
-        t_build = time.perf_counter()
-        solver = (
-            nlp.get_warm_solver()
-        )  # a second nlpsol (same NLP, warm-start options) on first use
-        warm_build = time.perf_counter() - t_build
-    t0 = time.perf_counter()
-    try:
-        with interruptible():
-            sol = solver(**args)
-    except RuntimeError as exc:  # CasADi raises on evaluation errors (NaN in a function, ...)
-        return _Solve(
-            PlanStatus.SOLVER_ERROR,
-            f"solver error: {exc}".splitlines()[0],
-            T,
-            X,
-            U,
-            L,
-            w0,
-            np.zeros(lay.n_w),
-            np.zeros(len(nlp.lbg)),
-            nlp,
-            assignment,
-            slots,
-            {},
-            time.perf_counter() - t0,
-            0,
-            cached,
-            warm_build,
-            grid,
-        )
-    solve_time = time.perf_counter() - t0
-    stats = solver.stats()
-    w = np.asarray(sol["x"]).ravel()
-    Ts, Xs, Us, Ls = lay.unpack(w, sides) if one_sided else lay.unpack(w)
-    viol = _violations(nlp, w, p, lbg, ubg)
-    worst = max(viol.values(), default=0.0)
-    rs = str(stats.get("return_status", "unknown"))
-    if rs == "User_Requested_Stop" and not (budget_spent() or stopped_for_budget()):
-        # Ctrl-C (planning/interrupt.py): the user asked to stop, not to try the next start.
-        raise KeyboardInterrupt("solve interrupted")
-    status = _IPOPT_STATUS.get(
-        rs, PlanStatus.SUCCESS if stats.get("success") else PlanStatus.SOLVER_ERROR
-    )
-    if rs == "User_Requested_Stop":
-        status = PlanStatus.TIME_BUDGET
-    if nlp.solver_name == "fatrop":
-        status, rs = fatrop_status(stats)
-    if status is PlanStatus.SUCCESS and worst > FEASIBILITY_TOL:
-        status = PlanStatus.INFEASIBLE
-        rs += f" but constraints violated by {worst:.2e}"
-    return _Solve(
-        status=status,
-        message=rs,
-        T=Ts,
-        X=Xs,
-        U=Us,
-        L=Ls,
-        w=w,
-        lam_x=np.asarray(sol["lam_x"]).ravel(),
-        lam_g=np.asarray(sol["lam_g"]).ravel(),
-        nlp=nlp,
-        assignment=assignment,
-        slots=slots,
-        violations=viol,
-        solve_time=solve_time,
-        iterations=int(stats.get("iter_count", 0)),
-        cached=cached,
-        warm_build=warm_build,
-        grid=grid,
-    )
 
 
 def _precheck(problem: PlanningProblem) -> str | None:
@@ -300,9 +102,7 @@ def _failed(
     )
 
 
-def _result(
-    problem: PlanningProblem, planner: str, s: _Solve, build: float, solve: float, iters: int
-) -> PlanResult:
+def _result(problem: PlanningProblem, planner: str, s: _Solve, cost: SolveCost) -> PlanResult:
     model = problem.model
     K = problem.options.nodes
     times = s.T * (np.linspace(0.0, 1.0, K) if s.grid is None else s.grid)
@@ -322,26 +122,26 @@ def _result(
         ellipsoid_shapes=geo["M"],
         positions=geo["P"],
         speeds=speeds,
-        lookback=np.array(s.assignment if planner == "secure" else [-1] * K, dtype=int),
-        lookback_rule=problem.options.lookback if planner == "secure" else "none",
-        build_time=build,
-        solve_time=solve,
-        iterations=iters,
+        lookback=np.array(s.assignment if planner == Planner.SECURE else [-1] * K, dtype=int),
+        lookback_rule=problem.options.lookback if planner == Planner.SECURE else "none",
+        build_time=cost.build,
+        solve_time=cost.solve,
+        iterations=cost.iterations,
         solver=problem.options.solver,
         violations={k: v for k, v in s.violations.items() if v > FEASIBILITY_TOL},
-        warm={
-            "key": s.nlp.key,
-            "w": s.w,
-            "lam_x": s.lam_x,
-            "lam_g": s.lam_g,
-            "L": s.L,
-            "assignment": s.assignment,
-            "slots": s.slots,
-            "T": s.T,
-            "X": s.X,
-            "U": s.U,
-            "grid": s.grid,
-        },
+        warm=WarmStart(
+            key=s.nlp.key,
+            w=s.w,
+            lam_x=s.lam_x,
+            lam_g=s.lam_g,
+            L=s.L,
+            assignment=s.assignment,
+            slots=s.slots,
+            T=s.T,
+            X=s.X,
+            U=s.U,
+            grid=s.grid,
+        ),
     )
 
 
@@ -349,7 +149,7 @@ def _guess_from_warm(problem: PlanningProblem, warm: PlanResult, t_offset: float
     """The previous plan from ``t_offset`` on: its later nodes kept as they are where the NLP takes
     a time grid (IPOPT) and they fit, else resampled on evenly spaced nodes."""
     args = (problem.model, warm.times, warm.states, warm.controls, t_offset)
-    kept = remainder_keeping_nodes(*args) if problem.options.solver == "ipopt" else None
+    kept = remainder_keeping_nodes(*args) if problem.options.solver == Solver.IPOPT else None
     times, X, U = kept if kept is not None else resample(*args, problem.options.nodes)
     X[0] = problem.x0
     return Guess(times=times, states=X, controls=U, path=X[:, :3])
@@ -362,8 +162,40 @@ def _guess_from_path(
     problem's start), time-scaled as the graph-search guess is (:func:`profile_guess`)."""
     later = other.positions[other.times > t_offset + 1e-9]
     path = np.vstack([problem.start_position[None], later if len(later) else problem.goal[None]])
-    frac = 1.0 if planner == "baseline" else problem.options.guess_speed_fraction
-    return profile_guess(problem, path, frac, planner == "secure")
+    frac = 1.0 if planner == Planner.BASELINE else problem.options.guess_speed_fraction
+    return profile_guess(problem, path, frac, planner == Planner.SECURE)
+
+
+def _first_round(
+    problem: PlanningProblem,
+    planner: str,
+    guess: Guess,
+    warm: PlanResult | None,
+    dual_start: bool,
+) -> tuple[tuple[int, ...], tuple | None, np.ndarray | None, np.ndarray | None]:
+    """The first round's look-back assignment, and from a warm plan its multipliers (with
+    ``dual_start``), obstacle duals and slots: ``(assignment, multipliers, L, slots)``."""
+    o = problem.options
+    K = o.nodes
+    if planner == Planner.BASELINE:
+        assignment: tuple[int, ...] = (-1,) * K
+    elif o.lookback == "fixed":
+        assignment = lb.fixed_assignment(K, o.lookback_steps)
+    else:
+        assignment, _ = lb.adaptive_assignment(problem, guess.states)
+    multipliers = None
+    L0 = None
+    prev_slots = None
+    if warm is not None and warm.warm is not None:
+        # Same structure as the previous plan: its multipliers are a good start even after the
+        # remaining trajectory was resampled from warm_time on (node i keeps its role).
+        if dual_start:
+            multipliers = (warm.warm.key, warm.warm.lam_x, warm.warm.lam_g)
+        L0 = warm.warm.L
+        prev_slots = warm.warm.slots
+        if planner == Planner.SECURE and o.lookback == "adaptive":
+            assignment = tuple(warm.warm.assignment)
+    return assignment, multipliers, L0, prev_slots
 
 
 def _refresh_slots(
@@ -372,10 +204,10 @@ def _refresh_slots(
     s: _Solve,
     cache: NLPCache,
     extra_margin: float = 0.0,
-) -> tuple[_Solve, float, int]:
+) -> tuple[_Solve, SolveCost]:
     """Re-select the obstacle slots on solution ``s`` and re-solve warm, up to SLOT_REFRESHES
-    times, while a box left out of the slots breaks a row. Returns the last solve, and the solver
-    time and iterations the re-solves added.
+    times, while a box left out of the slots breaks a row. Returns the last solve, and what the
+    re-solves cost.
 
     Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may have come
     closer. With the slots the NLP is a relaxation of the NLP with every box, so a solution no
@@ -385,7 +217,7 @@ def _refresh_slots(
     tightened re-solves (``extra_margin``) go through here too: without it a tightened solution
     moved onto boxes outside its slots (issue 16: obstacle margins down to -0.8 m).
     """
-    solve_t, iters = 0.0, 0
+    cost = SolveCost()
     for _ in range(SLOT_REFRESHES):
         if (
             not s.status.ok
@@ -407,9 +239,8 @@ def _refresh_slots(
             extra_margin=extra_margin,
             grid=s.grid,
         )
-        solve_t += s.solve_time
-        iters += s.iterations
-    return s, solve_t, iters
+        cost = cost + SolveCost(0.0, s.solve_time, s.iterations)
+    return s, cost
 
 
 def _solve_rounds(
@@ -420,37 +251,18 @@ def _solve_rounds(
     warm_time: float,
     cache: NLPCache,
     dual_start: bool = True,
-) -> tuple[_Solve, float, float, int]:
+) -> tuple[_Solve, SolveCost]:
     """Assign look-backs on the guess, solve, and (adaptive rule) re-assign and re-solve. A warm
     replan starts from the previous plan's multipliers too, with the warm-start solver, unless
     ``dual_start`` is False (then the cold solver's barrier schedule from the primal guess)."""
     o = problem.options
-    K = o.nodes
-    if planner == "baseline":
-        assignment: tuple[int, ...] = (-1,) * K
-    elif o.lookback == "fixed":
-        assignment = lb.fixed_assignment(K, o.lookback_steps)
-    else:
-        assignment, _ = lb.adaptive_assignment(problem, guess.states)
-
-    multipliers = None
-    L0 = None
-    prev_slots = None
-    if warm is not None and warm.warm is not None:
-        # Same structure as the previous plan: its multipliers are a good start even after the
-        # remaining trajectory was resampled from warm_time on (node i keeps its role).
-        if dual_start:
-            multipliers = (warm.warm["key"], warm.warm["lam_x"], warm.warm["lam_g"])
-        L0 = warm.warm["L"]
-        prev_slots = warm.warm["slots"]
-        if planner == "secure" and o.lookback == "adaptive":
-            assignment = tuple(warm.warm["assignment"])
-
-    build = solve_t = 0.0
-    iters = 0
+    assignment, multipliers, L0, prev_slots = _first_round(
+        problem, planner, guess, warm, dual_start
+    )
+    cost = SolveCost()
     T, X, U = guess.final_time, guess.states, guess.controls
     grid = guess.times / guess.final_time if warm is not None else None
-    rounds = o.lookback_rounds if (planner == "secure" and o.lookback == "adaptive") else 1
+    rounds = o.lookback_rounds if (planner == Planner.SECURE and o.lookback == "adaptive") else 1
     if warm is not None:
         rounds = 1  # a warm replan keeps the previous, already refined, assignment
     best: _Solve | None = None
@@ -469,14 +281,10 @@ def _solve_rounds(
             prev_slots=prev_slots,
             grid=grid,
         )
-        if cache.misses > n_before:
-            build += s.nlp.build_time
-        build += s.warm_build
-        solve_t += s.solve_time
-        iters += s.iterations
-        s, t_, n_ = _refresh_slots(problem, planner, s, cache)
-        solve_t += t_
-        iters += n_
+        built = s.nlp.build_time if cache.misses > n_before else 0.0
+        cost = cost + SolveCost(built + s.warm_build, s.solve_time, s.iterations)
+        s, c = _refresh_slots(problem, planner, s, cache)
+        cost = cost + c
         if best is None or (s.status.ok and (not best.status.ok or s.T < best.T)):
             best = s
         if not s.status.ok or rounds == 1 or budget_spent():
@@ -487,7 +295,7 @@ def _solve_rounds(
         assignment = new_assignment
         T, X, U, L0, multipliers, prev_slots = s.T, s.X, s.U, s.L, None, s.slots
         grid = s.grid
-    return best, build, solve_t, iters
+    return best, cost
 
 
 #: Cruise speeds of the slower guesses a secure cold plan falls back to, in turn, when the solve
@@ -506,6 +314,7 @@ def plan_problem(
     warm: PlanResult | None = None,
     warm_time: float = 0.0,
     cache: NLPCache | None = None,
+    solve_rounds: Callable[..., tuple[_Solve, SolveCost]] | None = None,
 ) -> PlanResult:
     """Solve a :class:`PlanningProblem` (see :func:`plan` for the scenario-level entry point).
 
@@ -519,13 +328,17 @@ def plan_problem(
         ``"baseline"`` (dynamics, limits and body-vs-known-obstacle avoidance only).
     warm : a previous plan to start from (its remainder after ``warm_time`` seconds).
     cache : compiled NLPs to reuse; default: a module-wide cache.
+    solve_rounds : one solve from a guess with its look-back rounds (default the real one); a
+        seam for tests that make solves fail.
     """
-    if planner not in ("secure", "baseline"):
+    if planner not in tuple(Planner):
         raise ConfigError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
     cache = DEFAULT_CACHE if cache is None else cache
     pin_blas_threads()  # the same iterates whatever the machine's cores (planning/blas.py)
     with deadline(problem.options.plan_budget):
-        return _plan_within_budget(problem, planner, warm, warm_time, cache)
+        return _plan_within_budget(
+            problem, planner, warm, warm_time, cache, solve_rounds or _solve_rounds
+        )
 
 
 def _plan_within_budget(
@@ -534,6 +347,7 @@ def _plan_within_budget(
     warm: PlanResult | None,
     warm_time: float,
     cache: NLPCache,
+    solve_rounds: Callable[..., tuple[_Solve, SolveCost]],
 ) -> PlanResult:
     o = problem.options
     reason = _precheck(problem)
@@ -567,61 +381,69 @@ def _plan_within_budget(
             else:
                 guess = initial_guess(
                     problem,
-                    secure=planner == "secure",
-                    speed_fraction=1.0 if planner == "baseline" else None,
+                    secure=planner == Planner.SECURE,
+                    speed_fraction=1.0 if planner == Planner.BASELINE else None,
                 )
         except NoPathError as exc:
             return _failed(problem, planner, PlanStatus.INFEASIBLE, str(exc))
         attempts = [(guess, True)]
-        if planner == "secure":
+        if planner == Planner.SECURE:
             # The paper: poor guesses stop convergence. Slower flights along the same path are
             # more conservative (more feasible) starts; they are tried when the first one fails.
             attempts += [(frac * o.guess_speed_fraction, True) for frac in RETRY_GUESS_SPEEDS]
     s = None
-    build = solve_t = 0.0
-    iters = 0
+    cost = SolveCost()
     for g, dual_start in attempts:
         if s is not None and budget_spent():
             break
         if isinstance(g, float):
             g = initial_guess(problem, secure=True, speed_fraction=g)
-        s, b_, t_, i_ = _solve_rounds(problem, planner, g, warm, warm_time, cache, dual_start)
-        build, solve_t, iters = build + b_, solve_t + t_, iters + i_
+        s, c = solve_rounds(problem, planner, g, warm, warm_time, cache, dual_start)
+        cost = cost + c
         if s.status.ok:
             break
-    result = _judged(problem, planner, s, build, solve_t, iters, cache)
-    if warm is None:
-        # Minimum-time NLPs have many local optima (the paper: "poor guesses stop convergence");
-        # further starts at other cruise speeds, keeping the fastest plan that passes.
-        for frac in o.extra_starts:
-            if budget_spent():
-                break
-            g = initial_guess(problem, secure=planner == "secure", speed_fraction=frac)
-            s2, b_, t_, i_ = _solve_rounds(problem, planner, g, None, 0.0, cache)
-            build, solve_t, iters = build + b_, solve_t + t_, iters + i_
-            other = _judged(problem, planner, s2, build, solve_t, iters, cache)
-            if other.ok and (not result.ok or other.final_time < result.final_time):
-                result = other
-        if o.extra_starts:
-            from dataclasses import replace
-
-            result = replace(result, build_time=build, solve_time=solve_t, iterations=iters)
+    result = _judged(problem, planner, s, cost, cache)
+    if warm is None and o.extra_starts:
+        result = _extra_starts(problem, planner, result, cost, cache, solve_rounds)
     return result
+
+
+def _extra_starts(
+    problem: PlanningProblem,
+    planner: str,
+    result: PlanResult,
+    cost: SolveCost,
+    cache: NLPCache,
+    solve_rounds: Callable[..., tuple[_Solve, SolveCost]],
+) -> PlanResult:
+    """Minimum-time NLPs have many local optima (the paper: "poor guesses stop convergence"):
+    further cold starts at the cruise speeds ``options.extra_starts``, keeping the fastest plan
+    that passes; the result reports what every start cost."""
+    from dataclasses import replace
+
+    for frac in problem.options.extra_starts:
+        if budget_spent():
+            break
+        g = initial_guess(problem, secure=planner == Planner.SECURE, speed_fraction=frac)
+        s2, c = solve_rounds(problem, planner, g, None, 0.0, cache)
+        cost = cost + c
+        other = _judged(problem, planner, s2, cost, cache)
+        if other.ok and (not result.ok or other.final_time < result.final_time):
+            result = other
+    return replace(result, build_time=cost.build, solve_time=cost.solve, iterations=cost.iterations)
 
 
 def _judged(
     problem: PlanningProblem,
     planner: str,
     s: _Solve,
-    build: float,
-    solve_t: float,
-    iters: int,
+    cost: SolveCost,
     cache: NLPCache,
 ) -> PlanResult:
     """The result of a solve, certified (secure planner): a rejected solution is re-solved warm
     with tightened rows (:data:`CERTIFY_TIGHTENING`) before it is reported NOT_CERTIFIED."""
-    result = _result(problem, planner, s, build, solve_t, iters)
-    if not (result.ok and planner == "secure" and problem.options.certify):
+    result = _result(problem, planner, s, cost)
+    if not (result.ok and planner == Planner.SECURE and problem.options.certify):
         return result
     from dataclasses import replace
 
@@ -648,16 +470,17 @@ def _judged(
             extra_margin=extra,
             grid=s.grid,
         )
-        solve_t, iters = solve_t + t_.solve_time, iters + t_.iterations
-        build += t_.warm_build
-        t_, more_t, more_i = _refresh_slots(problem, planner, t_, cache, extra_margin=extra)
-        solve_t, iters = solve_t + more_t, iters + more_i
+        cost = cost + SolveCost(t_.warm_build, t_.solve_time, t_.iterations)
+        t_, c = _refresh_slots(problem, planner, t_, cache, extra_margin=extra)
+        cost = cost + c
         if not t_.status.ok:
             break
         s = t_
-        result = _result(problem, planner, s, build, solve_t, iters)
+        result = _result(problem, planner, s, cost)
         cert = certify(result, problem)
-    result = replace(result, build_time=build, solve_time=solve_t, iterations=iters)
+    result = replace(
+        result, build_time=cost.build, solve_time=cost.solve, iterations=cost.iterations
+    )
     status = result.status if cert.ok else PlanStatus.NOT_CERTIFIED
     msg = result.message if cert.ok else f"solver: {result.message}; certificate: {cert}"
     return replace(result, certificate=cert, status=status, message=msg, rejections=tuple(rejected))

@@ -43,6 +43,7 @@ from secure3d.reactive.reactive_set import (
     check_containment,
     closed_form_family,
 )
+from secure3d.validation import is_int_in
 
 __all__ = [
     "DATA_DIR",
@@ -92,11 +93,11 @@ class FitSettings:
     def __post_init__(self) -> None:
         for name, low in (("n_samples", 100), ("n_check", 100), ("max_attempts", 1)):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            if not is_int_in(value, low):
                 raise ConfigError(f"FitSettings.{name}: must be an integer >= {low}, got {value!r}")
         for name in ("seed", "check_seed"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            if not is_int_in(value, 0):
                 raise ConfigError(
                     f"FitSettings.{name}: must be a non-negative integer, got {value!r}"
                 )

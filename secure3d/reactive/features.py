@@ -112,12 +112,6 @@ FEATURE_MAPS = {
     "diff_drive/v1": _diff_drive,
 }
 
-DEFAULT_FEATURES = {
-    "point_mass": "point_mass/v1",
-    "quadrotor": "quadrotor/v1",
-    "diff_drive": "diff_drive/v1",
-}
-
 
 def features(name: str, xs: list[Any], m: ModuleType) -> Features:
     """Evaluate the feature map ``name`` on state components ``xs`` with math namespace ``m``."""

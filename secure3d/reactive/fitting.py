@@ -198,7 +198,7 @@ def fit_family(
         raise ConfigError(f"fit_family: n_samples must be >= 100, got {n_samples}")
     step = progress if progress is not None else (lambda stage: None)
     t0 = time.perf_counter()
-    name = feature_map or feat.DEFAULT_FEATURES[model.name]
+    name = feature_map or model.feature_map
     r = model.body_radius
 
     X = sample_states(model, n_samples, rng)

@@ -35,8 +35,6 @@ import numpy as np
 from secure3d.dynamics import _symbolic as sym
 from secure3d.dynamics.base import VehicleModel
 from secure3d.dynamics.diff_drive import DiffDrive
-from secure3d.dynamics.point_mass import PointMass
-from secure3d.dynamics.quadrotor import Quadrotor
 from secure3d.errors import ConfigError
 from secure3d.reactive import _clearance
 from secure3d.reactive import features as feat
@@ -189,7 +187,7 @@ class CapsuleClosedForm(ReactiveSetFamily):
     kind = "closed_form"
 
     def __init__(self, model: VehicleModel, bound: CapsuleBound, latency: float = 0.0):
-        if not isinstance(model, (PointMass, Quadrotor)):
+        if getattr(model, "closed_form", None) != "capsule":
             raise ConfigError(f"CapsuleClosedForm: unsupported model {model.name!r}")
         super().__init__(model, "braking", latency)
         self.bound = bound
@@ -233,7 +231,7 @@ class DiffDriveClosedForm(ReactiveSetFamily):
     SMOOTH_MIN = 0.05
 
     def __init__(self, model: DiffDrive, latency: float = 0.0):
-        if not isinstance(model, DiffDrive):
+        if getattr(model, "closed_form", None) != "heading_capsule":
             raise ConfigError(f"DiffDriveClosedForm: unsupported model {model.name!r}")
         super().__init__(model, "braking", latency)
 
@@ -262,30 +260,6 @@ class DiffDriveClosedForm(ReactiveSetFamily):
         return c, M
 
 
-def _quadrotor_bound(model: Quadrotor, latency: float, controller: Any | None) -> CapsuleBound:
-    from secure3d.reactive.controllers import BrakingController
-
-    ctrl = controller if controller is not None else BrakingController(model, latency)
-    lim = model.limits
-    g, a_b = lim.gravity, ctrl.deceleration
-    brake_tilt = math.asin(min(1.0, a_b / g))
-    # Largest angle between the thrust axis (tilt <= max_tilt, plus what the held rates add during
-    # the latency) and any braking thrust direction (tilt <= brake_tilt).
-    turn = min(math.pi, lim.max_tilt + lim.max_rate * latency + brake_tilt)
-    # Saturated turn at max_rate, then one attitude time constant to settle.
-    t_turn = latency + turn / lim.max_rate + 1.0 / ctrl.gains.attitude_gain
-    # The law's thrust error is |t| sin(angle) <= (g + a_b) sin(angle); a held command during the
-    # latency may use up to thrust_max and differs from the braking reference by a_b more.
-    if latency > 0:
-        err = lim.thrust_max * math.sin(min(turn, math.pi / 2)) + a_b
-    else:
-        err = (g + a_b) * math.sin(min(turn, math.pi / 2))
-    tau = ctrl.gains.velocity_time_constant
-    return CapsuleBound(
-        decel=a_b, coast=0.0, error_accel=err, error_time=t_turn, extra=0.5 * a_b * tau * tau
-    )
-
-
 def closed_form_family(
     model: VehicleModel, latency: float = 0.0, controller: Any | None = None
 ) -> ReactiveSetFamily:
@@ -305,17 +279,17 @@ def closed_form_family(
     lat = float(latency)
     if not math.isfinite(lat) or lat < 0:
         raise ConfigError(f"latency: must be finite and >= 0, got {latency!r}")
-    if isinstance(model, PointMass):
-        a_hold = model.limits.max_accel * (
-            1.0 if model.limits.accel_norm == "ball" else math.sqrt(3)
-        )
-        bound = CapsuleBound(
-            decel=model.braking_deceleration, coast=lat, error_accel=a_hold, error_time=lat
-        )
+    kind = getattr(model, "closed_form", None)
+    if kind == "capsule":
+        from secure3d.reactive.controllers import BrakingController
+
+        # The bound uses the braking law's deceleration and gains where the vehicle's bound
+        # depends on them (the quadrotor's); the point mass's reads its limits only.
+        ctrl = controller if controller is not None else BrakingController(model, lat)
+        decel, gains = getattr(ctrl, "deceleration", None), getattr(ctrl, "gains", None)
+        bound = CapsuleBound(*model.braking_capsule(lat, decel, gains))
         return CapsuleClosedForm(model, bound, lat)
-    if isinstance(model, Quadrotor):
-        return CapsuleClosedForm(model, _quadrotor_bound(model, lat, controller), lat)
-    if isinstance(model, DiffDrive):
+    if kind == "heading_capsule":
         return DiffDriveClosedForm(model, lat)
     raise ConfigError(f"closed_form_family: unsupported model {getattr(model, 'name', model)!r}")
 

@@ -9,16 +9,10 @@ add the position would fail.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from secure3d.dynamics.base import VehicleModel
-from secure3d.dynamics.diff_drive import DiffDrive
-from secure3d.dynamics.point_mass import PointMass
-from secure3d.dynamics.quadrotor import Quadrotor
+from secure3d.dynamics.base import VehicleModel, sample_unit_vectors
 from secure3d.errors import ConfigError
-from secure3d.geometry.transforms import quat_multiply
 
 #: Fraction of samples placed exactly at rest and exactly at the speed limit.
 EXTREME_FRACTION = 0.05
@@ -26,9 +20,7 @@ EXTREME_FRACTION = 0.05
 POSITION_SPAN = 20.0
 
 
-def _unit_vectors(n: int, rng: np.random.Generator) -> np.ndarray:
-    u = rng.normal(size=(n, 3))
-    return u / np.linalg.norm(u, axis=1, keepdims=True)
+_unit_vectors = sample_unit_vectors
 
 
 def _speeds(n: int, top: float, rng: np.random.Generator) -> np.ndarray:
@@ -54,34 +46,8 @@ def sample_states(model: VehicleModel, n: int, rng: np.random.Generator) -> np.n
     """
     if n < 1:
         raise ConfigError(f"n_samples: must be >= 1, got {n!r}")
-    lim = model.limits
-    X = np.zeros((n, model.nx))
     pos = POSITION_SPAN * (rng.random((n, 3)) - 0.5)
-    if isinstance(model, DiffDrive):
-        X[:, :2] = pos[:, :2]
-        X[:, 2] = rng.uniform(-math.pi, math.pi, n)
-        v = _speeds(n, lim.max_speed, rng) * rng.choice([-1.0, 1.0], n)
-        w = _speeds(n, lim.max_ang_speed, rng) * rng.choice([-1.0, 1.0], n)
-        X[:, 3], X[:, 4] = v, w
-        return X
-    X[:, :3] = pos
-    X[:, 3:6] = _speeds(n, lim.max_speed, rng)[:, None] * _unit_vectors(n, rng)
-    if isinstance(model, PointMass):
-        X[:, 6] = rng.uniform(-math.pi, math.pi, n)
-        return X
-    if isinstance(model, Quadrotor):
-        yaw = rng.uniform(-math.pi, math.pi, n)
-        tilt = _speeds(n, lim.max_tilt, rng)
-        axis_angle = rng.uniform(-math.pi, math.pi, n)
-        # Tilt about a random horizontal axis, then yaw: q = q_tilt * q_yaw.
-        ca, sa = np.cos(tilt / 2), np.sin(tilt / 2)
-        ax, ay = np.cos(axis_angle), np.sin(axis_angle)
-        cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
-        q_t = np.stack([ca, sa * ax, sa * ay, np.zeros(n)], axis=1)
-        q_y = np.stack([cy, np.zeros(n), np.zeros(n), sy], axis=1)
-        X[:, 6:10] = quat_multiply(q_t, q_y)
-        return X
-    raise ConfigError(f"sample_states: no sampler for model {model.name!r}")
+    return model.sample_states(pos, lambda top: _speeds(n, top, rng), rng)
 
 
 def sample_hold_controls(model: VehicleModel, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -93,11 +59,7 @@ def sample_hold_controls(model: VehicleModel, n: int, rng: np.random.Generator) 
     -------
     U : (n, nu) float.
     """
-    U = model.u_lo + (model.u_hi - model.u_lo) * rng.random((n, model.nu))
-    if isinstance(model, PointMass) and model.limits.accel_norm == "ball":
-        a = model.limits.max_accel * rng.random(n) ** (1 / 3)
-        U[:, :3] = a[:, None] * _unit_vectors(n, rng)
-    return U
+    return model.sample_controls(n, rng)
 
 
 def sample_obstacles(

@@ -17,6 +17,7 @@ exceeds ``run_timeout`` (an error row; not retried).
 
 from __future__ import annotations
 
+import functools
 import logging
 import multiprocessing
 import multiprocessing.connection
@@ -28,12 +29,15 @@ import time
 from collections import deque
 from collections.abc import Callable, Collection, Iterable, Iterator
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
-from secure3d.simulation import campaign
-from secure3d.simulation.campaign import RunRecord, _Job, error_record
+from secure3d.errors import Secure3DError
+from secure3d.simulation.campaign_records import RunRecord, _Job, error_record
 
-__all__ = ["Crash", "InlinePool", "Pool", "ProcessPool", "fly_safely", "schedule"]
+if TYPE_CHECKING:  # pragma: no cover
+    from secure3d.planning.collocation import NLPCache
+
+__all__ = ["Crash", "InlinePool", "Pool", "ProcessPool", "fly_job", "fly_safely", "schedule"]
 
 log = logging.getLogger("secure3d")
 
@@ -69,11 +73,33 @@ class Pool(Protocol):
         """Stop every worker (idempotent)."""
 
 
-def fly_safely(job: _Job) -> RunRecord:
-    """Fly ``job`` (``campaign._fly``); any exception becomes an error row, not a dead campaign."""
+@functools.cache
+def _process_cache() -> NLPCache:
+    """One NLP cache per process, shared by the runs that process flies."""
+    from secure3d.planning.collocation import NLPCache
+
+    return NLPCache()
+
+
+def fly_job(job: _Job) -> RunRecord:
+    """Fly one job (in a worker process or in-process). secure3d errors become an error row."""
+    from secure3d.simulation.closed_loop import simulate
+
     t0 = time.perf_counter()
     try:
-        return campaign._fly(job)
+        result = simulate(
+            job.scenario, job.planner, seed=job.seed, cache=_process_cache(), **job.options
+        )
+    except Secure3DError as exc:
+        return error_record(job, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
+    return RunRecord.from_result(job.variant, result)
+
+
+def fly_safely(job: _Job, fly: Callable[[_Job], RunRecord] = fly_job) -> RunRecord:
+    """Fly ``job`` with ``fly``; any exception becomes an error row, not a dead campaign."""
+    t0 = time.perf_counter()
+    try:
+        return fly(job)
     except Exception as exc:  # a bug in one run must not stop the others
         return error_record(job, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
 
@@ -86,15 +112,16 @@ class InlinePool:
 
     size = 1
 
-    def __init__(self) -> None:
+    def __init__(self, fly: Callable[[_Job], RunRecord] = fly_job) -> None:
         self._job: _Job | None = None
+        self._fly = fly
 
     def start(self, slot: int, job: _Job) -> None:
         self._job = job
 
     def wait(self, slots: Collection[int], timeout: float) -> list[tuple[int, RunRecord | Crash]]:
         job, self._job = self._job, None
-        return [] if job is None else [(0, fly_safely(job))]
+        return [] if job is None else [(0, fly_safely(job, self._fly))]
 
     def kill(self, slot: int) -> None:
         self._job = None
@@ -131,7 +158,11 @@ def _die_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="secure3d-parent-watchdog", daemon=True).start()
 
 
-def _worker_main(conn: multiprocessing.connection.Connection, parent: int) -> None:
+def _worker_main(
+    conn: multiprocessing.connection.Connection,
+    parent: int,
+    fly: Callable[[_Job], RunRecord] = fly_job,
+) -> None:
     """A worker process: fly the jobs received on ``conn`` until it closes."""
     _die_with_parent(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -143,7 +174,7 @@ def _worker_main(conn: multiprocessing.connection.Connection, parent: int) -> No
             return
         if job is None:
             return
-        conn.send(fly_safely(job))
+        conn.send(fly_safely(job, fly))
 
 
 @dataclass
@@ -156,8 +187,9 @@ class ProcessPool:
     """``size`` spawned worker processes (clean interpreters: forking a parent that runs OpenMP or
     TBB threads can deadlock the child). Workers start on first use."""
 
-    def __init__(self, size: int) -> None:
+    def __init__(self, size: int, fly: Callable[[_Job], RunRecord] = fly_job) -> None:
         self.size = size
+        self._fly = fly
         self._context = multiprocessing.get_context("spawn")
         self._workers: list[_Worker | None] = [None] * size
 
@@ -168,7 +200,7 @@ class ProcessPool:
                 self.kill(slot)
             parent, child = self._context.Pipe()
             process = self._context.Process(
-                target=_worker_main, args=(child, os.getpid()), daemon=True
+                target=_worker_main, args=(child, os.getpid(), self._fly), daemon=True
             )
             process.start()
             child.close()

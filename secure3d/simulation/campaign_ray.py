@@ -19,8 +19,8 @@ from collections.abc import Collection
 from typing import Any
 
 from secure3d.errors import ConfigError
-from secure3d.simulation.campaign import RunRecord, _Job
 from secure3d.simulation.campaign_pool import Crash, fly_safely
+from secure3d.simulation.campaign_records import RunRecord, _Job
 
 __all__ = ["RayPool"]
 

@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from secure3d.errors import ConfigError, Secure3DError
-from secure3d.simulation.campaign import (
+from secure3d.simulation.campaign_pool import InlinePool, Pool, ProcessPool, fly_job, schedule
+from secure3d.simulation.campaign_records import (
     CSV_NAME,
     ERROR_OUTCOME,
     SUMMARY_NAME,
@@ -29,7 +30,6 @@ from secure3d.simulation.campaign import (
     _check_args,
     _Job,
 )
-from secure3d.simulation.campaign_pool import InlinePool, Pool, ProcessPool, schedule
 from secure3d.simulation.campaign_store import (
     RUNS_NAME,
     RunsFile,
@@ -40,6 +40,7 @@ from secure3d.simulation.campaign_store import (
     sort_records,
     write_reports,
 )
+from secure3d.validation import is_int, is_int_in, is_real
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.world.families import Family
@@ -63,11 +64,7 @@ def parse_shard(text: str | tuple[int, int] | None) -> tuple[int, int]:
             k, n = 0, 0
     else:
         k, n = text
-    if (
-        isinstance(k, bool)
-        or isinstance(n, bool)
-        or not (isinstance(k, int) and isinstance(n, int))
-    ):
+    if not (is_int(k) and is_int(n)):
         k, n = 0, 0
     if not 1 <= k <= n:
         raise ConfigError(f"shard: must be K/N with 1 <= K <= N (got {text!r})")
@@ -85,7 +82,7 @@ def _family(kind: str, count: int) -> Family:
     if kind not in ("auto", "corner", "forest"):
         names = ", ".join(("auto", "corner", "forest", *FAMILIES))
         raise ConfigError(f"kind: must be one of {names} (got {kind!r})")
-    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+    if not is_int_in(count, 1):
         raise ConfigError(f"count: must be a positive integer (got {count!r})")
     return hidden_obstacle_family(kind, count)  # type: ignore[arg-type]
 
@@ -157,15 +154,21 @@ def _job_stream(
             yield _Job(i, scenario, plan.seed + i, p, options)
 
 
-def _make_pool(backend: str, workers: int, address: str | None, inline: bool) -> Pool:
+def _make_pool(
+    backend: str,
+    workers: int,
+    address: str | None,
+    inline: bool,
+    fly: Callable[[_Job], RunRecord] = fly_job,
+) -> Pool:
     """Ray actors, this process (one worker asked for, no timeout), or worker processes."""
     if backend == "ray":
         from secure3d.simulation.campaign_ray import RayPool
 
         return RayPool(workers, address)
     if inline:
-        return InlinePool()
-    return ProcessPool(workers)
+        return InlinePool(fly)
+    return ProcessPool(workers, fly)
 
 
 class _Tally:
@@ -196,6 +199,8 @@ class Execution:
     resume: bool = False
     progress: bool = True
     on_start: Callable[[_Job, int], object] | None = None
+    #: Flies one job (tests pass a stand-in; worker processes receive it by name).
+    fly: Callable[[_Job], RunRecord] = fly_job
 
 
 def _check_execution(ex: Execution) -> None:
@@ -204,10 +209,10 @@ def _check_execution(ex: Execution) -> None:
     if ex.address is not None and ex.backend != "ray":
         raise ConfigError("address: only with backend 'ray' (--backend ray)")
     t = ex.run_timeout
-    if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float)) or not t > 0):
+    if t is not None and (not is_real(t) or not t > 0):
         raise ConfigError(f"run_timeout: must be a positive number of seconds (got {t!r})")
     r = ex.retries
-    if isinstance(r, bool) or not isinstance(r, int) or r < 0:
+    if not is_int_in(r, 0):
         raise ConfigError(f"retries: must be a non-negative integer (got {r!r})")
 
 
@@ -263,7 +268,7 @@ def execute(plan: CampaignPlan, ex: Execution) -> CampaignResult:
     new: list[RunRecord] = []
     try:
         if todo:
-            pool = _make_pool(ex.backend, workers, ex.address, inline)
+            pool = _make_pool(ex.backend, workers, ex.address, inline, ex.fly)
             try:
                 new = _fly_all(plan, ex, pool, runs, done, todo)
             finally:

@@ -31,7 +31,7 @@ from typing import IO, TYPE_CHECKING, Any
 
 from secure3d import outputs
 from secure3d.errors import ConfigError, Secure3DError
-from secure3d.simulation.campaign import (
+from secure3d.simulation.campaign_records import (
     CERTIFY_FIELDS,
     CSV_FIELDS,
     CSV_NAME,

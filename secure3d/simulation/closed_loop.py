@@ -57,7 +57,9 @@ from secure3d.simulation.modes import (
     RunSettings,
     Trigger,
 )
+from secure3d.simulation.recording import NULL_RECORDER, Recorder
 from secure3d.simulation.results import SimEvent, SimResult
+from secure3d.validation import is_real
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.world.spec import Scenario
@@ -113,7 +115,7 @@ def check_replan_seconds(
 ) -> float:
     """``value`` (``replan_latency``, ``replan_defer``) as seconds in [0, 10), else ``error`` naming
     ``name`` and the value."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < 10.0:
+    if not is_real(value) or not 0.0 <= value < 10.0:
         raise error(f"{name}: seconds in [0, 10), got {value!r}")
     return float(value)
 
@@ -212,7 +214,7 @@ def simulate(
         explore=explore,
     )
 
-    recorder = None
+    recorder: Recorder = NULL_RECORDER
     if rrd is not None:
         from secure3d.viz.rerun_log import RerunRecorder, recording_id
 
@@ -224,11 +226,10 @@ def simulate(
         guard = TrackingGuard(loop) if tracking_guard and planner == "secure" else None
         result = Flight(loop, recorder, settings, guard).run()
     except BaseException:
-        if recorder is not None:
-            recorder.abort()
+        recorder.abort()
         raise
     outputs: dict[str, Path] = {}
-    if recorder is not None:
+    if rrd is not None:
         outputs["rrd"] = recorder.close()
     if png is not None:
         from secure3d.viz.figures import top_down_figure

@@ -61,6 +61,7 @@ from secure3d.simulation.modes import (
     log,
 )
 from secure3d.simulation.recheck import plan_unsafe
+from secure3d.simulation.recording import Recorder
 from secure3d.simulation.results import SimEvent, SimResult
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -75,7 +76,7 @@ class Flight:
     def __init__(
         self,
         loop: Loop,
-        rec: object | None,
+        rec: Recorder,
         settings: RunSettings,
         guard: TrackingGuard | None = None,
     ) -> None:
@@ -134,8 +135,7 @@ class Flight:
     def event(self, kind: str, detail: str = "", level: str = "INFO") -> None:
         self.events.append(SimEvent(self.t, kind, detail))
         log.debug("%s t=%.2f s %s: %s %s", self.loop.scenario.name, self.t, level, kind, detail)
-        if self.rec is not None:
-            self.rec.log_event(self.t, f"{kind}: {detail}", level)
+        self.rec.log_event(self.t, f"{kind}: {detail}", level)
 
     def run(self) -> SimResult:
         """Take off (first frame, line 1), then step until the goal, a collision or the time limit."""
@@ -386,9 +386,8 @@ class Flight:
         self.failures = 0
         self.plans.append((self.t, result))
         self.event("plan", f"T={result.final_time:.2f}s solve={1e3 * self.solve_times[-1]:.0f}ms")
-        if self.rec is not None:
-            self.rec.log_plan(self.t, result, label=loop.planner)
-            self.rec.log_scalar(self.t, "solve_time_ms", 1e3 * self.solve_times[-1])
+        self.rec.log_plan(self.t, result, label=loop.planner)
+        self.rec.log_scalar(self.t, "solve_time_ms", 1e3 * self.solve_times[-1])
         return result
 
     def log_certificates(self, result: PlanResult) -> None:
@@ -572,7 +571,7 @@ class Flight:
         self.clear = float(loop.collision.clearance(p_new, r))
         self.min_clear = min(self.min_clear, self.clear)
         speed = float(np.linalg.norm(model.velocity(self.x)))
-        if self.rec is not None and len(self.T_log) % 5 == 0:
+        if len(self.T_log) % 5 == 0:
             v = np.asarray(model.velocity(self.x), float).ravel()
             self.rec.log_state(self.t, p_new, v, speed, self.clear)
         goal = self.loop.scenario.goal

@@ -39,6 +39,7 @@ import numpy as np
 from secure3d.errors import SimulationError
 from secure3d.geometry.frustum import frustum_halfspaces
 from secure3d.planning.certificate import state_margin
+from secure3d.validation import is_real
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.simulation.loop import Loop
@@ -133,7 +134,7 @@ class GuardSettings:
 
     def __post_init__(self) -> None:
         v = self.interval
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (0 < v < np.inf):
+        if not is_real(v) or not (0 < v < np.inf):
             raise SimulationError(f"guard setting interval: a number > 0, got {v!r}")
 
 

@@ -19,6 +19,7 @@ from secure3d.errors import SimulationError
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.simulation.recheck import Recheck
+    from secure3d.simulation.recording import Recorder
     from secure3d.world.spec import Scenario
 
 #: Fraction of the model's yaw-rate limit used to look around at rest, and the yaw error (rad) at
@@ -100,9 +101,9 @@ class Loop:
         """The plan being followed is now known safe against the current obstacle boxes."""
         self.judged_lo, self.judged_hi = self.problem.boxes_lo, self.problem.boxes_hi
 
-    def log_world(self, rec: object | None) -> None:
+    def log_world(self, rec: Recorder) -> None:
         """Record the true world and the server's claim (nothing without a recording)."""
-        if rec is None:
+        if not rec.recording:
             return
         from secure3d.world.attacks import server_claim
 
@@ -120,7 +121,7 @@ class Loop:
 
     def log_frame(
         self,
-        rec: object | None,
+        rec: Recorder,
         t: float,
         frame_no: int,
         R: np.ndarray,
@@ -130,7 +131,7 @@ class Loop:
     ) -> None:
         """Record frame ``frame_no`` and the belief, decimated as ``every`` says
         (``frame_log_every``, ``belief_log_every``)."""
-        if rec is None:
+        if not rec.recording:
             return
         if frame_no % every.frame_log_every == 0:
             cam, spec = self.camera, self.scenario.camera
@@ -291,12 +292,5 @@ def scan_control(
     """Hold still (the braking law) while turning the heading towards ``target``."""
     u = np.array(brake.control(x), dtype=float)
     err = heading_error(target, float(model.yaw(x)))
-    name = getattr(model, "name", "")
-    if name == "diff_drive":
-        lim = model.limits
-        rate = float(np.clip(3.0 * err, -1, 1)) * SCAN_RATE_FRACTION * lim.max_ang_speed
-        u[1] = np.clip((rate - float(x[4])) / dt, -lim.max_ang_accel, lim.max_ang_accel)
-    else:  # point mass (yaw rate) and quadrotor (body z rate, level at rest)
-        w = SCAN_RATE_FRACTION * model.limits.max_yaw_rate
-        u[3] = float(np.clip(3.0 * err, -w, w))
+    model.turn_in_place_control(u, x, err, SCAN_RATE_FRACTION, dt)
     return u

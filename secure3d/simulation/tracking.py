@@ -30,9 +30,7 @@ import numpy as np
 
 from secure3d.dynamics.base import VehicleModel
 from secure3d.errors import ConfigError, GeometryError
-
-#: Indices of the quaternion (w, x, y, z) in the quadrotor state.
-_QUAT = slice(6, 10)
+from secure3d.validation import is_real
 
 
 @dataclass(frozen=True)
@@ -74,12 +72,7 @@ class TrackerGains:
     def __post_init__(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
-            if (
-                isinstance(v, bool)
-                or not isinstance(v, (int, float))
-                or not math.isfinite(v)
-                or v <= 0
-            ):
+            if not is_real(v) or not math.isfinite(v) or v <= 0:
                 raise ConfigError(f"TrackerGains.{f.name}: must be finite and > 0, got {v!r}")
             object.__setattr__(self, f.name, float(v))
 
@@ -143,12 +136,13 @@ class Reference:
                 f"reference: {model.name} needs states (K, {model.nx}) and controls"
                 f" (K, {model.nu}); got {X.shape} and {U.shape}"
             )
-        if model is not None and model.name == "quadrotor":
+        quat = None if model is None else model.quaternion_slice
+        if quat is not None:
             # q and -q are the same attitude; interpolating across a sign flip would pass through 0.
-            q = X[:, _QUAT]
+            q = X[:, quat]
             flips = np.sign(np.einsum("ij,ij->i", q[1:], q[:-1]))
             flips[flips == 0] = 1.0
-            X[1:, _QUAT] *= np.cumprod(flips)[:, None]
+            X[1:, quat] *= np.cumprod(flips)[:, None]
         self.times, self.states, self.controls, self.model = t, X, U, model
         self.derivatives = None if model is None else np.asarray(model.f_batch(X, U), dtype=float)
 

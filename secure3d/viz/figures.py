@@ -28,6 +28,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from secure3d.errors import ConfigError, GeometryError
 from secure3d.outputs import atomic_output
+from secure3d.validation import is_int_in
 from secure3d.world.spec import Bounds, Box, MeshObstacle
 
 #: Colours by planner label; other labels cycle through matplotlib's default palette.
@@ -242,7 +243,7 @@ def draw_top_down(
         Centres of the voxels (edge ``voxel_size``) the server's map claims occupied: those cut by
         the slice are outlined in red.
     """
-    if isinstance(ellipse_every, bool) or not isinstance(ellipse_every, int) or ellipse_every < 1:
+    if not is_int_in(ellipse_every, 1):
         raise ConfigError(f"ellipse_every: must be a positive integer, got {ellipse_every!r}")
     hidden = set(hidden_names)
     truth = [*true_boxes, *true_meshes]
@@ -254,15 +255,42 @@ def draw_top_down(
     z = _slice_height(z_slice, bounds, start, plans, realised_paths)
     truth = [o for o in truth if o.lo[2] <= z <= o.hi[2]]
     claimed = [o for o in claimed if o.lo[2] <= z <= o.hi[2]]
+    # Layers in drawing order (their legend entries in the same order).
     handles: list[Any] = []
+    handles += _draw_frusta(ax, frusta)
+    handles += _draw_truth(
+        ax, truth, hidden, z, voxel_boxes, voxel_colors, claimed_voxels, voxel_size
+    )
+    handles += _draw_claim_mismatch(ax, claimed, true_by_name)
+    handles += _draw_plans(ax, plans, ellipse_every)
+    handles += _draw_paths(ax, realised_paths)
+    handles += _draw_markers(ax, detection_points, collision_points, start, goal)
+    _frame(ax, bounds, title, handles)
 
-    if frusta:
-        polys = _frustum_polygons(frusta)
-        ax.add_collection(
-            PolyCollection(polys, facecolors=FRUSTUM_COLOR, edgecolors="none", alpha=0.12, zorder=1)
-        )
-        handles.append(Patch(facecolor=FRUSTUM_COLOR, alpha=0.3, label="camera field of view"))
 
+def _draw_frusta(ax: Axes, frusta: Sequence[tuple[Any, Any, Any]]) -> list[Any]:
+    """Camera fields of view as translucent wedges (the xy shadow of each pyramid)."""
+    if not frusta:
+        return []
+    polys = _frustum_polygons(frusta)
+    ax.add_collection(
+        PolyCollection(polys, facecolors=FRUSTUM_COLOR, edgecolors="none", alpha=0.12, zorder=1)
+    )
+    return [Patch(facecolor=FRUSTUM_COLOR, alpha=0.3, label="camera field of view")]
+
+
+def _draw_truth(
+    ax: Axes,
+    truth: Sequence[Box | MeshObstacle],
+    hidden: set[str],
+    z: float,
+    voxel_boxes: np.ndarray | None,
+    voxel_colors: np.ndarray | None,
+    claimed_voxels: np.ndarray | None,
+    voxel_size: float | None,
+) -> list[Any]:
+    """True obstacles cut by the slice (hidden ones black and hatched) and the voxel slices."""
+    handles: list[Any] = []
     for o in truth:
         is_hidden = o.name in hidden
         ax.add_patch(
@@ -282,7 +310,14 @@ def draw_top_down(
         handles.append(Patch(facecolor=KNOWN_COLOR, alpha=0.75, label="known obstacle"))
     if any(o.name in hidden for o in truth):
         handles.append(Patch(facecolor=HIDDEN_COLOR, hatch="////", label="hidden obstacle"))
+    return handles
 
+
+def _draw_claim_mismatch(
+    ax: Axes, claimed: Sequence[Box | MeshObstacle], true_by_name: Mapping[str, Any]
+) -> list[Any]:
+    """Claimed obstacles not in the truth (phantoms) or moved from it, outlined dashed."""
+    handles: list[Any] = []
     fake = [o for o in claimed if o.name not in true_by_name]
     moved = [
         o for o in claimed if o.name in true_by_name and not _same_geometry(o, true_by_name[o.name])
@@ -305,7 +340,12 @@ def draw_top_down(
             )
         if group:
             handles.append(Line2D([], [], color=color, linestyle="--", label=label))
+    return handles
 
+
+def _draw_plans(ax: Axes, plans: Sequence[Any], ellipse_every: int) -> list[Any]:
+    """Planned paths dashed, with the xy shadows of their reactive sets."""
+    handles: list[Any] = []
     for i, plan in enumerate(plans):
         label = str(getattr(plan, "planner", f"plan {i}"))
         color = _color_for(label, i)
@@ -332,84 +372,99 @@ def draw_top_down(
                 )
             )
             handles.append(Patch(facecolor=color, alpha=0.3, label=f"{label} reactive sets"))
+    return handles
 
+
+def _draw_paths(ax: Axes, realised_paths: Mapping[str, np.ndarray] | None) -> list[Any]:
+    """Flown paths, solid."""
+    handles: list[Any] = []
     for i, (label, path) in enumerate((realised_paths or {}).items()):
         p = np.asarray(path, dtype=float).reshape(-1, 3)
         color = _color_for(label, i)
         ax.plot(p[:, 0], p[:, 1], "-", color=color, linewidth=2.2, zorder=6)
         handles.append(Line2D([], [], color=color, linewidth=2.2, label=f"{label} realised"))
+    return handles
 
+
+def _marker(
+    ax: Axes,
+    xs: Any,
+    ys: Any,
+    marker: str,
+    color: str,
+    sizes: tuple[float, float],
+    zorder: float,
+    label: str,
+    **style: Any,
+) -> Line2D:
+    """Plot markers at (xs, ys) (``sizes``: on the map, in the legend); return the legend entry."""
+    ax.plot(xs, ys, marker, color=color, markersize=sizes[0], zorder=zorder, **style)
+    return Line2D(
+        [],
+        [],
+        color=color,
+        marker=marker,
+        linestyle="none",
+        markersize=sizes[1],
+        label=label,
+        **style,
+    )
+
+
+def _draw_markers(
+    ax: Axes,
+    detection_points: Mapping[str, np.ndarray] | Sequence[np.ndarray] | None,
+    collision_points: Sequence[np.ndarray],
+    start: np.ndarray | None,
+    goal: np.ndarray | None,
+) -> list[Any]:
+    """Detection points (red X), collisions (red star), start (blue triangle) and goal (green
+    circle), as in the paper's figures."""
+    handles: list[Any] = []
     det = _points(detection_points)
     if len(det):
-        ax.plot(det[:, 0], det[:, 1], "x", color="red", markersize=13, markeredgewidth=3, zorder=8)
         handles.append(
-            Line2D(
-                [],
-                [],
-                color="red",
-                marker="x",
-                linestyle="none",
-                markersize=10,
+            _marker(
+                ax,
+                det[:, 0],
+                det[:, 1],
+                "x",
+                "red",
+                (13, 10),
+                8,
+                "detection point",
                 markeredgewidth=3,
-                label="detection point",
             )
         )
     hits = _points(collision_points)
     if len(hits):
-        ax.plot(
-            hits[:, 0],
-            hits[:, 1],
-            "*",
-            color="red",
-            markeredgecolor="black",
-            markersize=18,
-            zorder=9,
-        )
         handles.append(
-            Line2D(
-                [],
-                [],
-                color="red",
-                marker="*",
+            _marker(
+                ax,
+                hits[:, 0],
+                hits[:, 1],
+                "*",
+                "red",
+                (18, 12),
+                9,
+                "collision",
                 markeredgecolor="black",
-                linestyle="none",
-                markersize=12,
-                label="collision",
             )
         )
-    if start is not None:
-        s = np.asarray(start, dtype=float)
-        ax.plot(s[0], s[1], "^", color="tab:blue", markeredgecolor="black", markersize=12, zorder=9)
-        handles.append(
-            Line2D(
-                [],
-                [],
-                color="tab:blue",
-                marker="^",
-                markeredgecolor="black",
-                linestyle="none",
-                markersize=10,
-                label="start",
+    for point, marker, color, label in (
+        (start, "^", "tab:blue", "start"),
+        (goal, "o", "tab:green", "goal"),
+    ):
+        if point is not None:
+            q = np.asarray(point, dtype=float)
+            handles.append(
+                _marker(ax, q[0], q[1], marker, color, (12, 10), 9, label, markeredgecolor="black")
             )
-        )
-    if goal is not None:
-        g = np.asarray(goal, dtype=float)
-        ax.plot(
-            g[0], g[1], "o", color="tab:green", markeredgecolor="black", markersize=12, zorder=9
-        )
-        handles.append(
-            Line2D(
-                [],
-                [],
-                color="tab:green",
-                marker="o",
-                markeredgecolor="black",
-                linestyle="none",
-                markersize=10,
-                label="goal",
-            )
-        )
+    return handles
 
+
+def _frame(ax: Axes, bounds: Bounds, title: str | None, handles: list[Any]) -> None:
+    """The bounds' outline, limits with a 2 % margin, equal aspect, labels, grid and legend."""
     ax.add_patch(
         Rectangle(
             bounds.lo[:2],

@@ -53,7 +53,7 @@ from scipy.spatial.transform import Rotation
 from secure3d._deps import rerun as _rerun
 from secure3d.errors import ConfigError, GeometryError, SimulationError
 from secure3d.mapping.surface import surface_mask
-from secure3d.outputs import release_temporary, temporary_path
+from secure3d.outputs import commit_temporary, discard_temporary, temporary_path
 from secure3d.world.spec import Bounds, Box, MeshObstacle
 
 #: Trust classes of the robot's map (same codes as ``secure3d.mapping.occupancy.Trust``):
@@ -149,6 +149,9 @@ class RerunRecorder:
     ...     rec.log_state(0.0, p, v, speed=0.0, clearance=1.2)
     """
 
+    #: A real recording (the null recorder of :mod:`secure3d.simulation.recording` says False).
+    recording = True
+
     def __init__(
         self,
         path: str | os.PathLike[str],
@@ -216,9 +219,7 @@ class RerunRecorder:
         self._finalizer.detach()
         self._rec.flush()
         self._rec.disconnect()
-        os.replace(self.part_path, self.path)
-        release_temporary(self.part_path)
-        return self.path
+        return commit_temporary(self.part_path, self.path)
 
     def abort(self) -> None:
         """Stop recording and delete the partial file (the final ``path`` is never touched)."""
@@ -564,5 +565,4 @@ def _claim_color(name: str, true_names: set[str]) -> tuple[int, int, int, int]:
 def _abandon(rec: Any, part_path: Path) -> None:
     with contextlib.suppress(Exception):
         rec.disconnect()
-    _remove_quietly(part_path)
-    release_temporary(part_path)
+    discard_temporary(part_path)

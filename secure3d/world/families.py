@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from secure3d.errors import ScenarioError
+from secure3d.validation import is_int_in
 from secure3d.world.spec import Scenario
 
 __all__ = ["Family", "family_variants", "variant_rng"]
@@ -41,14 +42,14 @@ class Family:
 def variant_rng(seed: int, i: int) -> np.random.Generator:
     """Variant ``i``'s generator: ``SeedSequence(seed, spawn_key=(i,))``, i.e. ``spawn(n)[i]``."""
     for name, value in (("seed", seed), ("i", i)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        if not is_int_in(value, 0, numpy=True):
             raise ScenarioError(f"{name}: must be a non-negative integer (got {value!r})")
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(i),)))
 
 
 def family_variants(family: Family, base: Scenario, n: int, seed: int) -> list[Scenario]:
     """Variants ``0 .. n-1`` of ``base`` (``family.prepare`` once, then ``family.variant``)."""
-    if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+    if not is_int_in(n, 0):
         raise ScenarioError(f"n: must be a non-negative integer (got {n!r})")
     prepared = family.prepare(base)
     return [family.variant(prepared, base, variant_rng(seed, i), i) for i in range(n)]

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from secure3d.errors import ScenarioError
+from secure3d.world.octomap_files import octomap_resolution
 
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz")
 SERVER_MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
@@ -226,8 +227,6 @@ def check_source_file(path: Path, field: str, what: str) -> float | None:
     ``server_map.resolution``), else None.
     """
     if field == "bt":
-        from secure3d.world.attacks import octomap_resolution
-
         return octomap_resolution(path, what)
     if field == "cloud":
         read_cloud(path, what)

@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from secure3d.errors import ScenarioError
-from secure3d.world.attacks import (
+from secure3d.world.families import Family
+from secure3d.world.hidden_obstacles import (
     PLACEMENT_CLEARANCE,
     _clear,
     _column_box,
@@ -34,10 +35,9 @@ from secure3d.world.attacks import (
     _Grid,
     _nearest_free,
     _placement_grid,
-    true_obstacles,
 )
-from secure3d.world.families import Family
 from secure3d.world.spec import Attack, Box, Scenario
+from secure3d.world.truth import true_obstacles
 
 #: Placement tries per variant before giving up.
 MAX_ATTEMPTS = 300

@@ -228,8 +228,8 @@ def test_discretized_scan_counts_bad_points(rng):
 
 
 def test_box_codes_are_the_codes_of_every_box_cell(rng):
+    from secure3d.mapping.claim import box_cells as _box_cells
     from secure3d.mapping.keys import box_codes
-    from secure3d.mapping.occupancy import _box_cells
 
     lo = rng.integers(32700, 32800, (30, 3))
     hi = lo + rng.integers(-2, 12, (30, 3))  # some boxes empty along an axis

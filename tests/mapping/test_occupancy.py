@@ -266,7 +266,7 @@ def test_cube_closing_equals_scipy(rng):
     """The separable closing used for ``close_gaps`` gives scipy's cells, borders included."""
     from scipy import ndimage
 
-    from secure3d.mapping.occupancy import _binary_closing_cube
+    from secure3d.mapping.obstacle_boxes import binary_closing_cube as _binary_closing_cube
 
     cube = np.ones((3, 3, 3), bool)
     for _ in range(25):

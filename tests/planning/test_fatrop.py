@@ -193,8 +193,8 @@ def test_nlp_has_the_structure_fatrop_detects(nlps, plans, problem, planner):
     jac = solver.get_function("nlp_jac_g")
     jsp = jac.sparsity_out(1)
     rows, cols = (np.array(a) for a in jsp.get_triplet())
-    w = plans[planner].warm["w"]
-    p = parameter_vector(problem, plans[planner].warm["slots"])
+    w = plans[planner].warm.w
+    p = parameter_vector(problem, plans[planner].warm.slots)
     J = np.asarray(jac(w, p)[1].full())
 
     first = np.full(jsp.size1(), lay.K)
@@ -221,7 +221,7 @@ def test_nlp_has_the_structure_fatrop_detects(nlps, plans, problem, planner):
 
 def test_visibility_rows_use_the_camera_of_node_i_minus_lookback(nlps, plans, problem):
     res = plans["secure"]
-    w, slots = res.warm["w"], res.warm["slots"]
+    w, slots = res.warm.w, res.warm.slots
     g = np.asarray(nlps["secure"].g_fun(w, parameter_vector(problem, slots))).ravel()
     vis = g[nlps["secure"].families["visibility"]].reshape(-1, problem.frustum.n_faces)
     # independent numpy twin: margin of E_i inside the frustum of camera j (min over faces)
@@ -235,11 +235,11 @@ def test_visibility_rows_use_the_camera_of_node_i_minus_lookback(nlps, plans, pr
 
 def test_baseline_rows_keep_each_segment_clear_with_its_start_nodes_duals(nlps, plans, problem):
     res = plans["baseline"]
-    w, slots = res.warm["w"], res.warm["slots"]
+    w, slots = res.warm.w, res.warm.slots
     g = np.asarray(nlps["baseline"].g_fun(w, parameter_vector(problem, slots))).ravel()
     rows = np.sort(g[nlps["baseline"].families["obstacle"]])
     # numpy twin: lam.(A p - b) for p_k and p_{k+1} (p_{K-1} twice at the last node), node k's duals
-    P, L = res.positions, res.warm["L"]
+    P, L = res.positions, res.warm.L
     K = len(P)
     nxt = np.minimum(np.arange(K) + 1, K - 1)
     b = np.concatenate([slots[..., 3:6], -slots[..., 0:3]], axis=-1)  # (K, S, 6)

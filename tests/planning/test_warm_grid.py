@@ -91,7 +91,7 @@ def test_warm_replan_along_the_plan_keeps_nodes_and_certifies(cold, corner_probl
     # an uneven grid: the kept nodes are where the previous plan had them, rescaled with T
     steps = np.diff(warm.times)
     assert steps.max() - steps.min() > 1e-3
-    np.testing.assert_allclose(warm.times, warm.final_time * warm.warm["grid"])
+    np.testing.assert_allclose(warm.times, warm.final_time * warm.warm.grid)
     if dt < plan.times[1]:  # only node 0 passed: every other node is the old one
         assert warm.iterations <= 12, warm.iterations
     # about as fast as the rest of the cold plan (the start region moved with the start; the
@@ -116,12 +116,12 @@ def test_warm_replan_without_multipliers_uses_the_cold_solver(corner_problem):
     )
     moved = corner_problem.with_start(x[0])
     guess = _guess_from_warm(moved, plan, 0.1)
-    s, build, _, iters = _solve_rounds(moved, "secure", guess, plan, 0.1, cache, dual_start=False)
-    assert s.status.ok and iters > 0 and build == 0.0
+    s, cost = _solve_rounds(moved, "secure", guess, plan, 0.1, cache, dual_start=False)
+    assert s.status.ok and cost.iterations > 0 and cost.build == 0.0
     assert s.nlp.warm_solver is None, "primal-only: the warm-start solver is never compiled"
     assert s.grid is not None and np.ptp(np.diff(s.grid)) > 1e-6, "still on the kept nodes"
-    s2, build2, _, _ = _solve_rounds(moved, "secure", guess, plan, 0.1, cache, dual_start=True)
-    assert s2.status.ok and s2.nlp.warm_solver is not None and build2 > 0.0
+    s2, cost2 = _solve_rounds(moved, "secure", guess, plan, 0.1, cache, dual_start=True)
+    assert s2.status.ok and s2.nlp.warm_solver is not None and cost2.build > 0.0
 
 
 def test_secure_plan_warm_started_from_the_baseline(corner_problem, cold):

@@ -29,6 +29,7 @@ from secure3d.simulation.campaign import (
 )
 from secure3d.simulation.campaign_store import RUNS_NAME, read_runs
 from secure3d.simulation.closed_loop import SimEvent, simulate
+from secure3d.simulation.compare import _speed_markers
 from secure3d.world import load_scenario
 from secure3d.world.attacks import hidden_obstacle_family
 from secure3d.world.families import family_variants
@@ -131,13 +132,10 @@ class FakeFlights:
         )
 
 
-def test_rows_are_sorted_and_appended_as_runs_finish(
-    tiny: Path, tmp_path: Path, monkeypatch
-) -> None:
+def test_rows_are_sorted_and_appended_as_runs_finish(tiny: Path, tmp_path: Path) -> None:
     fake = FakeFlights(tmp_path)
-    monkeypatch.setattr(campaign, "_fly", fake)
     result = run_campaign(
-        tiny, 3, seed=4, workers=1, out_dir=tmp_path, progress=False, flush_every=2
+        tiny, 3, seed=4, workers=1, out_dir=tmp_path, progress=False, flush_every=2, fly=fake
     )
     rows = _read_csv(result.csv_path)
     expected = [(v, p) for v in range(3) for p in ("secure", "baseline")]
@@ -154,12 +152,10 @@ def test_rows_are_sorted_and_appended_as_runs_finish(
     assert "takes 1.00x the baseline's time to goal (mean over the 2 variant(s)" in summary
 
 
-def test_interrupted_campaign_keeps_its_finished_runs(
-    tiny: Path, tmp_path: Path, monkeypatch
-) -> None:
-    monkeypatch.setattr(campaign, "_fly", FakeFlights(tmp_path, stop_at=3))
+def test_interrupted_campaign_keeps_its_finished_runs(tiny: Path, tmp_path: Path) -> None:
+    fake = FakeFlights(tmp_path, stop_at=3)
     with pytest.raises(KeyboardInterrupt):
-        run_campaign(tiny, 4, workers=1, out_dir=tmp_path, progress=False)
+        run_campaign(tiny, 4, workers=1, out_dir=tmp_path, progress=False, fly=fake)
     assert not (tmp_path / campaign.CSV_NAME).exists()
     assert not (tmp_path / campaign.SUMMARY_NAME).exists()
     assert _leftovers(tmp_path) == []
@@ -187,12 +183,11 @@ def test_interrupted_campaign_keeps_its_finished_runs(
     ],
 )
 def test_bad_arguments_fail_before_any_run(
-    kwargs: dict, needle: str, tiny: Path, tmp_path: Path, monkeypatch
+    kwargs: dict, needle: str, tiny: Path, tmp_path: Path
 ) -> None:
     fake = FakeFlights(tmp_path)
-    monkeypatch.setattr(campaign, "_fly", fake)
     with pytest.raises(ConfigError, match=needle):
-        run_campaign(tiny, out_dir=tmp_path, progress=False, **kwargs)
+        run_campaign(tiny, out_dir=tmp_path, progress=False, fly=fake, **kwargs)
     assert fake.calls == []
 
 
@@ -302,7 +297,7 @@ def test_speed_markers_merge_simultaneous_events() -> None:
         SimEvent(3.0, "collision"),
     )
     run = StandInRun("baseline", False, None, collided=True, events=events)
-    assert campaign._speed_markers(run) == [(1.20, "seen, take-over"), (3.0, "collision")]
+    assert _speed_markers(run) == [(1.20, "seen, take-over"), (3.0, "collision")]
 
 
 def test_atomic_write_keeps_the_old_file_on_failure(tmp_path: Path) -> None:

@@ -7,10 +7,11 @@ import pytest
 
 import secure3d
 from secure3d.errors import ScenarioError
-from secure3d.world.attacks import _connected, server_claim
+from secure3d.world.attacks import server_claim
 from secure3d.world.deadend_families import DEAD_END, THICKNESS
 from secure3d.world.families import variant_rng
 from secure3d.world.family_registry import FAMILIES
+from secure3d.world.hidden_obstacles import _connected
 from secure3d.world.spec import box_distance
 
 

@@ -1,0 +1,37 @@
+"""Compile numba's kernels once into the user's cache (``make warm``, issue 17), so that the first
+plan or flight does not pay 10-20 s of compilation.
+
+An edge of the package, like the CLI: it runs a plan and a flight, so it imports the planner and
+the simulator. (It lived in :mod:`secure3d._numba_cache`, which every kernel module imports: an
+import cycle through the whole package.)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["warm"]
+
+
+def warm() -> float:
+    """Compile (or load) the kernels of a secure plan, its certificate and a short closed-loop
+    flight over a voxel map, so that the first real run does not pay for it. Returns seconds."""
+    import time
+
+    import numpy as np
+
+    from secure3d.mapping.keys import morton_decode, morton_encode
+    from secure3d.planning import NLPCache
+    from secure3d.planning.solve import plan
+    from secure3d.simulation.closed_loop import simulate
+    from secure3d.world import load_scenario
+
+    t0 = time.perf_counter()
+    # array forms of the key kernels, which a flight over an OctoMap calls (observed regions)
+    for n in (1, 4):  # one point (contiguous columns) and several (strided columns)
+        morton_decode(morton_encode(np.zeros((n, 3), np.int64)))
+    maps = Path(__file__).resolve().parents[1] / "maps"
+    if (maps / "office_bt.yaml").exists():  # a source checkout: its shipped scenarios
+        plan(load_scenario(maps / "office_bt.yaml"), "secure", cache=NLPCache())
+        simulate(maps / "blind_corner.yaml", "secure")
+    return time.perf_counter() - t0
