@@ -22,7 +22,6 @@ constraints, boundary conditions, obstacle and visibility constraints, solver.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -31,6 +30,7 @@ import numpy as np
 from secure3d.planning import constraints as cons
 from secure3d.planning.assembled_derivatives import KernelCall, assembled_derivatives
 from secure3d.planning.interrupt import stop_callback
+from secure3d.planning.interval_rows import parametric_interval_rows, structure_interval_rows
 from secure3d.planning.nlp_cache import (  # noqa: F401  (NLPCache, the identities: re-exported)
     NLPCache,
     family_identity,
@@ -195,35 +195,6 @@ def node_kernels(problem: PlanningProblem) -> NodeKernels:
         start_meta,
         base_meta,
     )
-
-
-def _interval_rows_structure(
-    add: Callable, kern: NodeKernels, problem: PlanningProblem, X, Boxes, Lam, assignment
-) -> None:
-    """Rows of :attr:`PlannerOptions.interval_rows` for an assignment compiled as structure: for
-    i in 1..K-2, node i+1's reactive set inside node i's view (frustum of node j(i) < i, with a
-    clear sight through node i's separating planes) and clear of node i's slots through those
-    planes; after a start-region node, only the clearance."""
-    K, o = len(assignment), problem.options
-    view = [k for k in range(1, K - 1) if assignment[k] >= 0]
-    start = [k for k in range(1, K - 1) if assignment[k] < 0]
-    if view:
-        Xn, Xj = X[:, [k + 1 for k in view]], X[:, [assignment[k] for k in view]]
-        n = len(view)
-        rows = [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces
-        add(KernelCall(kern.vis, [Xn, Xj], n), rows, n)
-        add(
-            KernelCall(kern.obs_view, [Xn, Xj, Boxes[:, view], Lam[:, view]], n),
-            kern.obs_view_rows,
-            n,
-        )
-    if start:
-        Xn, n = X[:, [k + 1 for k in start]], len(start)
-        add(
-            KernelCall(kern.obs_start, [Xn, Boxes[:, start], Lam[:, start]], n),
-            kern.obs_start_rows,
-            n,
-        )
 
 
 def build_nlp(
@@ -489,7 +460,7 @@ def _obstacle_and_visibility_rows(
                 n_s,
             )
         if o.interval_rows:
-            _interval_rows_structure(add, kern, problem, X, Boxes, Lam, assignment)
+            structure_interval_rows(add, kern, problem, X, Boxes, Lam, assignment)
     else:
         # Viewing states: y_i = sum_j S_ij x_j over earlier nodes j (S a one-hot parameter row, or
         # zero for a node in the start region). Linear coupling rows keep the nonlinear frustum
@@ -523,19 +494,7 @@ def _obstacle_and_visibility_rows(
         # [dual, clear, occlusion] per slot; occlusion rows are switched off for start nodes
         add(KernelCall(kern.obs_view, [Xi, Yi, Bi, Li], K - 1), kern.obs_view_rows, K - 1, nodes)
         if o.interval_rows and K > 2:
-            # node i+1 (i in 1..K-2) in node i's view and clear through node i's planes, switched
-            # on and off with node i's rows (see PlannerOptions.interval_rows)
-            Xn, Yc, Bc, Lc, cur = (
-                X[:, 2:],
-                Y[:, 1 : K - 1],
-                Boxes[:, 1 : K - 1],
-                Lam[:, 1 : K - 1],
-                nodes[:-1],
-            )
-            n_c = K - 2
-            vis_rows = [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces
-            add(KernelCall(kern.vis, [Xn, Yc], n_c), vis_rows, n_c, cur)
-            add(KernelCall(kern.obs_view, [Xn, Yc, Bc, Lc], n_c), kern.obs_view_rows, n_c, cur)
+            parametric_interval_rows(add, kern, problem, X, Y, Boxes, Lam, nodes)
 
 
 def _transcribed(

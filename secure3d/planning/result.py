@@ -204,6 +204,20 @@ class PlanResult:
             },
         }
 
+    def rejection_note(self) -> str | None:
+        """What the certificate rejected before this result, in one line (None: nothing): how many
+        solutions, the first one's first violation and the node interval it falls in."""
+        if not self.rejections:
+            return None
+        first = self.rejections[0].first_violation
+        where = ""
+        if first is not None and len(self.times) > 1:
+            t = self.times
+            k = int(np.clip(np.searchsorted(t, first.time, side="right") - 1, 0, len(t) - 2))
+            at = (first.time - t[k]) / max(t[k + 1] - t[k], 1e-12)
+            where = f" (between nodes {k} and {k + 1}, at {at:.2f} of the interval)"
+        return f"rejected {len(self.rejections)} solution(s); the first: {first}{where}"
+
     @property
     def final_time(self) -> float:
         return float(self.times[-1]) if len(self.times) else float("nan")

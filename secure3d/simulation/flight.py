@@ -396,18 +396,9 @@ class Flight:
         if result.certificate is None:
             return
         self.certify_log.append((len(result.rejections), bool(result.certificate.ok)))
-        if result.rejections:
-            first = result.rejections[0].first_violation
-            where = ""
-            if first is not None and len(result.times) > 1:
-                t = result.times
-                k = int(np.clip(np.searchsorted(t, first.time, side="right") - 1, 0, len(t) - 2))
-                at = (first.time - t[k]) / max(t[k + 1] - t[k], 1e-12)
-                where = f" (between nodes {k} and {k + 1}, at {at:.2f} of the interval)"
-            self.event(
-                "certificate",
-                f"rejected {len(result.rejections)} solution(s); the first: {first}{where}",
-            )
+        note = result.rejection_note()
+        if note is not None:
+            self.event("certificate", note)
 
     def start_following(self, plan: PlanResult | None, trigger: Trigger) -> None:
         """HOLD -> FOLLOW on a new plan (line 1 succeeded)."""

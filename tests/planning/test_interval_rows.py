@@ -41,3 +41,29 @@ def test_every_next_set_lies_in_the_current_nodes_view(maps_dir, encoding):
         assert slack.min() >= problem.options.margin - 1e-4, (i, j, slack.min())
         checked += 1
     assert checked >= 5
+
+
+def test_a_rejection_note_names_the_node_interval_of_the_first_violation(maps_dir):
+    import dataclasses
+
+    from secure3d.planning.certificate import certify
+
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    problem = problem_from_scenario(scenario, nodes=20)
+    result = plan_problem(problem, "secure")
+    assert result.ok and result.rejection_note() is None
+    # a known box across the middle of the plan: the same plan no longer certifies
+    mid = result.positions[len(result.positions) // 2]
+    lo, hi = mid - 0.3, mid + 0.3
+    blocked = dataclasses.replace(
+        problem,
+        boxes_lo=np.vstack([problem.boxes_lo, lo]),
+        boxes_hi=np.vstack([problem.boxes_hi, hi]),
+    )
+    cert = certify(result, blocked)
+    assert not cert.ok
+    note = dataclasses.replace(result, rejections=(cert,)).rejection_note()
+    t = cert.first_violation.time
+    k = int(np.searchsorted(result.times, t, side="right") - 1)
+    assert note.startswith("rejected 1 solution(s); the first: t=")
+    assert f"between nodes {k} and {k + 1}" in note
