@@ -300,6 +300,21 @@ class VehicleModel(ABC):
         """Control that keeps the velocity (zero acceleration, or hover): (nu,) or (N, nu)."""
         return np.zeros((*np.shape(x)[:-1], self.nu))
 
+    def guess_rates(self, states: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Make a time-parametrised guess consistent with the dynamics where that is cheap.
+
+        Parameters
+        ----------
+        states : (K, nx) float, as :meth:`initial_states` builds them along a path.
+        times : (K,) float, increasing node times (s).
+
+        Returns
+        -------
+        states, controls : (K, nx) and (K, nu) float. The default keeps the states and holds the
+            :meth:`nominal_control`; models whose states carry their own rates override this.
+        """
+        return states, self.nominal_control(states)
+
 
 def _frozen(values: list[float]) -> np.ndarray:
     arr = np.array(values, dtype=float)

@@ -326,6 +326,10 @@ def _reader(hint: object) -> Callable[[object, str], object]:
         return lambda value, path: None if value is None else read(value, path)
     if origin is Mapping:
         return _as_limits
+    if origin is tuple and args == (float, Ellipsis):
+        return lambda value, path: tuple(
+            _as_float(v, f"{path}[{i}]") for i, v in enumerate(_as_list(value, path, 16))
+        )
     raise TypeError(f"no YAML reader for type hint {hint!r}")  # a new spec field needs one
 
 
