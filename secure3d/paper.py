@@ -190,7 +190,7 @@ def passages(out: Path, options: dict, progress: Callable[[str], None]) -> Paper
                     PAPER_SOLVE["passage"][p.planner],
                     p.solve_time,
                     "reached goal",
-                    "planned" if p.ok else p.status.value,
+                    _plan_outcome(p),
                 )
             )
             progress(f"{name}: {p.planner} {p.status.value}, T {p.final_time:.2f} s")
@@ -198,6 +198,12 @@ def passages(out: Path, options: dict, progress: Callable[[str], None]) -> Paper
         run.files.append(_plan_figure(scenario, plans, out / f"{name}.png", title))
         run.files.append(_plan_rrd(scenario, plans, out / f"{name}.rrd"))
     return run
+
+
+def _plan_outcome(plan: Any) -> str:
+    if not plan.ok:
+        return plan.status.value
+    return "certified plan" if plan.planner == "secure" else "plan"
 
 
 def _closed_loop_outcome(result: Any) -> str:
@@ -228,7 +234,7 @@ def blind_corner(out: Path, options: dict, progress: Callable[[str], None]) -> P
                 PAPER_SOLVE["corner"][p.planner],
                 p.solve_time,
                 "-",
-                "planned" if p.ok else p.status.value,
+                _plan_outcome(p),
             )
         )
         title = f"blind corner: {p.planner} plan (paper {PAPER_CORNER[p.planner]:.2f} s)"
