@@ -465,8 +465,9 @@ def _solve_rounds(
     return best, build, solve_t, iters
 
 
-#: Cruise speeds of the slower guesses a secure cold plan falls back to, in turn, when the solve
-#: from the first guess fails (fractions of ``guess_speed_fraction``). The third start came with
+#: Cruise speeds of the slower guesses a cold plan falls back to, in turn, when the solve from the
+#: first guess fails (fractions of the first guess's: ``guess_speed_fraction`` for the secure
+#: planner, the speed limit for the baseline). The third start came with
 #: the assembled derivatives: planar_blind_corner (diff drive) failed from 1.0 and 0.5 (solver error
 #: after 24 iterations, iteration limit) and solves from 0.3 in 28 iterations. The diff-drive NLPs
 #: are this fragile either way: with CasADi's own derivatives a 1e-9 relative change of the guess
@@ -501,6 +502,31 @@ def plan_problem(
     pin_blas_threads()  # the same iterates whatever the machine's cores (planning/blas.py)
     with deadline(problem.options.plan_budget):
         return _plan_within_budget(problem, planner, warm, warm_time, cache)
+
+
+def _solve_attempts(
+    problem: PlanningProblem,
+    planner: str,
+    attempts: list[tuple[Guess | float, bool]],
+    warm: PlanResult | None,
+    warm_time: float,
+    cache: NLPCache,
+) -> tuple[_Solve, float, float, int]:
+    """Solve from each guess in turn (a float: a cold guess at that cruise-speed fraction) until
+    one succeeds. Returns the last solve, build time, solve time and iterations."""
+    s = None
+    build = solve_t = 0.0
+    iters = 0
+    for g, dual_start in attempts:
+        if s is not None and budget_spent():
+            break
+        if isinstance(g, float):
+            g = initial_guess(problem, secure=planner == "secure", speed_fraction=g)
+        s, b_, t_, i_ = _solve_rounds(problem, planner, g, warm, warm_time, cache, dual_start)
+        build, solve_t, iters = build + b_, solve_t + t_, iters + i_
+        if s.status.ok:
+            break
+    return s, build, solve_t, iters
 
 
 def _plan_within_budget(
@@ -547,23 +573,14 @@ def _plan_within_budget(
                 )
         except NoPathError as exc:
             return _failed(problem, planner, PlanStatus.INFEASIBLE, str(exc))
+        # The paper: poor guesses stop convergence. Slower flights along the same path are more
+        # conservative (more feasible) starts; they are tried when the first one fails. The
+        # baseline too: paper_blind_corner's baseline hit the iteration limit from its first
+        # guess with 12 obstacle slots (the closed loop's) and solves from the next in 0.2 s.
         attempts = [(guess, True)]
-        if planner == "secure":
-            # The paper: poor guesses stop convergence. Slower flights along the same path are
-            # more conservative (more feasible) starts; they are tried when the first one fails.
-            attempts += [(frac * o.guess_speed_fraction, True) for frac in RETRY_GUESS_SPEEDS]
-    s = None
-    build = solve_t = 0.0
-    iters = 0
-    for g, dual_start in attempts:
-        if s is not None and budget_spent():
-            break
-        if isinstance(g, float):
-            g = initial_guess(problem, secure=True, speed_fraction=g)
-        s, b_, t_, i_ = _solve_rounds(problem, planner, g, warm, warm_time, cache, dual_start)
-        build, solve_t, iters = build + b_, solve_t + t_, iters + i_
-        if s.status.ok:
-            break
+        first = o.guess_speed_fraction if planner == "secure" else 1.0
+        attempts += [(frac * first, True) for frac in RETRY_GUESS_SPEEDS]
+    s, build, solve_t, iters = _solve_attempts(problem, planner, attempts, warm, warm_time, cache)
     result = _judged(problem, planner, s, build, solve_t, iters, cache)
     if warm is None:
         # Minimum-time NLPs have many local optima (the paper: "poor guesses stop convergence");
