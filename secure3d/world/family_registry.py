@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from secure3d.world.denial_families import DENIAL
 from secure3d.world.families import Family
+from secure3d.world.passage_families import PASSAGE_WIDTH
 from secure3d.world.region_attacks import REGION_ATTACKS
 from secure3d.world.thin_families import OCCLUSION_3D, THIN_OBSTACLES
 
@@ -15,5 +16,5 @@ __all__ = ["FAMILIES"]
 
 #: Families by name.
 FAMILIES: dict[str, Family] = {
-    f.name: f for f in (THIN_OBSTACLES, OCCLUSION_3D, REGION_ATTACKS, DENIAL)
+    f.name: f for f in (THIN_OBSTACLES, OCCLUSION_3D, REGION_ATTACKS, DENIAL, PASSAGE_WIDTH)
 }
