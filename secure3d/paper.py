@@ -18,11 +18,18 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from types import MappingProxyType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from secure3d.outputs import atomic_write_text
+
+if TYPE_CHECKING:  # pragma: no cover
+    from secure3d.planning.collocation import NLPCache
+    from secure3d.planning.result import PlanResult
+    from secure3d.simulation.results import SimResult
+    from secure3d.world.spec import Scenario
 
 #: The shipped scenario files of the paper's experiments.
 MAPS = Path(__file__).resolve().parent / "maps"
@@ -43,7 +50,7 @@ PAPER_OUTCOME = {"secure": "stopped safely", "baseline": "collided"}
 #: With the closed loop's default 12 slots the baseline's first solve stopped at IPOPT's acceptable
 #: level on a degenerate point (T 16.8 s, flown at low speed to the goal in 3.29 s) instead of its
 #: 1.66 s plan.
-CORNER_FLIGHT = {"obstacle_slots": 8, "replan_in_flight": False}
+CORNER_FLIGHT = MappingProxyType({"obstacle_slots": 8, "replan_in_flight": False})
 COLUMNS = (
     "experiment",
     "planner",
@@ -140,7 +147,7 @@ def one_d_example(out: Path) -> tuple[Row, Path]:
     return row, path
 
 
-def _plan_rrd(scenario: Any, plans: list[Any], path: Path) -> Path:
+def _plan_rrd(scenario: Scenario, plans: list[PlanResult], path: Path) -> Path:
     from secure3d.viz.rerun_log import RerunRecorder
 
     with RerunRecorder(path, recording_name=scenario.name) as rec:
@@ -151,7 +158,7 @@ def _plan_rrd(scenario: Any, plans: list[Any], path: Path) -> Path:
     return path
 
 
-def _plan_figure(scenario: Any, plans: list[Any], path: Path, title: str) -> Path:
+def _plan_figure(scenario: Scenario, plans: list[PlanResult], path: Path, title: str) -> Path:
     from secure3d.viz.figures import top_down_figure
 
     return top_down_figure(
@@ -166,7 +173,7 @@ def _plan_figure(scenario: Any, plans: list[Any], path: Path, title: str) -> Pat
     )
 
 
-def _plan_both(scenario: Any, options: dict, cache: Any) -> list[Any]:
+def _plan_both(scenario: Scenario, options: dict, cache: NLPCache) -> list[PlanResult]:
     from secure3d.planning import plan
 
     return [plan(scenario, planner, cache=cache, **options) for planner in ("secure", "baseline")]
@@ -212,13 +219,13 @@ def passages(out: Path, options: dict, progress: Callable[[str], None]) -> Paper
     return run
 
 
-def _plan_outcome(plan: Any) -> str:
+def _plan_outcome(plan: PlanResult) -> str:
     if not plan.ok:
         return plan.status.value
     return "certified plan" if plan.planner == "secure" else "plan"
 
 
-def _closed_loop_outcome(result: Any) -> str:
+def _closed_loop_outcome(result: SimResult) -> str:
     if result.collided:
         impact = float(np.interp(result.collision_time, result.times, result.speeds))
         return f"collided at {impact:.2f} m/s"

@@ -229,8 +229,11 @@ def _check_keys(
         if key not in allowed:
             close = difflib.get_close_matches(key, allowed, n=1)
             hint = f"did you mean {close[0]!r}? " if close else ""
+            # a key with line breaks or edge blanks is quoted: the error stays one readable line
+            plain = isinstance(key, str) and key.isprintable() and key == key.strip() != ""
             raise _FieldError(
-                f"{prefix}{key}", f"unknown key; {hint}allowed keys: {', '.join(sorted(allowed))}"
+                f"{prefix}{key if plain else repr(key)}",
+                f"unknown key; {hint}allowed keys: {', '.join(sorted(allowed))}",
             )
     for key in required:
         if key not in data:

@@ -538,3 +538,13 @@ def test_extra_starts_reach_the_planner() -> None:
     scenario = load_scenario(MAPS / "paper_passage_50cm.yaml")
     assert scenario.planner.extra_starts == (0.4, 0.6, 1.0)
     assert problem_from_scenario(scenario).options.extra_starts == (0.4, 0.6, 1.0)
+
+
+@pytest.mark.parametrize("key", ["\n", " planner", "a\tb"])
+def test_an_unknown_key_with_blanks_is_quoted_on_one_line(key: str) -> None:
+    data = copy.deepcopy(_raw("blind_corner"))
+    data[key] = None
+    with pytest.raises(ScenarioError) as info:
+        scenario_from_dict(data, MAPS, label="blind_corner.yaml")
+    text = str(info.value)
+    assert "\n" not in text and f"{key!r}: unknown key" in text
