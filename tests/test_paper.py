@@ -83,3 +83,15 @@ def test_paper_quick_writes_its_figures_recordings_and_table(
     assert "collided" not in secure_flight.split("|")[-2]
     assert "saw the obstacle" in secure_flight
     assert "max error 0.000 m" in table
+
+
+def test_in_closed_loop_the_baseline_hits_the_hidden_box_and_the_secure_robot_does_not() -> None:
+    from secure3d.paper import CORNER_FLIGHT
+    from secure3d.simulation.campaign import fly_planners
+
+    scenario = load_scenario(MAPS / "paper_blind_corner.yaml")
+    secure, baseline = fly_planners(scenario, ("secure", "baseline"), 0, **CORNER_FLIGHT)
+    assert baseline.collided and baseline.collision_obstacles == ("unknown_box",)
+    assert baseline.detection_time is not None and baseline.detection_time < baseline.collision_time
+    assert not secure.collided and secure.detection_time is not None, secure.summary()
+    assert secure.reached_goal, secure.summary()
