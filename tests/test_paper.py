@@ -95,3 +95,29 @@ def test_in_closed_loop_the_baseline_hits_the_hidden_box_and_the_secure_robot_do
     assert baseline.detection_time is not None and baseline.detection_time < baseline.collision_time
     assert not secure.collided and secure.detection_time is not None, secure.summary()
     assert secure.reached_goal, secure.summary()
+
+
+def test_ctrl_c_during_the_flights_keeps_the_finished_files_and_no_partial_one(
+    tmp_path: Path,
+) -> None:
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "paper"
+    cmd = [sys.executable, "-m", "secure3d", "paper", "--quick", "--out", str(out)]
+    child = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    lines = []
+    for line in child.stderr:
+        lines.append(line)
+        if "flying both planners" in line:
+            child.send_signal(signal.SIGINT)
+            break
+    lines += child.stderr.readlines()
+    status = child.wait(timeout=30)
+    err = "".join(lines)
+    assert status in (130, -signal.SIGINT), (status, err[-1500:])
+    assert "Traceback" not in err and err.strip().splitlines()[-1] == "secure3d: error: interrupted"
+    assert (out / "paper_passage_20cm.png").stat().st_size > 0, "finished files stay"
+    assert not (out / "paper.md").exists(), "the table is written only when every run is done"
+    assert not list(out.glob(".*.part")), "no half-written file"
