@@ -8,7 +8,8 @@
   planners, open loop (the planned trajectory) and closed loop (the realised path, the detection
   point, the outcome).
 
-Writes figures (one per planned or realised run, in the paper's top view), Rerun recordings, and
+Writes figures laid out like the paper's (the two passages side by side; per corner planner, the
+planned and the realised trajectory side by side), Rerun recordings, and
 ``paper.md``: the paper's figures against ours (final times, solve times, outcomes). Every file is
 written atomically. The paper's solve times are MATLAB fmincon (SQP) on a 3.7 GHz Xeon E5-1630.
 """
@@ -158,19 +159,27 @@ def _plan_rrd(scenario: Scenario, plans: list[PlanResult], path: Path) -> Path:
     return path
 
 
-def _plan_figure(scenario: Scenario, plans: list[PlanResult], path: Path, title: str) -> Path:
-    from secure3d.viz.figures import top_down_figure
+def _plan_panel(scenario: Scenario, plans: list[PlanResult], title: str) -> dict:
+    """draw_top_down's arguments for planned trajectories with their reactive sets."""
+    return {
+        "bounds": scenario.world.bounds,
+        "true_boxes": scenario.world.boxes,
+        "hidden_names": scenario.hidden_obstacles,
+        "plans": [p for p in plans if len(p.positions)],
+        "start": np.asarray(scenario.start.position),
+        "goal": np.asarray(scenario.goal.position),
+        "title": title,
+    }
 
-    return top_down_figure(
-        scenario.world.bounds,
-        scenario.world.boxes,
-        out_path=path,
-        hidden_names=[a.target for a in scenario.server_map.attacks if a.kind == "hide"],
-        plans=[p for p in plans if len(p.positions)],
-        start=scenario.start.position,
-        goal=scenario.goal.position,
-        title=title,
-    )
+
+def _flight_panel(scenario: Scenario, result: SimResult, title: str) -> dict:
+    """draw_top_down's arguments for a flight: realised path, detection point, collision."""
+    panel = _plan_panel(scenario, [p for _, p in result.plans[:1]], title)
+    panel["realised_paths"] = {result.planner: result.positions}
+    if result.detection_point is not None:
+        panel["detection_points"] = {result.planner: result.detection_point}
+    panel["collision_points"] = [result.positions[-1]] if result.collided else []
+    return panel
 
 
 def _plan_both(scenario: Scenario, options: dict, cache: NLPCache) -> list[PlanResult]:
@@ -182,12 +191,12 @@ def _plan_both(scenario: Scenario, options: dict, cache: NLPCache) -> list[PlanR
 def passages(out: Path, options: dict, progress: Callable[[str], None]) -> PaperRun:
     """Both passages, both planners, open loop: a figure and a recording per passage."""
     from secure3d.planning import NLPCache
-    from secure3d.viz.figures import speed_profile_figure
+    from secure3d.viz.figures import speed_profile_figure, top_down_panels
     from secure3d.world import load_scenario
 
     run = PaperRun([], [])
     cache = NLPCache()
-    speeds = {}
+    speeds, panels = {}, []
     for name, paper_time in PAPER_PASSAGES.items():
         progress(f"{name}: planning (secure, baseline)")
         scenario = load_scenario(MAPS / f"{name}.yaml")
@@ -207,11 +216,13 @@ def passages(out: Path, options: dict, progress: Callable[[str], None]) -> Paper
             )
             progress(f"{name}: {p.planner} {p.status.value}, T {p.final_time:.2f} s")
         # the paper's figure: the secure plan and its reactive sets (the baseline's would hide them)
-        title = f"{name}: secure plan, T {plans[0].final_time:.2f} s (paper {paper_time:.2f} s)"
-        run.files.append(_plan_figure(scenario, plans[:1], out / f"{name}.png", title))
+        width = name.rsplit("_", 1)[-1]
+        title = f"({'ab'[len(panels)]}) {width}: secure plan, T {plans[0].final_time:.2f} s"
+        panels.append(_plan_panel(scenario, plans[:1], f"{title} (paper {paper_time:.2f} s)"))
         run.files.append(_plan_rrd(scenario, plans, out / f"{name}.rrd"))
         if plans[0].ok:
-            speeds[f"secure, {name.rsplit('_', 1)[-1]}"] = (plans[0].times, plans[0].speeds)
+            speeds[f"secure, {width}"] = (plans[0].times, plans[0].speeds)
+    run.files.append(top_down_panels(panels, out_path=out / "passages.png"))
     if speeds:
         # the paper's "smaller velocity arrows" in the narrower passage, as speed over time
         title = "secure plans through the passages: slower in the narrower one"
@@ -237,13 +248,14 @@ def _closed_loop_outcome(result: SimResult) -> str:
 def blind_corner(out: Path, options: dict, progress: Callable[[str], None]) -> PaperRun:
     """The blind corner: both plans (open loop), then both flights (closed loop)."""
     from secure3d.planning import NLPCache
-    from secure3d.simulation.campaign import comparison_figures, fly_planners
+    from secure3d.simulation.campaign import fly_planners
     from secure3d.world import load_scenario
 
     scenario = load_scenario(MAPS / "paper_blind_corner.yaml")
     run = PaperRun([], [])
     progress("paper_blind_corner: planning (secure, baseline)")
     plans = _plan_both(scenario, options, NLPCache())
+    by_planner = {p.planner: p for p in plans}
     for p in plans:
         run.rows.append(
             Row(
@@ -257,8 +269,6 @@ def blind_corner(out: Path, options: dict, progress: Callable[[str], None]) -> P
                 _plan_outcome(p),
             )
         )
-        title = f"blind corner: {p.planner} plan (paper {PAPER_CORNER[p.planner]:.2f} s)"
-        run.files.append(_plan_figure(scenario, [p], out / f"corner_{p.planner}_plan.png", title))
     progress("paper_blind_corner: flying both planners in closed loop")
     results = fly_planners(
         scenario,
@@ -283,9 +293,19 @@ def blind_corner(out: Path, options: dict, progress: Callable[[str], None]) -> P
             )
         )
         run.files.append(r.outputs["rrd"])
-        figure = comparison_figures(scenario, [r], top_down=out / f"corner_{r.planner}_flown.png")
-        run.files.extend(figure.values())
+        run.files.append(_corner_figure(scenario, by_planner[r.planner], r, out))
     return run
+
+
+def _corner_figure(scenario: Scenario, plan: PlanResult, flight: SimResult, out: Path) -> Path:
+    """The paper's Fig. BasePlanner / Gplanner: (a) planned trajectory, (b) realised trajectory."""
+    from secure3d.viz.figures import top_down_panels
+
+    planned = f"(a) {plan.planner}: planned trajectory, T {plan.final_time:.2f} s"
+    planned += f" (paper {PAPER_CORNER[plan.planner]:.2f} s)"
+    realised = f"(b) realised trajectory: {_closed_loop_outcome(flight)}"
+    panels = [_plan_panel(scenario, [plan], planned), _flight_panel(scenario, flight, realised)]
+    return top_down_panels(panels, out_path=out / f"corner_{plan.planner}.png")
 
 
 def run_paper(

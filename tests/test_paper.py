@@ -59,16 +59,14 @@ def test_paper_quick_writes_its_figures_recordings_and_table(
     assert "secure3d paper [" in captured.err, "progress lines go to stderr"
     expected = [
         "one_d_reactive_sets.png",
-        "paper_passage_50cm.png",
+        "passages.png",
+        "passages_speed.png",
         "paper_passage_50cm.rrd",
-        "paper_passage_20cm.png",
         "paper_passage_20cm.rrd",
-        "corner_secure_plan.png",
-        "corner_baseline_plan.png",
+        "corner_secure.png",
+        "corner_baseline.png",
         "corner_secure.rrd",
         "corner_baseline.rrd",
-        "corner_secure_flown.png",
-        "corner_baseline_flown.png",
         "paper.md",
     ]
     for name in expected:
@@ -118,6 +116,6 @@ def test_ctrl_c_during_the_flights_keeps_the_finished_files_and_no_partial_one(
     err = "".join(lines)
     assert status in (130, -signal.SIGINT), (status, err[-1500:])
     assert "Traceback" not in err and err.strip().splitlines()[-1] == "secure3d: error: interrupted"
-    assert (out / "paper_passage_20cm.png").stat().st_size > 0, "finished files stay"
+    assert (out / "passages.png").stat().st_size > 0, "finished files stay"
     assert not (out / "paper.md").exists(), "the table is written only when every run is done"
     assert not list(out.glob(".*.part")), "no half-written file"
