@@ -1,5 +1,8 @@
 """03 - The paper's narrow passages with the differential-drive robot: 50 cm vs 20 cm.
 
+The scenarios are the paper's set-up (``maps/paper_passage_*.yaml``); ``08_paper.py`` runs them
+together with the paper's other experiments.
+
 Nothing is hidden here: the point is the price of the reactive-set constraint alone. Entering at
 1 m/s, the secure planner must slow inside the passage until the reactive set S_r(x) (which grows
 with speed, eq. ReactEllipse) fits between the walls; the narrower the passage, the slower. The
@@ -25,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import MAPS, parse_example_args, planner_options
 
 #: Final times (s) of the paper's secure planner through each passage (its Fig. ThreadNeedle).
-PAPER = {"planar_passage_50cm": 1.60, "planar_passage_20cm": 2.12}
+PAPER = {"paper_passage_50cm": 1.60, "paper_passage_20cm": 2.12}
 
 
 def main(argv: list[str] | None = None) -> int:

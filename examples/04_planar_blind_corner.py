@@ -1,6 +1,8 @@
-"""04 - The paper's own blind-corner experiment: a differential-drive robot, 2 m sensor range.
+"""04 - A blind corner in a larger room: a differential-drive robot, 2 m sensor range.
 
-A left turn around a known wall, with an obstacle the server deleted just behind it (the paper's
+``maps/planar_blind_corner.yaml``: the paper's experiment scaled up (4 m and 3 m legs, a 0.2 m body,
+2 m/s^2), flown with the closed loop's defaults; ``08_paper.py`` runs the paper's own set-up. A left
+turn around a known wall, with an obstacle the server deleted just behind it (the paper's
 Figs. BasePlanner and Gplanner). The paper's baseline takes 1.67 s and collides; its secure plan
 takes 2.50 s and is safe. Both planners fly here in closed loop; the table puts our times next to
 the paper's. Writes Rerun recordings, a top-down figure and the speed profiles.

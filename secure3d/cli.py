@@ -10,8 +10,8 @@ running it, registered in :data:`COMMANDS`. A runner imports what it needs insid
 
 Subcommands: ``show``, ``plan``, ``simulate``, ``campaign`` (logic in
 :mod:`secure3d.simulation.campaign` and :mod:`secure3d.simulation.campaign_run`),
-``campaign-merge`` (:mod:`secure3d.simulation.campaign_store`), ``bench``, ``reactive fit`` and
-``demo``. Every output file
+``campaign-merge`` (:mod:`secure3d.simulation.campaign_store`), ``bench``, ``reactive fit``,
+``demo``, ``map`` (:mod:`secure3d.cli_map`) and ``paper`` (:mod:`secure3d.cli_paper`). Every output file
 is written atomically (temporary file + rename), into folders created on demand.
 
 Errors that secure3d raises on purpose (:class:`~secure3d.errors.Secure3DError`) and usage errors
@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, NoReturn
 
 from secure3d import __version__
 from secure3d.cli_map import map_arguments, run_map
+from secure3d.cli_paper import paper_arguments, run_paper_command
 from secure3d.errors import ConfigError, Secure3DError
 from secure3d.outputs import check_output_path
 from secure3d.sigint import EXIT_INTERRUPTED, cli_interrupts
@@ -657,6 +658,12 @@ COMMANDS: tuple[Command, ...] = (
         _demo,
     ),
     Command("map", "map files: 'info FILE', 'convert IN OUT'", map_arguments, run_map),
+    Command(
+        "paper",
+        "regenerate the paper's experiments: figures, recordings, table against the paper",
+        paper_arguments,
+        run_paper_command,
+    ),
 )
 
 

@@ -405,6 +405,21 @@ class VehicleModel(ABC):
         """(N,) bool: stopped (speeds below ``rest``, and whatever else the law settles)."""
         raise NotImplementedError(f"{type(self).__name__} has no braking law")
 
+    def guess_rates(self, states: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Make a time-parametrised guess consistent with the dynamics where that is cheap.
+
+        Parameters
+        ----------
+        states : (K, nx) float, as :meth:`initial_states` builds them along a path.
+        times : (K,) float, increasing node times (s).
+
+        Returns
+        -------
+        states, controls : (K, nx) and (K, nu) float. The default keeps the states and holds the
+            :meth:`nominal_control`; models whose states carry their own rates override this.
+        """
+        return states, self.nominal_control(states)
+
 
 def sample_unit_vectors(n: int, rng: np.random.Generator) -> np.ndarray:
     """``n`` random directions, uniform on the sphere: (n, 3) float."""

@@ -366,9 +366,8 @@ def profile_guess(
         pos = np.stack([np.interp(times, t_all, p_all[:, d]) for d in range(3)], axis=1)
         vel = np.stack([np.interp(times, t_all, v_all[:, d]) for d in range(3)], axis=1)
         yaw_k = np.interp(times, t_all, y_all)
-    states = model.initial_states(pos, vel, yaw_k)
+    states, controls = model.guess_rates(model.initial_states(pos, vel, yaw_k), times)
     states[0] = problem.x0
-    controls = np.stack([model.nominal_control(states[k]) for k in range(K)])
     return Guess(times=times, states=states, controls=controls, path=path)
 
 

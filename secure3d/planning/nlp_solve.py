@@ -83,6 +83,8 @@ class SolveCost:
 #: The final time may not exceed this multiple of the initial guess's (a feasible-ish flight): keeps
 #: IPOPT from wandering to absurd durations when it struggles.
 T_GUESS_FACTOR = 3.0
+#: A solution whose final time reaches this fraction of that upper bound is a stall, not a plan.
+T_CAP_FRACTION = 0.99
 
 
 def _variable_bounds(
@@ -278,6 +280,11 @@ def _read_solution(
     if status is PlanStatus.SUCCESS and worst > FEASIBILITY_TOL:
         status = PlanStatus.INFEASIBLE
         rs += f" but constraints violated by {worst:.2e}"
+    elif status is PlanStatus.SUCCESS and Ts >= T_CAP_FRACTION * a["ubx"][lay.i_T]:
+        # stalled against the cap: paper_blind_corner's closed-loop baseline "solved" to T 9.98 s
+        # under a 10 s cap (its 1.66 s plan solves from the next guess)
+        status = PlanStatus.ITERATION_LIMIT
+        rs += f" but the final time {Ts:.2f} s sits at its upper bound"
     return _Solve(
         status=status,
         message=rs,

@@ -426,6 +426,7 @@ def problem_from_scenario(
         "solver": spec.solver,
         "margin": spec.margin,
         "max_iter": spec.max_iter,
+        "extra_starts": spec.extra_starts,
     }
     known = {f.name for f in fields(PlannerOptions)}
     unknown = set(options) - known - {"reactive_family", "controller", "min_obstacle_size"}

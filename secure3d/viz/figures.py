@@ -144,6 +144,27 @@ def top_down_figure(
     return save_figure(fig, out_path)
 
 
+def top_down_panels(
+    panels: Sequence[Mapping[str, Any]], *, out_path: str | os.PathLike[str]
+) -> Path:
+    """Paper-style top views side by side, left to right (the paper's (a) and (b) subfigures).
+
+    Parameters
+    ----------
+    panels : one mapping per panel of :func:`draw_top_down`'s arguments, ``bounds`` and
+        ``true_boxes`` included (panels may show different worlds).
+    out_path : image file to write (atomically); the format follows its suffix.
+    """
+    if not panels:
+        raise ConfigError("panels: need at least one panel")
+    n = len(panels)
+    fig = Figure(figsize=(9.0 * n, 7.5 * max(_aspect(p["bounds"]) for p in panels)))
+    for i, panel in enumerate(panels):
+        draw_top_down(fig.add_subplot(1, n, i + 1), **panel)
+    fig.subplots_adjust(wspace=0.5)  # room for each panel's legend, drawn right of its axes
+    return save_figure(fig, out_path)
+
+
 def _draw_voxel_slices(
     ax: Axes,
     z: float,

@@ -9,6 +9,7 @@ from __future__ import annotations
 from secure3d.world.deadend_families import DEAD_END
 from secure3d.world.denial_families import DENIAL
 from secure3d.world.families import Family
+from secure3d.world.passage_families import PASSAGE_WIDTH
 from secure3d.world.region_attacks import REGION_ATTACKS
 from secure3d.world.thin_families import OCCLUSION_3D, THIN_OBSTACLES
 
@@ -16,5 +17,6 @@ __all__ = ["FAMILIES"]
 
 #: Families by name.
 FAMILIES: dict[str, Family] = {
-    f.name: f for f in (THIN_OBSTACLES, OCCLUSION_3D, DEAD_END, REGION_ATTACKS, DENIAL)
+    f.name: f
+    for f in (THIN_OBSTACLES, OCCLUSION_3D, DEAD_END, REGION_ATTACKS, DENIAL, PASSAGE_WIDTH)
 }

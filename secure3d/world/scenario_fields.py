@@ -169,8 +169,11 @@ def _check_keys(
         if key not in allowed:
             close = difflib.get_close_matches(key, allowed, n=1)
             hint = f"did you mean {close[0]!r}? " if close else ""
+            # a key with line breaks or edge blanks is quoted: the error stays one readable line
+            plain = isinstance(key, str) and key.isprintable() and key == key.strip() != ""
             raise _FieldError(
-                f"{prefix}{key}", f"unknown key; {hint}allowed keys: {', '.join(sorted(allowed))}"
+                f"{prefix}{key if plain else repr(key)}",
+                f"unknown key; {hint}allowed keys: {', '.join(sorted(allowed))}",
             )
     for key in required:
         if key not in data:
@@ -266,6 +269,10 @@ def _reader(hint: object) -> Callable[[object, str], object]:
         return lambda value, path: None if value is None else read(value, path)
     if origin is Mapping:
         return _as_limits
+    if origin is tuple and args == (float, Ellipsis):
+        return lambda value, path: tuple(
+            _as_float(v, f"{path}[{i}]") for i, v in enumerate(_as_list(value, path, 16))
+        )
     raise TypeError(f"no YAML reader for type hint {hint!r}")  # a new spec field needs one
 
 

@@ -205,6 +205,9 @@ class PlannerSpec:
         (fx = 80 px) every frame hits such obstacles out to 8.4 m, beyond the shipped 5-8 m ranges,
         so those scenarios plan as before (0.1 m cuts their view to 5.6 m: blind corner T 4.17 ->
         4.12 s, forest 4.565 -> 4.573 s).
+    extra_starts : further cruise-speed fractions (each in (0, 1]) the cold plan also starts from,
+        keeping the fastest plan that passes (:class:`~secure3d.planning.problem.PlannerOptions`).
+        Default none: set it only where one start is measured to land in a slow local optimum.
     """
 
     nodes: int = 40
@@ -216,9 +219,20 @@ class PlannerSpec:
     margin: float = 0.02
     max_iter: int = 500
     min_obstacle_size: float = 0.15
+    extra_starts: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         nodes = _integer(self.nodes, "planner.nodes", 5, 400)
+        if not isinstance(self.extra_starts, (tuple, list)):
+            raise ScenarioError(
+                f"planner.extra_starts: must be a list (got {_short(self.extra_starts)})"
+            )
+        starts = tuple(_number(f, "planner.extra_starts") for f in self.extra_starts)
+        if not all(0.0 < f <= 1.0 for f in starts):
+            raise ScenarioError(
+                f"planner.extra_starts: speed fractions must lie in (0, 1] (got {list(starts)})"
+            )
+        object.__setattr__(self, "extra_starts", starts)
         _positive(self.min_obstacle_size, "planner.min_obstacle_size")
         _choice(self.lookback, ("adaptive", "fixed"), "planner.lookback")
         _integer(self.lookback_steps, "planner.lookback_steps", 1, nodes - 1)

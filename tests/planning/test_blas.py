@@ -40,11 +40,12 @@ def _plan_in_new_process(scenario: Path, openblas_threads: str) -> list:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def test_a_diff_drive_plan_is_the_same_with_one_or_two_openblas_threads(maps_dir):
+@pytest.mark.parametrize("name", ["planar_blind_corner", "paper_blind_corner"])
+def test_a_diff_drive_plan_is_the_same_with_one_or_two_openblas_threads(maps_dir, name):
     """planar_blind_corner's secure solve ended in another local minimum with 2 threads
     (T 5.35 s against 4.53 s) before the planner pinned CasADi's OpenBLAS."""
-    one = _plan_in_new_process(maps_dir / "planar_blind_corner.yaml", "1")
-    two = _plan_in_new_process(maps_dir / "planar_blind_corner.yaml", "2")
+    one = _plan_in_new_process(maps_dir / f"{name}.yaml", "1")
+    two = _plan_in_new_process(maps_dir / f"{name}.yaml", "2")
     assert one[0] == two[0] == "SUCCESS"
     assert one[1] == two[1]  # bit for bit
     assert one[2] == two[2] == 1

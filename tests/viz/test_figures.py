@@ -18,6 +18,7 @@ from secure3d.viz.figures import (
     save_figure,
     speed_profile_figure,
     top_down_figure,
+    top_down_panels,
 )
 from secure3d.world.spec import Bounds, Box
 
@@ -141,6 +142,19 @@ def test_top_down_and_speed_files_are_pngs_written_atomically(tmp_path):
     )
     assert speed.read_bytes()[:8] == PNG_MAGIC
     assert sorted(p.name for p in tmp_path.iterdir()) == ["speed.png", "top.png"]
+
+
+def test_panels_draw_each_world_side_by_side(tmp_path):
+    narrow = [Box("crate", (2.0, 2.0, 0.0), (2.5, 2.5, 2.0))]
+    panels = [
+        {"bounds": BOUNDS, "true_boxes": BOXES, "plans": [straight_plan("secure", 1.0)]},
+        {"bounds": BOUNDS, "true_boxes": narrow, "title": "(b)"},
+    ]
+    out = top_down_panels(panels, out_path=tmp_path / "panels.png")
+    assert out.read_bytes()[:8] == PNG_MAGIC
+    assert [p.name for p in tmp_path.iterdir()] == ["panels.png"]
+    with pytest.raises(ConfigError, match="at least one panel"):
+        top_down_panels([], out_path=tmp_path / "none.png")
 
 
 def test_failed_save_leaves_the_old_file_and_no_temporary(tmp_path):

@@ -76,6 +76,9 @@ def test_library_has_the_required_scenarios() -> None:
         "planar_blind_corner",
         "planar_passage_50cm",
         "planar_passage_20cm",
+        "paper_passage_50cm",
+        "paper_passage_20cm",
+        "paper_blind_corner",
     }
     assert required <= names, f"missing scenarios: {required - names}"
 
@@ -114,6 +117,8 @@ def test_paper_cases_have_the_stated_geometry(scenarios: dict[str, Scenario]) ->
         ("narrow_passage_20cm", 0.2, 3),
         ("planar_passage_50cm", 0.5, 2),
         ("planar_passage_20cm", 0.2, 2),
+        ("paper_passage_50cm", 0.5, 2),
+        ("paper_passage_20cm", 0.2, 2),
     ):
         s = scenarios[name]
         np.testing.assert_allclose(s.start.velocity, (1.0, 0.0, 0.0), err_msg=name)
@@ -121,7 +126,7 @@ def test_paper_cases_have_the_stated_geometry(scenarios: dict[str, Scenario]) ->
         np.testing.assert_allclose(right.lo[1] - left.hi[1], gap, atol=1e-9, err_msg=name)
         assert 2 * s.vehicle.body_radius < gap, f"{name}: the body must fit through the gap"
         assert (s.vehicle.model == "diff_drive") == (dims == 2)
-    for name in ("planar_blind_corner", "planar_passage_50cm"):
+    for name in ("planar_blind_corner", "planar_passage_50cm", "paper_blind_corner"):
         c = scenarios[name].camera
         assert (c.hfov_deg, c.max_range, c.far_kind) == (120, 2.0, "range"), name
     corner = scenarios["blind_corner"]
@@ -511,3 +516,35 @@ def test_random_corruptions_raise_only_one_line_scenario_errors(name: str) -> No
             errors += 1
             assert str(exc).startswith("fuzz.yaml: ") and "\n" not in str(exc), str(exc)
     assert errors >= 40, "most random corruptions must be caught"
+
+
+@pytest.mark.parametrize(
+    ("starts", "problem"),
+    [([0.5, 1.5], r"in \(0, 1\]"), (0.5, "expected a list"), (["fast"], "number")],
+)
+def test_extra_starts_in_a_scenario_are_checked(
+    sandbox: Path, starts: object, problem: str
+) -> None:
+    data = copy.deepcopy(_raw("paper_passage_50cm"))
+    data["planner"]["extra_starts"] = starts
+    path = _write(sandbox, data)
+    with pytest.raises(ScenarioError, match=rf"^{path}: planner\.extra_starts.*{problem}"):
+        load_scenario(path)
+
+
+def test_extra_starts_reach_the_planner() -> None:
+    from secure3d.planning.problem import problem_from_scenario
+
+    scenario = load_scenario(MAPS / "paper_passage_50cm.yaml")
+    assert scenario.planner.extra_starts == (0.4, 0.6, 1.0)
+    assert problem_from_scenario(scenario).options.extra_starts == (0.4, 0.6, 1.0)
+
+
+@pytest.mark.parametrize("key", ["\n", " planner", "a\tb"])
+def test_an_unknown_key_with_blanks_is_quoted_on_one_line(key: str) -> None:
+    data = copy.deepcopy(_raw("blind_corner"))
+    data[key] = None
+    with pytest.raises(ScenarioError) as info:
+        scenario_from_dict(data, MAPS, label="blind_corner.yaml")
+    text = str(info.value)
+    assert "\n" not in text and f"{key!r}: unknown key" in text
