@@ -198,6 +198,32 @@ def _first_round(
     return assignment, multipliers, L0, prev_slots
 
 
+def _resolve_from(
+    problem: PlanningProblem,
+    planner: str,
+    s: _Solve,
+    cache: NLPCache,
+    multipliers: tuple | None,
+    extra_margin: float,
+) -> _Solve:
+    """Solve again from solution ``s`` (its assignment, primal point, duals, slots and grid), with
+    the margin rows tightened by ``extra_margin``, warm from ``multipliers`` if given."""
+    return _solve_once(
+        problem,
+        planner,
+        s.assignment,
+        s.T,
+        s.X,
+        s.U,
+        cache,
+        L=s.L,
+        multipliers=multipliers,
+        prev_slots=s.slots,
+        extra_margin=extra_margin,
+        grid=s.grid,
+    )
+
+
 def _refresh_slots(
     problem: PlanningProblem,
     planner: str,
@@ -225,20 +251,7 @@ def _refresh_slots(
             or not lb.slots_missing(problem, planner, s.X, s.assignment, s.slots)
         ):
             break
-        s = _solve_once(
-            problem,
-            planner,
-            s.assignment,
-            s.T,
-            s.X,
-            s.U,
-            cache,
-            L=s.L,
-            multipliers=None,
-            prev_slots=s.slots,
-            extra_margin=extra_margin,
-            grid=s.grid,
-        )
+        s = _resolve_from(problem, planner, s, cache, None, extra_margin)
         cost = cost + SolveCost(0.0, s.solve_time, s.iterations)
     return s, cost
 
@@ -459,20 +472,7 @@ def _judged(
             break
         rejected.append(cert)
         # Tighten and re-solve warm from the rejected solution: never loosen anything.
-        t_ = _solve_once(
-            problem,
-            planner,
-            s.assignment,
-            s.T,
-            s.X,
-            s.U,
-            cache,
-            L=s.L,
-            multipliers=(s.nlp.key, s.lam_x, s.lam_g),
-            prev_slots=s.slots,
-            extra_margin=extra,
-            grid=s.grid,
-        )
+        t_ = _resolve_from(problem, planner, s, cache, (s.nlp.key, s.lam_x, s.lam_g), extra)
         cost = cost + SolveCost(t_.warm_build, t_.solve_time, t_.iterations)
         t_, c = _refresh_slots(problem, planner, t_, cache, extra_margin=extra)
         cost = cost + c
