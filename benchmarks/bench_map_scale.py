@@ -143,9 +143,81 @@ def plan_ratio() -> dict:
     return out
 
 
+def _free_point(occ: np.ndarray, res: float, near: np.ndarray, clear: float) -> np.ndarray:
+    """The point nearest ``near`` on a 0.5 m grid at least ``clear`` m from every voxel centre."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(occ)
+    for radius in np.arange(0.0, 10.0, 0.5):
+        for dx in np.arange(-radius, radius + 1e-9, 0.5):
+            for dy in np.arange(-radius, radius + 1e-9, 0.5):
+                p = near + np.array([dx, dy, 0.0])
+                if tree.query(p)[0] > clear + res:
+                    return p
+    raise RuntimeError("no free point")
+
+
+def size_scenario(label: str, path: Path):
+    """A scenario whose server map is ``path``: geb079's corridor route for the real maps, a
+    57 m diagonal across the random walls for the synthetic ones."""
+    import dataclasses
+
+    from secure3d.mapping import OccupancyMap
+    from secure3d.world import load_scenario
+    from secure3d.world.spec import Bounds
+
+    if label.startswith("real"):
+        s = load_scenario(ROOT / "maps" / "geb079_region_attacks.yaml")
+        res = 0.04 if "1e6" in label else 0.08
+        server = dataclasses.replace(s.server_map, bt=path, resolution=res)
+        return dataclasses.replace(s, server_map=server)
+    s = load_scenario(ROOT / "maps" / "blind_corner.yaml")
+    occ = OccupancyMap.read_bt(path).occupied_voxels()
+    a = _free_point(occ, 0.05, np.array([-20.0, -20.0, 1.25]), 1.2)
+    b = _free_point(occ, 0.05, np.array([20.0, 20.0, 1.25]), 1.2)
+    world = dataclasses.replace(
+        s.world, bounds=Bounds((-41.0, -41.0, 0.0), (41.0, 41.0, 2.6)), boxes=(), meshes=()
+    )
+    server = dataclasses.replace(s.server_map, attacks=(), bt=path, resolution=0.05)
+    return dataclasses.replace(
+        s,
+        name=f"synthetic_{path.stem}",
+        world=world,
+        server_map=server,
+        start=dataclasses.replace(s.start, position=tuple(a)),
+        goal=dataclasses.replace(s.goal, position=tuple(b)),
+    )
+
+
+def plan_by_size(maps: list[tuple[str, Path]]) -> list[str]:
+    """One secure plan() per map, cold NLP cache, against blind_corner's in the same process."""
+    from secure3d.planning import NLPCache
+    from secure3d.planning.solve import plan
+    from secure3d.world import load_scenario
+
+    def timed(s):
+        t0 = time.perf_counter()
+        r = plan(s, "secure", cache=NLPCache())
+        return time.perf_counter() - t0, r
+
+    plan(load_scenario(ROOT / "maps" / "blind_corner.yaml"), "secure")  # numba, imports
+    tb, rb = timed(load_scenario(ROOT / "maps" / "blind_corner.yaml"))
+    rows = [
+        "| map | plan() (s) | status | final time (s) | ratio to blind_corner |",
+        "|---|---:|---|---:|---:|",
+        f"| blind_corner | {tb:.2f} | {rb.status.value} | {rb.final_time:.2f} | 1.0 |",
+    ]
+    for label, path in maps:
+        t, r = timed(size_scenario(label, path))
+        rows.append(f"| {label} | {t:.2f} | {r.status.value} | {r.final_time:.2f} | {t / tb:.1f} |")
+        print(rows[-1], flush=True)
+    return rows
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--plan", action="store_true")
+    ap.add_argument("--plan-by-size", action="store_true", help="plan() over each map too")
     args = ap.parse_args()
     rows = [
         "| map | file (KB) | occupied voxels | read_bt (s) | claim (s) | first load (s) |"
@@ -165,7 +237,13 @@ def main() -> int:
             )
             print(row, flush=True)
             rows.append(row)
+        by_size = plan_by_size(maps) if args.plan_by_size else []
     text = "# Server-map load time and memory by size (issue 24, item 4)\n\n" + "\n".join(rows)
+    if by_size:
+        text += (
+            "\n\nOne secure `plan()` with each map as the server's map (`--plan-by-size`), cold NLP"
+        )
+        text += " cache, in one process:\n\n" + "\n".join(by_size)
     if args.plan:
         pr = plan_ratio()
         (tb, okb), (tg, okg) = pr["blind_corner"], pr["geb079_region_attacks"]
