@@ -13,6 +13,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from secure3d.errors import PlanningError
 from secure3d.planning.problem import PlanningProblem
 
 #: Largest number of grid cells the graph search uses; the grid is coarsened to stay below it.
@@ -296,6 +297,15 @@ def stop_and_turn(
     Without it a guess for a robot facing a dead end flipped its heading by pi in one node while
     still driving at 1.3 m/s, and IPOPT ran out of iterations (issue 16, diff drive with dead
     ends)."""
+    for name, value in (("a_max", a_max), ("yaw_rate", yaw_rate)):
+        if not (np.isfinite(value) and value > 0):
+            raise PlanningError(f"stop_and_turn: {name} must be > 0, got {value!r}")
+    p0 = np.asarray(p0, dtype=float)
+    if p0.shape != (3,) or not np.all(np.isfinite([*p0, v0, yaw0, yaw1])):
+        raise PlanningError(
+            f"stop_and_turn: p0 must be 3 finite numbers and v0, yaw0, yaw1 finite, got"
+            f" p0 shape {p0.shape}, v0 {v0!r}, yaw0 {yaw0!r}, yaw1 {yaw1!r}"
+        )
     heading = np.array([np.cos(yaw0), np.sin(yaw0), 0.0])
     v0 = max(float(v0), 0.0)
     t_b = v0 / a_max

@@ -47,3 +47,21 @@ def test_a_diff_drive_facing_a_dead_end_turns_round_in_its_guess_and_plan(maps_d
     assert result.iterations < 400
     pos = result.positions
     assert pos[:, 0].min() < 1.5, "it goes back out of the closed corridor"
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "needle"),
+    [
+        ({"a_max": 0.0}, "a_max must be > 0"),
+        ({"yaw_rate": float("nan")}, "yaw_rate must be > 0"),
+        ({"p0": np.zeros(2)}, "p0 must be 3 finite numbers"),
+        ({"v0": float("inf")}, "v0"),
+    ],
+)
+def test_stop_and_turn_names_a_bad_input(kwargs, needle):
+    from secure3d.errors import PlanningError
+
+    args = {"p0": np.zeros(3), "v0": 1.0, "yaw0": 0.0, "yaw1": np.pi, "a_max": 1.0, "yaw_rate": 3.0}
+    args.update(kwargs)
+    with pytest.raises(PlanningError, match=needle):
+        stop_and_turn(**args)
