@@ -276,6 +276,21 @@ def test_cube_closing_equals_scipy(rng):
             np.testing.assert_array_equal(_binary_closing_cube(grid, iterations), expected)
 
 
+def test_sparse_closing_equals_the_dense_closing(rng):
+    """The kernel that walks only the dilated cells gives the dense closing's cells (union the
+    input), borders included, for sparse and dense sets and radii 1-3."""
+    from secure3d.mapping._closing_kernel import sparse_closing
+    from secure3d.mapping.obstacle_boxes import binary_closing_cube
+
+    for _ in range(40):
+        shape = tuple(int(v) for v in rng.integers(1, 24, 3))
+        grid = rng.random(shape) < rng.choice([0.01, 0.05, 0.3, 0.7])
+        for radius in (1, 2, 3):
+            expected = binary_closing_cube(grid, radius) | grid
+            got = sparse_closing(np.argwhere(grid), shape, radius)
+            np.testing.assert_array_equal(got, expected)
+
+
 def test_voxel_table_grows_by_the_entries_it_adds(rng):
     """add_logodds grows when the load factor would pass 1/2 by entries actually added (possibly
     several times within one call), and updates every code exactly once, as a dict would."""
