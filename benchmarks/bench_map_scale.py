@@ -157,9 +157,11 @@ def _free_point(occ: np.ndarray, res: float, near: np.ndarray, clear: float) -> 
     raise RuntimeError("no free point")
 
 
-def size_scenario(label: str, path: Path):
-    """A scenario whose server map is ``path``: geb079's corridor route for the real maps, a
-    57 m diagonal across the random walls for the synthetic ones."""
+def size_scenario(label: str, path: Path, diagonal: bool = False):
+    """A scenario whose server map is ``path``: geb079's corridor route for the real maps; for the
+    synthetic ones a route as long as the blind corner's (its start-goal distance) through the
+    middle of the random walls, so that the maps differ in size and not in route length, or with
+    ``diagonal`` the 57 m diagonal across them."""
     import dataclasses
 
     from secure3d.mapping import OccupancyMap
@@ -173,8 +175,13 @@ def size_scenario(label: str, path: Path):
         return dataclasses.replace(s, server_map=server)
     s = load_scenario(ROOT / "maps" / "blind_corner.yaml")
     occ = OccupancyMap.read_bt(path).occupied_voxels()
-    a = _free_point(occ, 0.05, np.array([-20.0, -20.0, 1.25]), 1.2)
-    b = _free_point(occ, 0.05, np.array([20.0, 20.0, 1.25]), 1.2)
+    if diagonal:
+        a = _free_point(occ, 0.05, np.array([-20.0, -20.0, 1.25]), 1.2)
+        b = _free_point(occ, 0.05, np.array([20.0, 20.0, 1.25]), 1.2)
+    else:
+        half = 0.5 * np.linalg.norm(np.subtract(s.goal.position, s.start.position)) / np.sqrt(2)
+        a = _free_point(occ, 0.05, np.array([-half, -half, 1.25]), 1.2)
+        b = _free_point(occ, 0.05, np.array([half, half, 1.25]), 1.2)
     world = dataclasses.replace(
         s.world, bounds=Bounds((-41.0, -41.0, 0.0), (41.0, 41.0, 2.6)), boxes=(), meshes=()
     )
@@ -207,8 +214,11 @@ def plan_by_size(maps: list[tuple[str, Path]]) -> list[str]:
         "|---|---:|---|---:|---:|",
         f"| blind_corner | {tb:.2f} | {rb.status.value} | {rb.final_time:.2f} | 1.0 |",
     ]
-    for label, path in maps:
-        t, r = timed(size_scenario(label, path))
+    cases = [(label, path, False) for label, path in maps]
+    cases += [(label, path, True) for label, path in maps if label.startswith("synthetic")]
+    for label, path, diagonal in cases:
+        t, r = timed(size_scenario(label, path, diagonal))
+        label += ", 57 m diagonal" if diagonal else ""
         rows.append(f"| {label} | {t:.2f} | {r.status.value} | {r.final_time:.2f} | {t / tb:.1f} |")
         print(rows[-1], flush=True)
     return rows

@@ -5,15 +5,11 @@ the map: every pass reads and writes every cell, so a map of 10^6 voxels spread 
 80 m x 80 m floor (133 M cells at 5 cm) costs about 1 s, although the closing can only set cells
 within the cube's radius of an occupied voxel. The kernel here computes the same cells (a test
 compares them on random grids) by the same separable passes (a cube is the Minkowski sum of three
-segments), but each pass walks the list of cells set by the previous one:
-
-- dilation along an axis: every listed cell sets its segment of neighbours (each new cell listed
-  once);
-- erosion along an axis: a listed cell survives if its whole segment is set (cells outside the
-  grid count as empty, scipy's ``border_value=0``).
-
-Cells are flat indices into a C-ordered grid of shape (X, Y, Z). Cost: O(|dilated set| * (2r+1))
-per pass instead of O(X * Y * Z).
+segments: dilate along x, y, z, then erode along x, y, z; cells outside the grid count as empty,
+scipy's ``border_value=0``), but only on the tiles of 8**3 cells within the radius of a voxel.
+Every other cell of the dilation, and so of the closing, is empty; tiles are allocated only there,
+so a sparse map never touches (nor zeroes) the pages of its whole bounding grid. Cost:
+O(tiles * 512 * (2r+1)) per pass instead of O(X * Y * Z).
 """
 
 from __future__ import annotations
@@ -22,107 +18,133 @@ import numba
 import numpy as np
 
 import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
+from secure3d.errors import GeometryError
 
 __all__ = ["sparse_closing"]
 
 
-@numba.njit(cache=True)
-def _grow(buf: np.ndarray, m: int) -> np.ndarray:
-    """``buf`` with twice the room, its first ``m`` entries kept (element by element: a slice
-    assignment would make numba compile its shape-mismatch message formatting)."""
-    bigger = np.empty(2 * buf.shape[0] + 16, np.int64)
-    for i in range(m):
-        bigger[i] = buf[i]
-    return bigger
+#: Tiles of 8**3 cells hold the working sets: only tiles within the radius of a voxel are ever
+#: allocated, so a sparse map never touches (nor zeroes) the pages of its whole bounding grid.
+TILE_BITS = 3
+TILE = 1 << TILE_BITS
 
 
 @numba.njit(cache=True)
-def _coord(flat: int, axis: int, dims: np.ndarray) -> int:
-    """Coordinate along ``axis`` of the flat index of a C-ordered (X, Y, Z) grid."""
+def _allocate(tiles: np.ndarray, idx: np.ndarray, r: int, dims: np.ndarray) -> np.ndarray:
+    """Give every tile within ``r`` cells (per axis) of a cell a slot in ``tiles`` (-1: none);
+    returns the (n_slots, 3) tile coordinates of the slots."""
+    coords = np.empty((64, 3), np.int64)
+    n = 0
+    for q in range(idx.shape[0]):
+        lo = np.empty(3, np.int64)
+        hi = np.empty(3, np.int64)
+        for a in range(3):
+            lo[a] = max(idx[q, a] - r, 0) >> TILE_BITS
+            hi[a] = min(idx[q, a] + r, dims[a] - 1) >> TILE_BITS
+        for tx in range(lo[0], hi[0] + 1):
+            for ty in range(lo[1], hi[1] + 1):
+                for tz in range(lo[2], hi[2] + 1):
+                    if tiles[tx, ty, tz] >= 0:
+                        continue
+                    tiles[tx, ty, tz] = n
+                    if n == coords.shape[0]:
+                        bigger = np.empty((2 * n, 3), np.int64)
+                        for i in range(n):  # element-wise: no shape-mismatch formatting compiled
+                            for a in range(3):
+                                bigger[i, a] = coords[i, a]
+                        coords = bigger
+                    coords[n, 0], coords[n, 1], coords[n, 2] = tx, ty, tz
+                    n += 1
+    return coords[:n]
+
+
+@numba.njit(cache=True)
+def _get(src: np.ndarray, s: int, axis: int, t: int, p: int, q: int) -> bool:
+    """Cell ``t`` along ``axis`` of line (p, q) of tile slot ``s`` (False for slot -1)."""
+    if s < 0:
+        return False
     if axis == 0:
-        return flat // (dims[1] * dims[2])
+        return src[s, t, p, q]
     if axis == 1:
-        return (flat // dims[2]) % dims[1]
-    return flat % dims[2]
+        return src[s, p, t, q]
+    return src[s, p, q, t]
 
 
 @numba.njit(cache=True)
-def _dilate(cells: np.ndarray, n: int, dst: np.ndarray, axis: int, r: int, dims: np.ndarray):
-    """Set in ``dst`` (flat, all False on entry) every cell within ``r`` along ``axis`` of the
-    first ``n`` of ``cells``; returns the list of cells set and its length."""
-    stride = dims[2] * dims[1] if axis == 0 else (dims[2] if axis == 1 else 1)
-    out = np.empty(3 * n + 16, np.int64)
-    m = 0
-    for q in range(n):
-        c = cells[q]
-        x = _coord(c, axis, dims)
-        for d in range(-r, r + 1):
-            if x + d < 0 or x + d >= dims[axis]:
-                continue
-            e = c + d * stride
-            if not dst[e]:
-                dst[e] = True
-                if m == out.shape[0]:
-                    out = _grow(out, m)
-                out[m] = e
-                m += 1
-    return out, m
+def _set(dst: np.ndarray, s: int, axis: int, t: int, p: int, q: int, v: bool) -> None:
+    if axis == 0:
+        dst[s, t, p, q] = v
+    elif axis == 1:
+        dst[s, p, t, q] = v
+    else:
+        dst[s, p, q, t] = v
 
 
 @numba.njit(cache=True)
-def _erode(
-    cells: np.ndarray, n: int, src: np.ndarray, dst: np.ndarray, axis: int, r: int, dims: np.ndarray
-):
-    """Set in ``dst`` (flat, all False on entry) each of the first ``n`` of ``cells`` (the cells
-    set in ``src``) whose whole segment of half-width ``r`` along ``axis`` is set in ``src``;
-    returns the survivors and their number."""
-    stride = dims[2] * dims[1] if axis == 0 else (dims[2] if axis == 1 else 1)
-    out = np.empty(n + 16, np.int64)
-    m = 0
-    for q in range(n):
-        c = cells[q]
-        x = _coord(c, axis, dims)
-        keep = True
-        for d in range(-r, r + 1):
-            if x + d < 0 or x + d >= dims[axis] or not src[c + d * stride]:
-                keep = False
-                break
-        if keep:
-            dst[c] = True
-            out[m] = c
-            m += 1
-    return out, m
+def _neighbour(tiles: np.ndarray, c: np.ndarray, axis: int, step: int) -> int:
+    """Slot of the tile ``step`` tiles along ``axis`` from tile ``c`` (-1: none)."""
+    x, y, z = c[0], c[1], c[2]
+    if axis == 0:
+        x += step
+    elif axis == 1:
+        y += step
+    else:
+        z += step
+    if x < 0 or y < 0 or z < 0 or x >= tiles.shape[0] or y >= tiles.shape[1]:
+        return -1
+    if z >= tiles.shape[2]:
+        return -1
+    return tiles[x, y, z]
 
 
 @numba.njit(cache=True)
-def _clear(grid: np.ndarray, cells: np.ndarray, n: int) -> None:
-    for q in range(n):
-        grid[cells[q]] = False
+def _pass(src, dst, tiles, coords, dims, axis: int, r: int, erode: bool) -> None:
+    """``dst`` = ``src`` dilated (OR) or eroded (AND) by the segment of half-width ``r`` (<= 8)
+    along ``axis``, line by line through each tile with ``r`` cells of the tiles either side."""
+    line = np.zeros(TILE + 2 * r, np.bool_)
+    for s in range(coords.shape[0]):
+        before = _neighbour(tiles, coords[s], axis, -1)
+        after = _neighbour(tiles, coords[s], axis, 1)
+        base = coords[s, axis] * TILE  # grid coordinate of the tile's first cell along axis
+        for p in range(TILE):
+            for q in range(TILE):
+                for t in range(r):
+                    line[t] = _get(src, before, axis, TILE - r + t, p, q)
+                    line[TILE + r + t] = _get(src, after, axis, t, p, q)
+                for t in range(TILE):
+                    line[r + t] = src[s, t, p, q] if axis == 0 else _get(src, s, axis, t, p, q)
+                for t in range(TILE):
+                    v = erode
+                    for d in range(2 * r + 1):
+                        if line[t + d] != erode:  # OR met a set cell / AND met an empty one
+                            v = not erode
+                            break
+                    # cells beyond the grid's end (in its last tiles) stay empty
+                    _set(dst, s, axis, t, p, q, v and base + t < dims[axis])
 
 
 @numba.njit(cache=True)
-def _closing_flat(flat: np.ndarray, dims: np.ndarray, r: int) -> np.ndarray:
-    size = dims[0] * dims[1] * dims[2]
-    a = np.zeros(size, np.bool_)
-    b = np.zeros(size, np.bool_)
-    l1, n1 = _dilate(flat, flat.shape[0], a, 0, r, dims)
-    l2, n2 = _dilate(l1, n1, b, 1, r, dims)
-    _clear(a, l1, n1)
-    l3, n3 = _dilate(l2, n2, a, 2, r, dims)  # a: the dilation
-    _clear(b, l2, n2)
-    l4, n4 = _erode(l3, n3, a, b, 0, r, dims)
-    _clear(a, l3, n3)
-    l5, n5 = _erode(l4, n4, b, a, 1, r, dims)
-    _clear(b, l4, n4)
-    _erode(l5, n5, a, b, 2, r, dims)  # b: the closing
-    for q in range(flat.shape[0]):
-        b[flat[q]] = True
-    return b
+def _closing_tiles(idx: np.ndarray, dims: np.ndarray, r: int):
+    """The closing as tiles: (slots (n, 8, 8, 8) bool, tile coordinates (n, 3))."""
+    shape = (dims + TILE - 1) >> TILE_BITS
+    tiles = np.full((shape[0], shape[1], shape[2]), -1, np.int64)
+    coords = _allocate(tiles, idx, r, dims)
+    a = np.zeros((coords.shape[0], TILE, TILE, TILE), np.bool_)
+    b = np.zeros_like(a)
+    m = TILE - 1
+    for q in range(idx.shape[0]):
+        x, y, z = idx[q, 0], idx[q, 1], idx[q, 2]
+        a[tiles[x >> TILE_BITS, y >> TILE_BITS, z >> TILE_BITS], x & m, y & m, z & m] = True
+    for erode in (False, True):
+        for axis in range(3):
+            _pass(a, b, tiles, coords, dims, axis, r, erode)
+            a, b = b, a
+    return a, coords
 
 
 def sparse_closing(idx: np.ndarray, shape: tuple[int, int, int], radius: int) -> np.ndarray:
     """``binary_closing_cube(grid, radius) | grid`` for the grid of ``shape`` whose set cells are
-    ``idx``, computed without passing over the empty space.
+    ``idx``, computed on the tiles near them only.
 
     Parameters
     ----------
@@ -136,6 +158,19 @@ def sparse_closing(idx: np.ndarray, shape: tuple[int, int, int], radius: int) ->
     (X, Y, Z) bool
     """
     dims = np.asarray(shape, dtype=np.int64)
-    idx = np.asarray(idx, dtype=np.int64).reshape(-1, 3)
-    flat = (idx[:, 0] * dims[1] + idx[:, 1]) * dims[2] + idx[:, 2]
-    return _closing_flat(np.ascontiguousarray(flat), dims, int(radius)).reshape(tuple(dims))
+    idx = np.ascontiguousarray(idx, dtype=np.int64).reshape(-1, 3)
+    if dims.shape != (3,) or np.any(dims < 1):
+        raise GeometryError(f"sparse_closing: shape must be 3 positive sizes, got {shape}")
+    if not 1 <= int(radius) <= TILE:
+        raise GeometryError(f"sparse_closing: radius must lie in [1, {TILE}], got {radius}")
+    if len(idx) and (np.any(idx < 0) or np.any(idx >= dims)):
+        raise GeometryError("sparse_closing: cell indices must lie within the shape")
+    out = np.zeros(tuple(int(v) for v in dims), dtype=bool)
+    if len(idx) == 0:
+        return out
+    slots, coords = _closing_tiles(idx, dims, int(radius))
+    t, i, j, k = np.nonzero(slots)
+    cells = coords[t] * TILE + np.stack([i, j, k], axis=1)
+    out[cells[:, 0], cells[:, 1], cells[:, 2]] = True
+    out[idx[:, 0], idx[:, 1], idx[:, 2]] = True  # the closing contains its input
+    return out

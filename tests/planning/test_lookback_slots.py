@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 
 from secure3d.planning.lookback import keep_slot_positions
 
@@ -54,3 +55,34 @@ def test_a_solution_is_re_solved_only_if_a_left_out_box_breaks_a_row(maps_dir):
     # the baseline cuts the corner: its sight lines graze the walls the empty slots leave out
     baseline = plan_problem(problem, "baseline")
     assert slots_missing(problem, "secure", baseline.states, assignment, empty)
+
+
+def test_face_gaps_bound_the_exact_distance_from_below():
+    """A box face that separates a line-of-sight hull (or an ellipsoid) from a box by g means the
+    exact distance is at least g (the slot screen drops such pairs without the exact solve); the
+    bound is tight where a face is the separating plane (a set straight beside the box)."""
+    from types import SimpleNamespace
+
+    from secure3d.geometry.polytope import box_pair_distances
+    from secure3d.planning.lookback import FACE_GAP_TOL, _face_gaps
+
+    rng = np.random.default_rng(3)
+    n = 4000
+    a = rng.normal(0.0, 0.4, (n, 3, 3))
+    shapes = a @ a.transpose(0, 2, 1) + 0.01 * np.eye(3)
+    centres = rng.uniform(-3, 3, (n, 3))
+    los = rng.random(n) < 0.5
+    origins = np.where(los[:, None], rng.uniform(-3, 3, (n, 3)), centres)
+    lo = rng.uniform(-3, 3, (n, 3))
+    hi = lo + rng.uniform(0.02, 1.0, (n, 3))
+    problem = SimpleNamespace(boxes_lo=lo, boxes_hi=hi)
+    idx = np.arange(n)
+    gaps = _face_gaps(problem, (origins, centres, shapes, los), idx, idx)
+    exact = box_pair_distances(origins, centres, shapes, lo, hi, los)
+    assert np.all(gaps <= exact + FACE_GAP_TOL)
+    assert np.mean(gaps > 0) > 0.5, "most random pairs are separated by a face"
+    # a ball straight above a box: the top face is the separating plane, the bound is exact
+    ball = (np.array([[0.5, 0.5, 3.0]]), np.array([[0.5, 0.5, 3.0]]), 0.5 * np.eye(3)[None])
+    one = SimpleNamespace(boxes_lo=np.zeros((1, 3)), boxes_hi=np.ones((1, 3)))
+    g = _face_gaps(one, (*ball, np.zeros(1, bool)), np.zeros(1, int), np.zeros(1, int))
+    assert g[0] == pytest.approx(1.5)
