@@ -8,10 +8,10 @@ running it, registered in :data:`COMMANDS`. A runner imports what it needs insid
     def _certify(args): from secure3d.planning import certify; ...; return 0
     COMMANDS = (..., Command("certify", "certify a plan", _certify_arguments, _certify))
 
-Subcommands: ``show``, ``plan``, ``simulate``, ``campaign`` (logic in
-:mod:`secure3d.simulation.campaign` and :mod:`secure3d.simulation.campaign_run`),
-``campaign-merge`` (:mod:`secure3d.simulation.campaign_store`), ``bench``, ``reactive fit``,
-``demo``, ``map`` (:mod:`secure3d.cli_map`) and ``paper`` (:mod:`secure3d.cli_paper`). Every output file
+Subcommands: ``show``, ``plan``, ``simulate``, ``campaign`` and ``campaign-merge``
+(:mod:`secure3d.cli_campaign`), ``bench``, ``reactive fit``, ``demo`` (:mod:`secure3d.cli_demo`),
+``map`` (:mod:`secure3d.cli_map`) and ``paper`` (:mod:`secure3d.cli_paper`); what they share is in
+:mod:`secure3d.cli_common`. Every output file
 is written atomically (temporary file + rename), into folders created on demand.
 
 Errors that secure3d raises on purpose (:class:`~secure3d.errors.Secure3DError`) and usage errors
@@ -33,6 +33,23 @@ from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
 from secure3d import __version__
+from secure3d.cli_campaign import _campaign, _campaign_arguments, _merge, _merge_arguments
+from secure3d.cli_common import (  # noqa: F401  (_bundled_scenario: part of the CLI's surface)
+    _BENCHMARKS,
+    _REPO,
+    _SCENARIO_HELP,
+    PLANNER_CHOICES,
+    _add_planner_options,
+    _add_replan_defer,
+    _bundled_scenario,
+    _check_seed,
+    _output_dir,
+    _output_path,
+    _planner_options,
+    _planners,
+    _print_run,
+)
+from secure3d.cli_demo import _demo, _demo_arguments
 from secure3d.cli_map import map_arguments, run_map
 from secure3d.cli_paper import paper_arguments, run_paper_command
 from secure3d.errors import ConfigError, Secure3DError
@@ -41,7 +58,7 @@ from secure3d.sigint import EXIT_INTERRUPTED, cli_interrupts
 from secure3d.sigint import requested as interrupt_requested
 
 if TYPE_CHECKING:  # pragma: no cover
-    from secure3d.simulation.closed_loop import SimResult
+    pass
 
 PROG = "secure3d"
 #: Exit status for bad input (argparse's convention).
@@ -76,7 +93,6 @@ def _show(args: argparse.Namespace) -> int:
     return 0
 
 
-PLANNER_CHOICES = ("secure", "baseline", "both")
 #: Columns of the ``plan`` table.
 PLAN_COLUMNS = (
     "planner",
@@ -88,58 +104,6 @@ PLAN_COLUMNS = (
     "certified",
     "margin",
 )
-#: The repository's benchmarks/ folder: ``bench`` is offered only in a source checkout (the
-#: scripts are not part of the installed package).
-_REPO = Path(__file__).resolve().parents[1]
-_SCENARIO_HELP = "scenario YAML file or a shipped scenario's name (blind_corner, forest, ...)"
-_BENCHMARKS = _REPO / "benchmarks"
-
-
-def _planners(choice: str) -> tuple[str, ...]:
-    return ("secure", "baseline") if choice == "both" else (choice,)
-
-
-def _add_planner_options(parser: argparse.ArgumentParser) -> None:
-    """Planner settings shared by plan, simulate, campaign and demo (default: the scenario's)."""
-    group = parser.add_argument_group("planner options (default: the scenario's planner section)")
-    group.add_argument("--nodes", type=int, metavar="K", help="collocation nodes K")
-    group.add_argument("--solver", choices=("ipopt", "fatrop"), help="NLP solver")
-    group.add_argument(
-        "--lookback", choices=("adaptive", "fixed"), help="look-back rule of eq. NLP's visibility"
-    )
-    group.add_argument(
-        "--plan-budget",
-        type=float,
-        metavar="S",
-        help="wall-clock budget of one plan call, retries included (s; default 60)",
-    )
-
-
-def _planner_options(args: argparse.Namespace) -> dict[str, object]:
-    names = ("nodes", "solver", "lookback", "plan_budget")
-    return {name: getattr(args, name) for name in names if getattr(args, name) is not None}
-
-
-def _output_path(path: Path | None) -> Path | None:
-    """``path`` with its folder created (outputs themselves are written atomically)."""
-    if path is not None:
-        _output_dir(path.parent)
-    return path
-
-
-def _output_dir(folder: Path) -> Path:
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ConfigError(f"output folder {str(folder)!r}: {exc.strerror or exc}") from None
-    return folder
-
-
-def _bundled_scenario(name: str) -> Path:
-    """The shipped scenario ``name`` (``secure3d/maps/NAME.yaml``)."""
-    from secure3d.world.bundled import resolve_scenario
-
-    return resolve_scenario(name)
 
 
 # ---- plan --------------------------------------------------------------------------------------
@@ -280,36 +244,10 @@ def _simulate_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _add_replan_defer(parser: argparse.ArgumentParser, with_latency: bool = False) -> None:
-    default = "default 0.5, or 0 with --replan-latency" if with_latency else "default 0.5"
-    parser.add_argument(
-        "--replan-defer",
-        type=float,
-        default=None,
-        metavar="S",
-        help="when new evidence breaks the plan but its first failing manoeuvre is more than S"
-        f" seconds ahead, keep following it and replan S seconds before ({default}; 0: replan"
-        " at once)",
-    )
-
-
-def _check_seed(seed: int) -> None:
-    if seed < 0:
-        raise ConfigError(f"--seed: must be a non-negative integer (got {seed})")
-
-
 def _per_planner(path: Path | None, planner: str, several: bool) -> Path | None:
     if path is None or not several:
         return path
     return path.with_name(f"{path.stem}_{planner}{path.suffix or '.rrd'}")
-
-
-def _print_run(result: SimResult, events: bool = False) -> None:
-    print(result.summary())
-    if events:
-        print("\n".join(f"  {e}" for e in result.events))
-    for path in result.outputs.values():
-        print(f"  wrote {path}")
 
 
 def _failure_defaults(args: argparse.Namespace) -> None:
@@ -361,136 +299,6 @@ def _simulate(args: argparse.Namespace) -> int:
         print(comparison_table(results))
     for path in figures.values():
         print(f"wrote {path}")
-    return 0
-
-
-# ---- campaign ----------------------------------------------------------------------------------
-
-
-def _planner_names(text: str) -> tuple[str, ...]:
-    names = tuple(p.strip() for p in text.split(",") if p.strip())
-    bad = [p for p in names if p not in ("secure", "baseline")]
-    if bad or not names:
-        raise argparse.ArgumentTypeError(
-            f"expected a comma-separated list of secure, baseline (got {text!r})"
-        )
-    return names
-
-
-def _campaign_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scenario", type=Path, help="base " + _SCENARIO_HELP)
-    parser.add_argument("-n", type=int, required=True, help="number of hidden-obstacle variants")
-    parser.add_argument(
-        "--planners",
-        type=_planner_names,
-        default=("secure", "baseline"),
-        metavar="LIST",
-        help="comma-separated planners to fly (secure,baseline)",
-    )
-    parser.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the variants (0)")
-    parser.add_argument(
-        "--workers", type=int, metavar="W", help="worker processes (default: the number of CPUs)"
-    )
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=Path("out/campaign"),
-        metavar="DIR",
-        help="output folder (out/campaign)",
-    )
-    from secure3d.world.family_registry import FAMILIES
-
-    parser.add_argument(
-        "--kind",
-        choices=("auto", "corner", "forest", *FAMILIES),
-        default="auto",
-        help="where hidden obstacles go (auto), or a scenario family: "
-        + "; ".join(f"{f.name}: {f.description}" for f in FAMILIES.values()),
-    )
-    parser.add_argument(
-        "--count", type=int, default=1, metavar="C", help="hidden obstacles per variant (1)"
-    )
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    _add_replan_defer(parser)
-    _add_planner_options(parser)
-    group = parser.add_argument_group("scale and faults")
-    group.add_argument(
-        "--backend",
-        choices=("process", "ray"),
-        default="process",
-        help="process: worker processes here; ray: Ray actors (pip install 'secure3d[ray]')",
-    )
-    group.add_argument(
-        "--address",
-        metavar="ADDR",
-        help="with --backend ray: join this Ray cluster (auto, ray://host:10001) instead of a"
-        " local Ray",
-    )
-    group.add_argument(
-        "--resume",
-        action="store_true",
-        help="continue the campaign in --out: fly only the runs missing from its runs.csv",
-    )
-    group.add_argument(
-        "--shard",
-        metavar="K/N",
-        help="fly only variants i with i %% N == K-1 (combine shards with campaign-merge)",
-    )
-    group.add_argument(
-        "--run-timeout",
-        type=float,
-        metavar="S",
-        help="stop a run after S wall seconds (set-up included): an error row",
-    )
-    group.add_argument(
-        "--retries",
-        type=int,
-        default=1,
-        metavar="R",
-        help="fly a run again up to R times when its worker dies (1)",
-    )
-
-
-def _campaign(args: argparse.Namespace) -> int:
-    from secure3d.simulation.campaign import run_campaign
-
-    result = run_campaign(
-        args.scenario,
-        args.n,
-        planners=args.planners,
-        seed=args.seed,
-        workers=args.workers,
-        out_dir=_output_dir(args.out),
-        progress=not args.no_progress,
-        kind=args.kind,
-        count=args.count,
-        replan_defer=args.replan_defer,
-        backend=args.backend,
-        address=args.address,
-        resume=args.resume,
-        shard=args.shard,
-        run_timeout=args.run_timeout,
-        retries=args.retries,
-        **_planner_options(args),
-    )
-    print(result.summary_markdown().rstrip())
-    print(f"\nwrote {result.csv_path} and {result.summary_path} (every run: runs.csv)")
-    return 0
-
-
-def _merge_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("folders", type=Path, nargs="+", metavar="OUT", help="campaign folders")
-    parser.add_argument(
-        "--out", type=Path, required=True, metavar="DIR", help="folder for the merged campaign"
-    )
-
-
-def _merge(args: argparse.Namespace) -> int:
-    from secure3d.simulation.campaign_store import merge_campaigns
-
-    result = merge_campaigns(args.folders, args.out)
-    print(result.summary_markdown().rstrip())
-    print(f"\nwrote {result.csv_path} and {result.summary_path} (every run: runs.csv)")
     return 0
 
 
@@ -549,71 +357,6 @@ def _reactive_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _reactive(args: argparse.Namespace) -> int:
     return _run_script("fit_reactive_sets.py", args.args)
-
-
-# ---- demo --------------------------------------------------------------------------------------
-
-
-def _demo_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--out", type=Path, default=Path("out"), metavar="DIR", help="output folder (out)"
-    )
-    parser.add_argument(
-        "--quick", action="store_true", help="fewer collocation nodes (20): faster, coarser plans"
-    )
-    parser.add_argument(
-        "--scenario",
-        type=Path,
-        metavar="FILE",
-        help="fly this scenario instead of the blind corner",
-    )
-    parser.add_argument("--seed", type=int, default=0, metavar="N", help="camera noise seed (0)")
-
-
-def _rerun_command() -> str:
-    """The Rerun viewer installed beside this Python (``.venv/bin/rerun``), which need not be on
-    PATH; plain ``rerun`` when it is not there."""
-    beside = Path(sys.executable).parent / "rerun"
-    return str(beside) if beside.is_file() else "rerun"
-
-
-def _demo(args: argparse.Namespace) -> int:
-    from secure3d.simulation.campaign import (
-        PAPER_BLIND_CORNER,
-        PAPER_BLIND_CORNER_LABEL,
-        comparison_figures,
-        comparison_table,
-        fly_planners,
-    )
-    from secure3d.world.scenario import load_scenario
-
-    scenario = load_scenario(args.scenario or _bundled_scenario("blind_corner"))
-    out = _output_dir(args.out)
-    options = {"nodes": 20} if args.quick else {}
-    name = scenario.name
-    _check_seed(args.seed)
-    quick = " (quick: 20 nodes)" if args.quick else ""
-    print(f"Flying {name!r} with the secure planner and the baseline{quick}.")
-    results = fly_planners(
-        scenario,
-        ("secure", "baseline"),
-        args.seed,
-        rrd=lambda planner: out / f"{name}_{planner}.rrd",
-        report=_print_run,
-        **options,
-    )
-    figures = comparison_figures(
-        scenario, results, top_down=out / f"{name}_top_down.png", speed=out / f"{name}_speed.png"
-    )
-    for path in figures.values():
-        print(f"  wrote {path}")
-    print()
-    if name == "blind_corner":
-        print(comparison_table(results, PAPER_BLIND_CORNER, PAPER_BLIND_CORNER_LABEL))
-    else:
-        print(comparison_table(results))
-    print(f"\nReplay a flight with: {_rerun_command()} {out / f'{name}_secure.rrd'}")
-    return 0
 
 
 COMMANDS: tuple[Command, ...] = (
