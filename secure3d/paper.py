@@ -191,7 +191,8 @@ def _plan_both(scenario: Scenario, options: dict, cache: NLPCache) -> list[PlanR
 def passages(out: Path, options: dict, progress: Callable[[str], None]) -> PaperRun:
     """Both passages, both planners, open loop: a figure and a recording per passage."""
     from secure3d.planning import NLPCache
-    from secure3d.viz.figures import speed_profile_figure, top_down_panels
+    from secure3d.viz.figures import top_down_panels
+    from secure3d.viz.speed_figure import speed_profile_figure
     from secure3d.world import load_scenario
 
     run = PaperRun([], [])

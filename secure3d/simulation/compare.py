@@ -187,7 +187,8 @@ def comparison_figures(
         ``{"top_down": path, "speed": path}`` for the figures written.
     """
     from secure3d.dynamics import model_from_spec
-    from secure3d.viz.figures import speed_profile_figure, top_down_figure
+    from secure3d.viz.figures import top_down_figure
+    from secure3d.viz.speed_figure import speed_profile_figure
     from secure3d.world.attacks import server_claim
 
     written: dict[str, Path] = {}

@@ -14,7 +14,7 @@ _EXPORTS = {
     "recording_id": "secure3d.viz.rerun_log",
     "top_down_figure": "secure3d.viz.figures",
     "draw_top_down": "secure3d.viz.figures",
-    "speed_profile_figure": "secure3d.viz.figures",
+    "speed_profile_figure": "secure3d.viz.speed_figure",
 }
 
 __all__ = sorted(_EXPORTS)

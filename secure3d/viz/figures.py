@@ -26,7 +26,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Polygon, Rectangle
 from scipy.spatial import ConvexHull, QhullError
 
-from secure3d.errors import ConfigError, GeometryError
+from secure3d.errors import ConfigError
 from secure3d.outputs import atomic_output
 from secure3d.validation import is_int_in
 from secure3d.world.spec import Bounds, Box, MeshObstacle
@@ -81,7 +81,7 @@ def ellipse_shadows(shapes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     return 2 * np.sqrt(lam[:, 1]), 2 * np.sqrt(lam[:, 0]), angles
 
 
-def _color_for(label: str, index: int) -> str:
+def color_for(label: str, index: int) -> str:
     for key, color in PLANNER_COLORS.items():
         if key in label.lower():
             return color
@@ -369,7 +369,7 @@ def _draw_plans(ax: Axes, plans: Sequence[Any], ellipse_every: int) -> list[Any]
     handles: list[Any] = []
     for i, plan in enumerate(plans):
         label = str(getattr(plan, "planner", f"plan {i}"))
-        color = _color_for(label, i)
+        color = color_for(label, i)
         pos = np.asarray(plan.positions, dtype=float).reshape(-1, 3)
         ax.plot(pos[:, 0], pos[:, 1], "--", color=color, linewidth=1.6, zorder=5)
         handles.append(Line2D([], [], color=color, linestyle="--", label=f"{label} plan"))
@@ -401,7 +401,7 @@ def _draw_paths(ax: Axes, realised_paths: Mapping[str, np.ndarray] | None) -> li
     handles: list[Any] = []
     for i, (label, path) in enumerate((realised_paths or {}).items()):
         p = np.asarray(path, dtype=float).reshape(-1, 3)
-        color = _color_for(label, i)
+        color = color_for(label, i)
         ax.plot(p[:, 0], p[:, 1], "-", color=color, linewidth=2.2, zorder=6)
         handles.append(Line2D([], [], color=color, linewidth=2.2, label=f"{label} realised"))
     return handles
@@ -510,61 +510,6 @@ def _frame(ax: Axes, bounds: Bounds, title: str | None, handles: list[Any]) -> N
         ax.legend(
             handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False
         )
-
-
-def speed_profile_figure(
-    series: Mapping[str, tuple[np.ndarray, np.ndarray]],
-    out_path: str | os.PathLike[str],
-    *,
-    markers: Mapping[str, Sequence[tuple[float, str]]] | None = None,
-    speed_limit: float | None = None,
-    title: str | None = None,
-) -> Path:
-    """Speed over time of several runs (e.g. secure vs baseline), saved as an image.
-
-    Parameters
-    ----------
-    series : mapping label -> (t (T,) float, speed (T,) float)
-        Time (s) and speed (m/s) of each run; the legend shows each run's duration.
-    out_path : str or Path
-        Image file to write (atomically).
-    markers : mapping label -> sequence of (t, text), optional
-        Events to mark on a run's curve (e.g. ``(2.1, "hidden obstacle seen")``).
-    speed_limit : float, optional
-        Drawn as a dotted horizontal line (m/s).
-    """
-    if not series:
-        raise ConfigError("series: need at least one (t, speed) series")
-    fig = Figure(figsize=(8.0, 3.6))
-    ax = fig.add_subplot(1, 1, 1)
-    for i, (label, (t, v)) in enumerate(series.items()):
-        t = np.asarray(t, dtype=float).reshape(-1)
-        v = np.asarray(v, dtype=float).reshape(-1)
-        if t.shape != v.shape or len(t) == 0:
-            raise GeometryError(
-                f"series[{label!r}]: need equal, non-empty t and speed, got {t.shape} and {v.shape}"
-            )
-        color = _color_for(label, i)
-        duration = t[-1] - t[0]
-        ax.plot(t, v, color=color, linewidth=2.0, label=f"{label} ({duration:.2f} s)")
-        for tm, text in (markers or {}).get(label, ()):
-            vm = np.interp(tm, t, v)
-            ax.plot([tm], [vm], "x", color="red", markersize=10, markeredgewidth=2.5, zorder=5)
-            ax.annotate(
-                text, (tm, vm), textcoords="offset points", xytext=(6, 8), fontsize=8, color=color
-            )
-    if speed_limit is not None:
-        ax.axhline(speed_limit, color="0.4", linestyle=":", linewidth=1.2, label="speed limit")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("speed (m/s)")
-    top = max([float(np.nanmax(np.asarray(v, dtype=float))) for _, v in series.values()] + [0.0])
-    top = max(top, speed_limit or 0.0)
-    ax.set_ylim(0.0, 1.08 * top if top > 0 else 1.0)
-    ax.grid(True, linewidth=0.4, alpha=0.5)
-    ax.legend(fontsize=9, frameon=False)
-    if title:
-        ax.set_title(title)
-    return save_figure(fig, out_path)
 
 
 def _points(points: Mapping[str, np.ndarray] | Sequence[np.ndarray] | None) -> np.ndarray:

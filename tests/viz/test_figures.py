@@ -16,10 +16,10 @@ from secure3d.viz.figures import (
     draw_top_down,
     ellipse_shadows,
     save_figure,
-    speed_profile_figure,
     top_down_figure,
     top_down_panels,
 )
+from secure3d.viz.speed_figure import speed_profile_figure
 from secure3d.world.spec import Bounds, Box
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
