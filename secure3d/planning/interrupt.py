@@ -31,6 +31,10 @@ __all__ = ["budget_spent", "deadline", "interruptible", "stop_callback", "stoppe
 _requested = threading.Event()
 _budget = threading.local()
 
+#: The next IPOPT iteration is taken to cost up to this many times the longest one so far within
+#: the plan call's budget (see ``_StopCallback.eval``).
+ITERATION_SAFETY = 2.0
+
 
 def _deadline_now() -> float:
     return getattr(_budget, "deadline", math.inf)
@@ -51,11 +55,14 @@ def stopped_for_budget() -> bool:
 def deadline(seconds: float) -> Iterator[None]:
     """Give the solves inside a wall-time budget of ``seconds`` (nested budgets keep the earlier)."""
     outer = _deadline_now()
+    outer_longest = getattr(_budget, "longest", 0.0)
     _budget.deadline = min(outer, time.monotonic() + float(seconds))
+    _budget.longest = 0.0  # the longest IPOPT iteration within this budget
     try:
         yield
     finally:
         _budget.deadline = outer
+        _budget.longest = outer_longest
 
 
 class _StopCallback(ca.Callback):
@@ -82,14 +89,18 @@ class _StopCallback(ca.Callback):
         return self._sizes[ca.nlpsol_out(i)]
 
     def eval(self, args: list) -> list:
-        # Stop when the budget would be spent before the next iteration ends (an iteration costs
-        # about as long as the last one): a budget is a bound, not a point to overrun by one
-        # iteration (up to 2.1 s over a 10 s budget under load, issue 16).
+        # Stop when the budget would be spent before the next iteration ends: a budget is a
+        # bound, not a point to overrun by one iteration. The next iteration is taken to cost up
+        # to ITERATION_SAFETY times the longest one of this plan call so far (the solve's set-up
+        # included): with the last iteration's length alone, calls overran a 10 s budget by up to
+        # 2.1-5.7 s in campaigns under load (issue 16), where one iteration can take several
+        # times the one before it (a restoration phase, a busy machine).
         now = time.monotonic()
-        last = getattr(_budget, "last_iteration", None)  # reset by interruptible() per solve
+        last = getattr(_budget, "last_iteration", None)  # set by interruptible() per solve
         _budget.last_iteration = now
         gap = now - last if last is not None else 0.0
-        if budget_spent(ahead=gap):
+        _budget.longest = max(getattr(_budget, "longest", 0.0), gap)
+        if budget_spent(ahead=ITERATION_SAFETY * _budget.longest):
             _budget.stopped = True
             return [1.0]
         return [1.0 if _requested.is_set() else 0.0]
@@ -119,7 +130,7 @@ def interruptible() -> Iterator[None]:
     Outside the main thread (where Python cannot set signal handlers) it changes nothing. It also
     starts the solve's iteration clock, by which the budget stops a solve one iteration early.
     """
-    _budget.last_iteration = None
+    _budget.last_iteration = time.monotonic()  # the first gap includes the solve's set-up
     _budget.stopped = False
     with held_sigint(_requested, "plan interrupted"):
         yield

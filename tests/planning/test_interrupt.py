@@ -61,3 +61,34 @@ def test_a_plan_call_stops_when_its_wall_time_budget_is_spent(maps_dir):
     assert cut.iterations < full.iterations
     # the guess and the look-back assignment are not solves: allow for them, not for a retry
     assert wall < budget + 3.0, wall
+
+
+def test_the_budget_stops_a_solve_before_an_iteration_twice_the_longest_would_overrun(monkeypatch):
+    """The iteration callback stops once the budget could be spent by an iteration
+    ITERATION_SAFETY times the longest one within the call's budget so far (the solve's set-up
+    included), not merely as long as the last one: a short iteration after a long one still stops
+    in time for another long one."""
+    import types
+
+    from secure3d.planning import interrupt
+
+    clock = types.SimpleNamespace(now=100.0)
+    monkeypatch.setattr(interrupt, "time", types.SimpleNamespace(monotonic=lambda: clock.now))
+    callback = interrupt.stop_callback(1, 1, 1)
+    args = [[0.0]] * 6
+
+    def iteration(seconds: float) -> bool:
+        clock.now += seconds
+        return bool(callback.eval(args)[0])
+
+    with interrupt.deadline(10.0), interrupt.interruptible():
+        assert not iteration(0.5)  # set-up and first iteration
+        assert not iteration(2.0)  # a long one: 2.5 s spent, the next might take 4 s
+        assert not iteration(0.1)  # 2.6 s: 2.6 + 4.0 < 10
+        assert not iteration(0.1)  # 2.7
+        stopped = [iteration(1.0) for _ in range(8)]  # 3.7, 4.7, 5.7, 6.7 (+4 >= 10: stop)
+    first_stop = stopped.index(True)
+    assert first_stop == 3, stopped
+    assert interrupt.stopped_for_budget()
+    # (with the last iteration's length alone it would have run on to 9.7 s, where an iteration
+    # as long as the long one ends at 11.7 s, past the budget)
