@@ -53,11 +53,12 @@ LAYERS = ("geometry", "mapping", "dynamics", "reactive", "world", "planning", "s
 
 def layer(mod: str) -> int:
     """0 for package-wide helpers (errors, outputs, ...), 1.. for LAYERS, 99 for the edges that
-    consume everything (the CLI, ``secure3d.warm``, the ``secure3d paper`` application)."""
+    consume everything (the CLI, ``secure3d.warm``, the ``secure3d paper`` application, and
+    ``secure3d.session``: a flight with its recording and figure)."""
     parts = mod.split(".")
     if len(parts) > 1 and parts[1] in LAYERS:
         return LAYERS.index(parts[1]) + 1
-    edges = ("secure3d", "secure3d.__main__", "secure3d.warm", "secure3d.paper")
+    edges = ("secure3d", "secure3d.__main__", "secure3d.warm", "secure3d.paper", "secure3d.session")
     if mod in edges or mod.startswith("secure3d.cli"):
         return 99
     return 0

@@ -12,8 +12,10 @@ import os
 from collections.abc import Mapping
 from pathlib import Path
 
-from secure3d.simulation.campaign import comparison_figures, comparison_table, fly_planners
+from secure3d.session import fly_planners
 from secure3d.simulation.closed_loop import SimResult
+from secure3d.simulation.compare import comparison_table
+from secure3d.viz.run_figures import comparison_figures
 from secure3d.world import Scenario
 
 #: The scenario files the examples load.

@@ -29,7 +29,7 @@ _EXPORTS = {
     "plan": "secure3d.planning.solve",
     "PlanResult": "secure3d.planning.result",
     "certify": "secure3d.planning.certificate",
-    "simulate": "secure3d.simulation.closed_loop",
+    "simulate": "secure3d.session",
     "SimResult": "secure3d.simulation.closed_loop",
 }
 
@@ -40,8 +40,8 @@ if TYPE_CHECKING:  # pragma: no cover - the real types for checkers and IDEs
     from secure3d.planning.certificate import certify as certify
     from secure3d.planning.result import PlanResult as PlanResult
     from secure3d.planning.solve import plan as plan
+    from secure3d.session import simulate as simulate
     from secure3d.simulation.closed_loop import SimResult as SimResult
-    from secure3d.simulation.closed_loop import simulate as simulate
     from secure3d.world.scenario import load_scenario as load_scenario
     from secure3d.world.spec import Scenario as Scenario
 

@@ -264,7 +264,9 @@ def _failure_defaults(args: argparse.Namespace) -> None:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from secure3d.simulation.campaign import comparison_figures, comparison_table, fly_planners
+    from secure3d.session import fly_planners
+    from secure3d.simulation.compare import comparison_table
+    from secure3d.viz.run_figures import comparison_figures
     from secure3d.world.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)

@@ -33,13 +33,13 @@ def _rerun_command() -> str:
 
 
 def _demo(args: argparse.Namespace) -> int:
+    from secure3d.session import fly_planners
     from secure3d.simulation.campaign import (
         PAPER_BLIND_CORNER,
         PAPER_BLIND_CORNER_LABEL,
-        comparison_figures,
         comparison_table,
-        fly_planners,
     )
+    from secure3d.viz.run_figures import comparison_figures
     from secure3d.world.scenario import load_scenario
 
     scenario = load_scenario(args.scenario or _bundled_scenario("blind_corner"))

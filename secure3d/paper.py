@@ -249,7 +249,7 @@ def _closed_loop_outcome(result: SimResult) -> str:
 def blind_corner(out: Path, options: dict, progress: Callable[[str], None]) -> PaperRun:
     """The blind corner: both plans (open loop), then both flights (closed loop)."""
     from secure3d.planning import NLPCache
-    from secure3d.simulation.campaign import fly_planners
+    from secure3d.session import fly_planners
     from secure3d.world import load_scenario
 
     scenario = load_scenario(MAPS / "paper_blind_corner.yaml")

@@ -10,7 +10,7 @@ import pytest
 import secure3d
 from secure3d.errors import OutputError
 from secure3d.outputs import atomic_write_text, check_output_path, temporary_path
-from secure3d.simulation.closed_loop import simulate
+from secure3d.session import simulate
 
 
 @pytest.mark.parametrize(

@@ -23,9 +23,8 @@ and writes into its folder
 This module holds the records, statistics and reports; the machinery lives in
 :mod:`~secure3d.simulation.campaign_run`.
 
-:func:`fly_planners` flies one scenario with each planner; :func:`comparison_table` and
-:func:`comparison_figures` present those runs side by side (``secure3d simulate``, ``secure3d
-demo`` and the examples use them).
+:func:`comparison_table` presents one scenario's runs by each planner side by side (flown by
+:func:`secure3d.session.fly_planners`, drawn by :mod:`secure3d.viz.run_figures`).
 """
 
 from __future__ import annotations
@@ -60,9 +59,7 @@ from secure3d.simulation.campaign_records import (
 )
 from secure3d.simulation.compare import (
     COMPARISON_COLUMNS,
-    comparison_figures,
     comparison_table,
-    fly_planners,
     format_table,
 )
 from secure3d.validation import is_int_in
@@ -85,10 +82,8 @@ __all__ = [
     "PlannerStats",
     "RunRecord",
     "atomic_write_text",
-    "comparison_figures",
     "comparison_table",
     "error_record",
-    "fly_planners",
     "format_table",
     "planner_stats",
     "price_of_security",

@@ -1,4 +1,5 @@
-"""``secure3d.simulate``: the paper's Algorithm 1 in closed loop, against the true world.
+"""The paper's Algorithm 1 in closed loop, against the true world (:func:`secure3d.simulate` adds
+the run's files: a Rerun recording and a figure, :mod:`secure3d.session`).
 
 Reads like the block diagram::
 
@@ -28,7 +29,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from secure3d.errors import SimulationError
-from secure3d.outputs import check_output_path
 from secure3d.simulation.flight import Flight
 from secure3d.simulation.guard import TrackingGuard
 from secure3d.simulation.loop import (
@@ -39,7 +39,6 @@ from secure3d.simulation.loop import (
     Loop,
     observed_box,
     scan_headings,
-    voxel_drawing,
 )
 from secure3d.simulation.loop import Loop as _Loop  # noqa: F401  (older name, kept for tests)
 from secure3d.simulation.loop import new_obstacle_voxels as _new_obstacle_voxels  # noqa: F401
@@ -124,9 +123,8 @@ def simulate(
     scenario: Scenario | str | Path,
     planner: str = "secure",
     seed: int = 0,
-    rrd: str | Path | None = None,
-    png: str | Path | None = None,
     *,
+    recorder: Recorder | None = None,
     cache: object | None = None,
     max_replans: int = 25,
     look_around: bool = False,
@@ -149,8 +147,9 @@ def simulate(
     scenario : a Scenario or the path of a scenario YAML file.
     planner : ``"secure"`` or ``"baseline"``.
     seed : seeds the camera noise and dropout (runs are deterministic for a seed).
-    rrd : write a Rerun recording of the run there (atomically); replay with ``rerun FILE.rrd``.
-    png : write the top-down figure of the run there (atomically).
+    recorder : where the run is logged as it happens (default: nowhere); aborted here if the
+        flight raises, else closed by the caller. :func:`secure3d.simulate` opens a Rerun recording here for ``rrd=`` and draws the
+        figure of ``png=`` from the result: the simulator itself writes no files.
     cache : an :class:`~secure3d.planning.collocation.NLPCache` for the compiled NLPs (default: the
         planner's module-wide cache, so runs in one process build each NLP shape once).
     max_replans : give up (robot holds still) after this many failed or successful replans. It
@@ -191,9 +190,6 @@ def simulate(
         raise SimulationError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
     replan_latency = check_replan_seconds("replan_latency", replan_latency)
     replan_defer = replan_defer_for(replan_defer, replan_latency)
-    # the output contract: a path that cannot be written fails now, not after the flight
-    rrd = None if rrd is None else check_output_path(rrd, (".rrd",), "rrd")
-    png = None if png is None else check_output_path(png, (".png",), "png")
     wall0 = time.perf_counter()
     loop = Loop(scenario, planner, seed, dict(options), cache)
     settings = RunSettings(
@@ -214,12 +210,8 @@ def simulate(
         explore=explore,
     )
 
-    recorder: Recorder = NULL_RECORDER
-    if rrd is not None:
-        from secure3d.viz.rerun_log import RerunRecorder, recording_id
-
-        recorder = RerunRecorder(rrd, recording_id=recording_id(f"{scenario.name}-{planner}", seed))
-    setup_time = time.perf_counter() - wall0  # take-off: the recording is open, the NLP compiled
+    recorder = NULL_RECORDER if recorder is None else recorder
+    setup_time = time.perf_counter() - wall0  # take-off: the NLP compiled
     try:
         if tracker is not None:
             loop.tracker = tracker
@@ -228,27 +220,4 @@ def simulate(
     except BaseException:
         recorder.abort()
         raise
-    outputs: dict[str, Path] = {}
-    if rrd is not None:
-        outputs["rrd"] = recorder.close()
-    if png is not None:
-        from secure3d.viz.figures import top_down_figure
-
-        outputs["png"] = top_down_figure(
-            scenario.world.bounds,
-            scenario.world.boxes,
-            true_meshes=scenario.world.meshes,
-            out_path=png,
-            hidden_names=scenario.hidden_obstacles,
-            plans=[p for _, p in result.plans[:1]],
-            realised_paths={planner: result.positions},
-            detection_points=[result.detection_point]
-            if result.detection_point is not None
-            else None,
-            start=np.asarray(scenario.start.position),
-            goal=settings.goal,
-            collision_points=[result.positions[-1]] if result.collided else (),
-            title=f"{scenario.name}: {planner} ({result.outcome})",
-            **voxel_drawing(scenario, loop),
-        )
-    return dataclasses.replace(result, setup_time=setup_time, outputs=outputs)
+    return dataclasses.replace(result, setup_time=setup_time)

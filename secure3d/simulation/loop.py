@@ -165,26 +165,6 @@ def voxel_colors(scenario: Scenario) -> np.ndarray | None:
     return None if w.octomap is None else octomap_voxel_colors(w.octomap, "world.octomap")
 
 
-def voxel_drawing(scenario: Scenario, loop: Loop) -> dict:
-    """Keyword arguments drawing ``world.octomap``'s voxels (in a colour tree's colours) and the
-    server map's claimed voxels when it is a file or is attacked by region."""
-    from secure3d.world.attacks import server_claim
-
-    claim = server_claim(scenario)
-    file_claim = claim.bt is not None or claim.cloud is not None or claim.mesh is not None
-    claimed = None
-    if file_claim or claim.regions:
-        from secure3d.world.attacks import belief_map
-
-        claimed = belief_map(scenario).claimed_voxels(True)
-    return {
-        "voxel_boxes": loop.truth.voxel_boxes,
-        "voxel_colors": voxel_colors(scenario),
-        "claimed_voxels": claimed,
-        "voxel_size": scenario.server_map.resolution,
-    }
-
-
 def new_obstacle_voxels(loop: Loop, occupied_codes: np.ndarray) -> np.ndarray:
     """Centres ``(n, 3)`` of the known obstacle voxels among those a frame (already inserted)
     updated as occupied (``occupied_codes``, Morton codes) that the boxes the current plan was last

@@ -29,7 +29,7 @@ from secure3d.simulation.campaign import (
 )
 from secure3d.simulation.campaign_store import RUNS_NAME, read_runs
 from secure3d.simulation.closed_loop import SimEvent, simulate
-from secure3d.simulation.compare import _speed_markers
+from secure3d.viz.run_figures import _speed_markers
 from secure3d.world import load_scenario
 from secure3d.world.attacks import hidden_obstacle_family
 from secure3d.world.families import family_variants

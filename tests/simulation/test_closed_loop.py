@@ -48,7 +48,7 @@ def test_blind_corner_secure_flight_sees_the_crate_and_arrives_without_collision
     maps_dir, tmp_path
 ):
     scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
-    run = simulate(
+    run = secure3d.simulate(
         scenario,
         "secure",
         rrd=tmp_path / "secure.rrd",

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from secure3d.simulation.closed_loop import simulate
+from secure3d.session import simulate
 
 MAPS = Path(__file__).resolve().parents[2] / "maps"
 
