@@ -293,13 +293,11 @@ class RerunRecorder:
         near-black under ``world/truth/hidden``; claimed obstacles absent from the truth (by name)
         are phantoms, drawn magenta.
         """
-        rr = self._rr
         rec = self._static()
-        hidden = set(hidden_names)
         if bounds is not None:
             rec.log(
                 "world/bounds",
-                rr.Boxes3D(
+                self._rr.Boxes3D(
                     mins=[bounds.lo],
                     sizes=[np.subtract(bounds.hi, bounds.lo)],
                     colors=[(90, 90, 90, 255)],
@@ -307,8 +305,37 @@ class RerunRecorder:
                 ),
                 static=True,
             )
+        self._log_truth(rec, true_boxes, true_meshes, set(hidden_names))
+        if true_voxels is not None and len(true_voxels):
+            colors = (
+                [_TRUE_COLOR] * len(true_voxels)
+                if true_voxel_colors is None
+                else np.asarray(true_voxel_colors, np.uint8)
+            )
+            rec.log(
+                "world/truth/voxels",
+                self._rr.Boxes3D(
+                    mins=true_voxels[:, 0],
+                    sizes=true_voxels[:, 1] - true_voxels[:, 0],
+                    colors=colors,
+                    fill_mode="Solid",
+                ),
+                static=True,
+            )
+        true_names = {o.name for o in (*true_boxes, *true_meshes)}
+        self._log_claim(rec, claimed_boxes, claimed_meshes, true_names)
+
+    def _log_truth(
+        self,
+        rec: Any,
+        boxes: Sequence[Box],
+        meshes: Sequence[MeshObstacle],
+        hidden: set[str],
+    ) -> None:
+        """The true obstacles: solid, the hidden ones near-black under ``world/truth/hidden``."""
+        rr = self._rr
         for group, keep in (("obstacles", False), ("hidden", True)):
-            sel = [b for b in true_boxes if (b.name in hidden) == keep]
+            sel = [b for b in boxes if (b.name in hidden) == keep]
             if sel:
                 rec.log(
                     f"world/truth/{group}",
@@ -322,7 +349,7 @@ class RerunRecorder:
                     ),
                     static=True,
                 )
-        for m in true_meshes:
+        for m in meshes:
             color = _HIDDEN_COLOR if m.name in hidden else _TRUE_COLOR
             rec.log(
                 f"world/truth/meshes/{rr.escape_entity_path_part(m.name)}",
@@ -333,37 +360,30 @@ class RerunRecorder:
                 ),
                 static=True,
             )
-        if true_voxels is not None and len(true_voxels):
-            colors = (
-                [_TRUE_COLOR] * len(true_voxels)
-                if true_voxel_colors is None
-                else np.asarray(true_voxel_colors, np.uint8)
-            )
-            rec.log(
-                "world/truth/voxels",
-                rr.Boxes3D(
-                    mins=true_voxels[:, 0],
-                    sizes=true_voxels[:, 1] - true_voxels[:, 0],
-                    colors=colors,
-                    fill_mode="Solid",
-                ),
-                static=True,
-            )
-        true_names = {o.name for o in (*true_boxes, *true_meshes)}
-        if claimed_boxes:
+
+    def _log_claim(
+        self,
+        rec: Any,
+        boxes: Sequence[Box],
+        meshes: Sequence[MeshObstacle],
+        true_names: set[str],
+    ) -> None:
+        """The server's claim, wireframe; obstacles absent from the truth (phantoms) magenta."""
+        rr = self._rr
+        if boxes:
             rec.log(
                 "world/server/claimed",
                 rr.Boxes3D(
-                    mins=[b.lo for b in claimed_boxes],
-                    sizes=[np.subtract(b.hi, b.lo) for b in claimed_boxes],
-                    labels=[_claim_label(b.name, true_names) for b in claimed_boxes],
-                    colors=[_claim_color(b.name, true_names) for b in claimed_boxes],
+                    mins=[b.lo for b in boxes],
+                    sizes=[np.subtract(b.hi, b.lo) for b in boxes],
+                    labels=[_claim_label(b.name, true_names) for b in boxes],
+                    colors=[_claim_color(b.name, true_names) for b in boxes],
                     fill_mode="MajorWireframe",
                     show_labels=False,
                 ),
                 static=True,
             )
-        for m in claimed_meshes:
+        for m in meshes:
             rec.log(
                 f"world/server/meshes/{rr.escape_entity_path_part(m.name)}",
                 rr.Mesh3D(
