@@ -157,6 +157,37 @@ def _simulate(
     return manoeuvre_points(controller, X, dt, u_hold, **context)
 
 
+def _inflation(
+    base: FittedFamily,
+    X: np.ndarray,
+    scal: np.ndarray,
+    pts: np.ndarray,
+    off: np.ndarray,
+    margin: float,
+    floor: float,
+) -> np.ndarray:
+    """The inflation coefficients eta: the envelope of what each fitting manoeuvre needs (plus
+    ``margin``) over the uninflated family ``base``, weighted by d(volume)/d(eta)."""
+    r = base.model.body_radius
+    C, M = base.ellipsoid_batch(X)
+    need = _clearance.required_inflation(pts, off, C, M, r)
+    # d(volume)/d(eta) of each ellipsoid: the sum of pairwise products of its semi-axes.
+    ev = np.linalg.eigvalsh(M)
+    weight = ev[:, 0] * ev[:, 1] + ev[:, 0] * ev[:, 2] + ev[:, 1] * ev[:, 2]
+    return _envelope(scal, need + margin, weight, floor)
+
+
+def _volumes(fam: FittedFamily, model: VehicleModel, latency: float, X: np.ndarray) -> dict:
+    """Mean volume of ``fam``'s sets over ``X``, against the closed-form family's."""
+    vol = fam.volume_batch(X).mean()
+    vol_cf = closed_form_family(model, latency).volume_batch(X).mean()
+    return {
+        "mean_volume": float(vol),
+        "mean_volume_closed_form": float(vol_cf),
+        "volume_ratio": float(vol / vol_cf),
+    }
+
+
 def fit_family(
     model: VehicleModel,
     controller: Any,
@@ -218,13 +249,7 @@ def fit_family(
 
     zeros = np.zeros(scal.shape[1])
     base = FittedFamily(model, controller.name, controller.latency, name, a, beta, gamma, zeros)
-    C, M = base.ellipsoid_batch(X)
-    need = _clearance.required_inflation(pts, off, C, M, r)
-    # d(volume)/d(eta) of each ellipsoid: the sum of pairwise products of its semi-axes.
-    ev = np.linalg.eigvalsh(M)
-    weight = ev[:, 0] * ev[:, 1] + ev[:, 0] * ev[:, 2] + ev[:, 1] * ev[:, 2]
-    floor = -beta[0] + 0.25 * r
-    eta = _envelope(scal, need + margin, weight, floor)
+    eta = _inflation(base, X, scal, pts, off, margin, floor=-beta[0] + 0.25 * r)
     step("inflation")
 
     n_val = n_samples if n_validation is None else int(n_validation)
@@ -255,14 +280,6 @@ def fit_family(
         "fit_seconds": round(time.perf_counter() - t0, 2),
     }
     fam = FittedFamily(model, controller.name, controller.latency, name, a, beta, gamma, eta, meta)
-    vol = fam.volume_batch(Xv).mean()
-    vol_cf = closed_form_family(model, controller.latency).volume_batch(Xv).mean()
-    fam.meta.update(
-        {
-            "mean_volume": float(vol),
-            "mean_volume_closed_form": float(vol_cf),
-            "volume_ratio": float(vol / vol_cf),
-        }
-    )
+    fam.meta.update(_volumes(fam, model, controller.latency, Xv))
     step("volumes")
     return fam
