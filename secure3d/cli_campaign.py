@@ -17,7 +17,9 @@ from secure3d.cli_common import (
 
 def _planner_names(text: str) -> tuple[str, ...]:
     names = tuple(p.strip() for p in text.split(",") if p.strip())
-    bad = [p for p in names if p not in ("secure", "baseline")]
+    from secure3d.planning.problem import Planner  # here: `secure3d show` never loads CasADi
+
+    bad = [p for p in names if p not in tuple(Planner)]
     if bad or not names:
         raise argparse.ArgumentTypeError(
             f"expected a comma-separated list of secure, baseline (got {text!r})"

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from secure3d.outputs import atomic_write_text
+from secure3d.planning.problem import Planner
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.collocation import NLPCache
@@ -185,7 +186,7 @@ def _flight_panel(scenario: Scenario, result: SimResult, title: str) -> dict:
 def _plan_both(scenario: Scenario, options: dict, cache: NLPCache) -> list[PlanResult]:
     from secure3d.planning import plan
 
-    return [plan(scenario, planner, cache=cache, **options) for planner in ("secure", "baseline")]
+    return [plan(scenario, planner, cache=cache, **options) for planner in Planner]
 
 
 def passages(out: Path, options: dict, progress: Callable[[str], None]) -> PaperRun:
@@ -207,7 +208,7 @@ def passages(out: Path, options: dict, progress: Callable[[str], None]) -> Paper
                 Row(
                     name,
                     p.planner,
-                    paper_time if p.planner == "secure" else None,
+                    paper_time if p.planner == Planner.SECURE else None,
                     p.final_time if p.ok else None,
                     PAPER_SOLVE["passage"][p.planner],
                     p.solve_time,
@@ -234,7 +235,7 @@ def passages(out: Path, options: dict, progress: Callable[[str], None]) -> Paper
 def _plan_outcome(plan: PlanResult) -> str:
     if not plan.ok:
         return plan.status.value
-    return "certified plan" if plan.planner == "secure" else "plan"
+    return "certified plan" if plan.planner == Planner.SECURE else "plan"
 
 
 def _closed_loop_outcome(result: SimResult) -> str:

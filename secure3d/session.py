@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from secure3d.outputs import check_output_path
+from secure3d.planning.problem import Planner
 from secure3d.simulation.campaign_records import PLANNERS
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -51,7 +52,7 @@ def simulate(
     from secure3d.errors import SimulationError
     from secure3d.simulation import closed_loop
 
-    if planner not in ("secure", "baseline"):  # before any file is opened
+    if planner not in tuple(Planner):  # before any file is opened
         raise SimulationError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
     if isinstance(scenario, (str, Path)):
         from secure3d.world.scenario import load_scenario

@@ -133,3 +133,14 @@ def test_a_reader_that_closes_the_pipe_gets_no_traceback(maps_dir):
     assert "Traceback" not in err, err
     assert err.strip().count("\n") == 0 and "broken pipe" in err, err
     assert child.returncode == 1
+
+
+def test_the_cli_loads_without_casadi_or_open3d():
+    """``secure3d show`` and ``--help`` must not pay for the solver or the ray caster: every
+    runner imports what it needs inside its body."""
+    code = (
+        "import sys, secure3d.cli; "
+        "print(sorted(m for m in ('casadi', 'open3d', 'numba') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout

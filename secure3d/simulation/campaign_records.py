@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from secure3d.errors import ConfigError
+from secure3d.planning.problem import Planner
 from secure3d.validation import is_int_in
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -276,10 +277,12 @@ def price_of_security(records: Sequence[RunRecord]) -> tuple[float, int]:
     seed). The paper's blind corner gives 2.50 s / 1.67 s = 1.50. NaN and 0 without such pairs.
     """
     secure = {
-        r.variant: r.time_to_goal for r in records if r.planner == "secure" and r.reached_goal
+        r.variant: r.time_to_goal for r in records if r.planner == Planner.SECURE and r.reached_goal
     }
     base = {
-        r.variant: r.time_to_goal for r in records if r.planner == "baseline" and r.reached_goal
+        r.variant: r.time_to_goal
+        for r in records
+        if r.planner == Planner.BASELINE and r.reached_goal
     }
     both = sorted(set(secure) & set(base))
     if not both:

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from secure3d.errors import SimulationError
+from secure3d.planning.problem import Planner
 from secure3d.simulation.flight import Flight
 from secure3d.simulation.guard import TrackingGuard
 from secure3d.simulation.loop import (
@@ -186,7 +187,7 @@ def simulate(
         from secure3d.world.scenario import load_scenario
 
         scenario = load_scenario(scenario)
-    if planner not in ("secure", "baseline"):
+    if planner not in tuple(Planner):
         raise SimulationError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
     replan_latency = check_replan_seconds("replan_latency", replan_latency)
     replan_defer = replan_defer_for(replan_defer, replan_latency)
@@ -215,7 +216,7 @@ def simulate(
     try:
         if tracker is not None:
             loop.tracker = tracker
-        guard = TrackingGuard(loop) if tracking_guard and planner == "secure" else None
+        guard = TrackingGuard(loop) if tracking_guard and planner == Planner.SECURE else None
         result = Flight(loop, recorder, settings, guard).run()
     except BaseException:
         recorder.abort()

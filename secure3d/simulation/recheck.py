@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from secure3d.planning.problem import Planner
+
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.result import PlanResult
     from secure3d.simulation.loop import Loop
@@ -64,7 +66,7 @@ def plan_unsafe(
     only if that does not show it safe."""
     from secure3d.planning.certificate import certify, sample_plan, views_after_adding
 
-    if loop.planner == "secure":
+    if loop.planner == Planner.SECURE:
         judged = dataclasses.replace(plan_problem_, boxes_lo=lo, boxes_hi=hi)
         rec = loop.rechecks.get(id(plan))
         if rec is None or rec.plan is not plan:
