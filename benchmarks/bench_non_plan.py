@@ -29,6 +29,7 @@ from _common import REPO, atomic_write_text, fmt, machine_info, markdown_table
 _FLY = """
 import json, sys
 import secure3d
+assert secure3d.__file__.startswith(sys.argv[3]), secure3d.__file__
 out = {}
 for planner in sys.argv[2].split(","):
     run = secure3d.simulate(sys.argv[1], planner, seed=0)
@@ -43,8 +44,9 @@ print(json.dumps(out))
 def fly(tree: Path, scenario: Path, planners: str) -> dict:
     """Every planner's flight of ``scenario`` with the package of ``tree``, in a new process."""
     env = dict(os.environ, PYTHONPATH=str(tree))
-    done = subprocess.run(
-        [sys.executable, "-c", _FLY, str(scenario), planners],
+    done = subprocess.run(  # run in the tree: ``-c`` puts the working folder first on sys.path
+        [sys.executable, "-c", _FLY, str(scenario.resolve()), planners, str(tree)],
+        cwd=tree,
         capture_output=True,
         text=True,
         env=env,
