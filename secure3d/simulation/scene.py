@@ -12,7 +12,7 @@ Voxel boxes are passed as one ``(n, 2, 3)`` array of ``[lo, hi]`` corners and sh
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import trimesh
@@ -95,17 +95,37 @@ def _grid_cells(ilo: np.ndarray, ihi: np.ndarray) -> tuple[np.ndarray, np.ndarra
     """Every grid cell (m, 3) int64 of the integer boxes [ilo, ihi), and the box of each (m,)."""
     ext = ihi - ilo
     cells, owner = [np.zeros((0, 3), np.int64)], [np.zeros(0, np.int64)]
-    for shape in np.unique(ext, axis=0):  # one batch per box size (octomap: 1, 2, 4, ... cells)
-        rows = np.flatnonzero(np.all(ext == shape, axis=1))
+    k = int(ext.max()) + 1 if len(ext) else 1
+    size_key = (ext[:, 0] * k + ext[:, 1]) * k + ext[:, 2]
+    sizes, first, which = np.unique(size_key, return_index=True, return_inverse=True)
+    for g in range(len(sizes)):  # one batch per box size (octomap: 1, 2, 4, ... cells)
+        shape = ext[first[g]]
+        rows = np.flatnonzero(which == g)
         offs = np.stack(np.meshgrid(*(np.arange(k) for k in shape), indexing="ij"), -1)
         cells.append((ilo[rows, None, :] + offs.reshape(1, -1, 3)).reshape(-1, 3))
         owner.append(np.repeat(rows, offs.size // 3))
     return np.concatenate(cells), np.concatenate(owner)
 
 
-def _cell_keys(cells: np.ndarray, base: np.ndarray, span: np.ndarray) -> np.ndarray:
-    c = cells - base
-    return (c[:, 0] * span[1] + c[:, 1]) * span[2] + c[:, 2]
+#: Largest grid (cells) held as a dense boolean array; larger ones are looked up in sorted keys.
+_DENSE_CELLS = 1 << 26
+
+
+def _occupancy(cells: np.ndarray, span: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """Membership test for the grid cells ``cells`` (m, 3), all in ``[0, span)``: a function
+    from cells (k, 3) in that range to (k,) bool."""
+    if int(np.prod(span)) <= _DENSE_CELLS:
+        grid = np.zeros(tuple(int(v) for v in span), bool)
+        grid[tuple(cells.T)] = True
+        return lambda c: grid[tuple(c.T)]
+
+    def key(c: np.ndarray) -> np.ndarray:
+        return (c[:, 0] * span[1] + c[:, 1]) * span[2] + c[:, 2]
+
+    occupied = np.unique(key(cells))
+    return lambda c: (
+        occupied[np.minimum(np.searchsorted(occupied, key(c)), len(occupied) - 1)] == key(c)
+    )
 
 
 def exposed_sides(lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
@@ -127,7 +147,7 @@ def exposed_sides(lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
     ):
         return None
     base, span = ilo.min(axis=0) - 1, ihi.max(axis=0) - ilo.min(axis=0) + 3
-    occupied = np.unique(_cell_keys(_grid_cells(ilo, ihi)[0], base, span))
+    occupied = _occupancy(_grid_cells(ilo, ihi)[0] - base, span)
     exposed = np.zeros((len(lo), 6), bool)
     for axis in range(3):
         for sign in (0, 1):
@@ -138,9 +158,7 @@ def exposed_sides(lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
             else:
                 a[:, axis], b[:, axis] = ilo[:, axis] - 1, ilo[:, axis]
             cells, owner = _grid_cells(a, b)
-            keys = _cell_keys(cells, base, span)
-            pos = np.minimum(np.searchsorted(occupied, keys), len(occupied) - 1)
-            free = occupied[pos] != keys
+            free = ~occupied(cells - base)
             exposed[np.unique(owner[free]), 2 * axis + sign] = True
     return exposed
 
