@@ -177,6 +177,14 @@ def test_exposed_voxel_faces_give_the_same_depth_images_as_every_face():
     vb = _voxel_world(rng)
     sides = exposed_sides(vb[:, 0], vb[:, 1])
     assert sides is not None and 0 < sides.sum() < sides.size  # some faces are covered
+    import secure3d.simulation.scene as scene_module
+
+    dense_cells = scene_module._DENSE_CELLS
+    try:  # the sorted-key form for grids too large for a dense array: the same sides
+        scene_module._DENSE_CELLS = 0
+        np.testing.assert_array_equal(exposed_sides(vb[:, 0], vb[:, 1]), sides)
+    finally:
+        scene_module._DENSE_CELLS = dense_cells
     v, f = box_arrays(vb[:, 0], vb[:, 1])
     full = labelled_union([(VOXEL_NAME, tm.Trimesh(v, f, process=False))])
     reduced = world_trimesh(voxel_boxes=vb)
