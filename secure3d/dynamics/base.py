@@ -393,6 +393,14 @@ class VehicleModel(ABC):
         :class:`secure3d.reactive.reactive_set.CapsuleBound` takes them."""
         raise NotImplementedError(f"{type(self).__name__} has no capsule bound")
 
+    def braking_kernel(
+        self, deceleration: float, gains: Any
+    ) -> tuple[int, tuple[float, ...]] | None:
+        """The compiled form of the braking manoeuvre (:mod:`secure3d.dynamics._braking_kernels`):
+        the model's kind there and the law's parameters, or None (no kernel: a subclass that
+        changes the dynamics or the law must return None unless it has its own)."""
+        return None
+
     def braking_controls(
         self, X: np.ndarray, dt: float, deceleration: float, gains: Any
     ) -> np.ndarray:

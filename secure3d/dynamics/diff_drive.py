@@ -159,6 +159,14 @@ class DiffDrive(VehicleModel):
         t_brake = 2.0 * lim.max_speed / deceleration
         return max(t_brake, 2.0 * lim.max_ang_speed / lim.max_ang_accel), 0.5
 
+    def braking_kernel(
+        self, deceleration: float, gains: Any
+    ) -> tuple[int, tuple[float, ...]] | None:
+        """This law compiled (kind 2, the two acceleration limits); None for a subclass."""
+        if type(self) is not DiffDrive:
+            return None
+        return 2, (float(self.limits.max_accel), float(self.limits.max_ang_accel))
+
     def braking_controls(
         self, X: np.ndarray, dt: float, deceleration: float, gains: Any
     ) -> np.ndarray:

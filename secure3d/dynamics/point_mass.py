@@ -150,6 +150,12 @@ class PointMass(VehicleModel):
         a_hold = self.limits.max_accel * (1.0 if self.limits.accel_norm == "ball" else math.sqrt(3))
         return self.braking_deceleration, latency, a_hold, latency, 0.0
 
+    def braking_kernel(
+        self, deceleration: float, gains: Any
+    ) -> tuple[int, tuple[float, ...]] | None:
+        """This law compiled (kind 0, the deceleration); None for a subclass."""
+        return (0, (float(deceleration),)) if type(self) is PointMass else None
+
     def braking_controls(
         self, X: np.ndarray, dt: float, deceleration: float, gains: Any
     ) -> np.ndarray:

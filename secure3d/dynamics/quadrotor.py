@@ -263,6 +263,24 @@ class Quadrotor(VehicleModel):
         """Twice the braking time from the top speed; settling: 12 velocity time constants."""
         return 2.0 * self.limits.max_speed / deceleration, 12.0 * gains.velocity_time_constant
 
+    def braking_kernel(
+        self, deceleration: float, gains: QuadrotorBrakingGains
+    ) -> tuple[int, tuple[float, ...]] | None:
+        """This law compiled (kind 1; gravity, deceleration, gains, rate and thrust limits); None
+        for a subclass."""
+        if type(self) is not Quadrotor:
+            return None
+        lim = self.limits
+        return 1, (
+            lim.gravity,
+            float(deceleration),
+            gains.velocity_time_constant,
+            gains.attitude_gain,
+            lim.max_rate,
+            lim.thrust_min,
+            lim.thrust_max,
+        )
+
     def braking_controls(
         self, X: np.ndarray, dt: float, deceleration: float, gains: QuadrotorBrakingGains
     ) -> np.ndarray:

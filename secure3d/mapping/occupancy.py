@@ -57,7 +57,6 @@ from secure3d.mapping.keys import (
     morton_decode,
     morton_encode,
     scan_update,
-    unique_sorted,
 )
 from secure3d.mapping.obstacle_boxes import obstacle_boxes
 from secure3d.mapping.octomap_header import MAX_FILE_BYTES  # noqa: F401  (re-exported)
@@ -432,10 +431,12 @@ class OccupancyMap:
         """Morton codes of the claimed occupied voxels with no sensor evidence, and of the sensed
         occupied voxels (log-odds occupied, or hit once: sticky): two disjoint sorted runs of
         unique codes."""
-        codes, vals = self._sensor_voxels()
-        occ = vals >= self._params.threshold_log
-        occ |= self._hits.contains(codes)
-        sensed_occ = unique_sorted(codes[occ])
+        # the voxels at or above the threshold and the hit ones with sensor evidence: only the
+        # occupied few are sorted, not every sensed voxel
+        above = self._sensor.voxels_at_least(self._params.threshold_log)
+        hits = np.asarray(self._hits.codes)
+        hits = hits[~np.isnan(self._sensor_values(hits))]
+        sensed_occ = np.union1d(above, hits).astype(np.int64, copy=False)
         claimed = self._claim.occupied_codes()
         return claimed[np.isnan(self._sensor_values(claimed))], sensed_occ
 

@@ -316,6 +316,19 @@ class LeafLayer:
         order = np.argsort(codes, kind="stable")
         return codes[order], vals[order]
 
+    def voxels_at_least(
+        self, threshold: float, limit: int = MAX_EXPANDED_VOXELS
+    ) -> NDArray[np.int64]:
+        """The finest-level codes whose value is >= ``threshold`` (coarse leaves expanded), sorted:
+        ``codes[vals >= threshold]`` of :meth:`voxels` without sorting every voxel."""
+        t = self.table
+        codes = t.keys[(t.keys != _EMPTY) & (t.vals >= threshold)]
+        if self.c_start.size:
+            sel = self.c_val >= threshold
+            ccodes, _ = expand_ranges(self.c_start[sel], self.c_depth[sel], limit - codes.size)
+            codes = np.concatenate([codes, ccodes])
+        return np.sort(codes)
+
     # ------------------------------------------------------------------ updates
 
     def add_logodds(

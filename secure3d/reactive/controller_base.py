@@ -113,6 +113,34 @@ class ReactiveController(ABC):
         n_hold = math.ceil(self.latency / dt - 1e-9)
         n_max = max(n_hold, math.ceil(t_max / dt - 1e-9))
         U_hold = self._hold_controls(X, u_hold)
+        traj = self._compiled_rollout(X, U_hold, n_hold, n_max, dt, context)
+        if traj is None:
+            traj = self._rollout_steps(X, U_hold, n_hold, n_max, dt, context)
+        return dt * np.arange(traj.shape[1]), traj
+
+    def _compiled_rollout(
+        self,
+        X: np.ndarray,
+        U_hold: np.ndarray,
+        n_hold: int,
+        n_max: int,
+        dt: float,
+        context: dict[str, Any],
+    ) -> np.ndarray | None:
+        """The manoeuvres (N, T, nx) from one compiled loop, or None where the law has none (the
+        generic loop :meth:`_rollout_steps` then runs)."""
+        return None
+
+    def _rollout_steps(
+        self,
+        X: np.ndarray,
+        U_hold: np.ndarray,
+        n_hold: int,
+        n_max: int,
+        dt: float,
+        context: dict[str, Any],
+    ) -> np.ndarray:
+        """The generic loop of :meth:`rollout_batch`, one vectorised step at a time: (N, T, nx)."""
         states = [X]
         for k in range(n_max):
             if k < n_hold:
@@ -124,8 +152,7 @@ class ReactiveController(ABC):
                 U = self.control_batch(X, dt, **context)
             X = self.model.step_batch(X, U, dt)
             states.append(X)
-        traj = np.stack(states, axis=1)
-        return dt * np.arange(traj.shape[1]), traj
+        return np.stack(states, axis=1)
 
     def rollout(
         self,

@@ -99,6 +99,39 @@ class BrakingController(ReactiveController):
             np.asarray(X, dtype=float), dt, self.deceleration, self.gains
         )
 
+    def _compiled_rollout(
+        self,
+        X: np.ndarray,
+        U_hold: np.ndarray,
+        n_hold: int,
+        n_max: int,
+        dt: float,
+        context: dict[str, Any],
+    ) -> np.ndarray | None:
+        """The vehicle's braking manoeuvres in one compiled loop
+        (:mod:`secure3d.dynamics._braking_kernels`), the same states as the generic loop to
+        rounding; None for a model without a kernel or a batch that is not finite (the generic
+        loop then runs, and reports a bad state as it always did)."""
+        kernel = self.model.braking_kernel(self.deceleration, self.gains)
+        if kernel is None or not (np.all(np.isfinite(X)) and np.all(np.isfinite(U_hold))):
+            return None
+        from secure3d.dynamics._braking_kernels import braking_rollout
+
+        kind, params = kernel
+        out = braking_rollout(
+            kind,
+            np.ascontiguousarray(X, dtype=float),
+            np.ascontiguousarray(U_hold, dtype=float),
+            n_hold,
+            n_max,
+            dt,
+            np.asarray(params, dtype=float),
+            REST_SPEED,
+        )
+        if not np.all(np.isfinite(out)):
+            return None
+        return np.ascontiguousarray(out.transpose(1, 0, 2))
+
     def at_rest(self, X: np.ndarray) -> np.ndarray:
         """Stopped: speed < 1e-3 m/s (and |omega| < 1e-3 rad/s, attitude settled to 1e-3 rad)."""
         return self.model.braking_at_rest(

@@ -100,13 +100,15 @@ def ellipsoid_shown_safe(
     rotations: np.ndarray,
     origins: np.ndarray,
     frustum: object,
+    halfspaces: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> bool:
     """A quick, sufficient test that the reactive set E = {c + M z : |z| <= 1} (body included) is
     clear of the boxes ``lo, hi`` (n, 3) and of the map's edge ``bounds``, and observed: inside the
     ``start`` box (lo, hi), or inside the field of view of one of the frames ``rotations`` (k, 3, 3),
     ``origins`` (k, 3) with its line-of-sight hull conv({o} ∪ E) clear of the boxes (the NLP's
     occlusion condition, with exact distances). False means "not shown", not "unsafe": the caller
-    then runs the exact test."""
+    then runs the exact test. ``halfspaces``: ``frustum_halfspaces(rotations, origins, frustum)``
+    when the caller has them (the guard keeps them per set of frames)."""
     s = _support(M, np.eye(3))  # half extents of E's bounding box
     if np.any(c - s < bounds[0]) or np.any(c + s > bounds[1]):
         return False
@@ -116,7 +118,7 @@ def ellipsoid_shown_safe(
         return True
     if not len(origins):
         return False
-    A, b = frustum_halfspaces(rotations, origins, frustum)  # (k, F, 3), (k, F)
+    A, b = halfspaces or frustum_halfspaces(rotations, origins, frustum)  # (k, F, 3), (k, F)
     inside = (b - A @ c - _support(M, A)).min(axis=1)  # (k,)
     # the latest frames first: a view from near the robot is the least likely to be occluded
     candidates = np.flatnonzero(inside >= 0.0)[::-1][:_QUICK_VIEWS]
@@ -147,6 +149,8 @@ class TrackingGuard:
         self._R: list[np.ndarray] = []
         self._o: list[np.ndarray] = []
         self._views: tuple[np.ndarray, np.ndarray] | None = None
+        #: the frames' field-of-view half-spaces, per frustum, while the frames stay the same
+        self._halfspaces: tuple[object, tuple[np.ndarray, np.ndarray]] | None = None
         self._last_check = -np.inf
         #: exact checks made: (time, margin); checks the quick test settled; for tests and reports
         self.checks: list[tuple[float, float]] = []
@@ -156,7 +160,7 @@ class TrackingGuard:
         """A frame the camera took (rotation camera to world, origin)."""
         self._R.append(np.asarray(R, dtype=float))
         self._o.append(np.asarray(o, dtype=float))
-        self._views = None  # stacked again on the next check
+        self._views = self._halfspaces = None  # stacked again on the next check
 
     def due(self, t: float) -> bool:
         """Whether a check is due at time ``t``."""
@@ -189,7 +193,10 @@ class TrackingGuard:
         bounds = (problem.bounds_lo, problem.bounds_hi)
         start = (problem.start_region_lo, problem.start_region_hi)
         c, M = np.asarray(c, dtype=float).ravel(), np.asarray(M, dtype=float).reshape(3, 3)
-        if ellipsoid_shown_safe(c, M, lo, hi, bounds, start, R, o, problem.frustum):
+        if len(o) and (self._halfspaces is None or self._halfspaces[0] is not problem.frustum):
+            self._halfspaces = (problem.frustum, frustum_halfspaces(R, o, problem.frustum))
+        half = self._halfspaces[1] if len(o) else None
+        if ellipsoid_shown_safe(c, M, lo, hi, bounds, start, R, o, problem.frustum, half):
             self.quick += 1
             return None
         judged = dataclasses.replace(problem, boxes_lo=lo, boxes_hi=hi)

@@ -12,7 +12,7 @@ Voxel boxes are passed as one ``(n, 2, 3)`` array of ``[lo, hi]`` corners and sh
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import trimesh
@@ -85,6 +85,84 @@ def box_arrays(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return vertices.reshape(-1, 3), faces.reshape(-1, 3)
 
 
+#: Which side of the box each unit-box triangle lies on: axis (0, 1, 2) and sign (0: -, 1: +).
+_TRIANGLE_SIDE = np.argmax(np.abs(_UNIT_BOX.face_normals), axis=1) * 2 + (
+    np.max(_UNIT_BOX.face_normals, axis=1) > 0.5
+)
+
+
+def _grid_cells(ilo: np.ndarray, ihi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every grid cell (m, 3) int64 of the integer boxes [ilo, ihi), and the box of each (m,)."""
+    ext = ihi - ilo
+    cells, owner = [np.zeros((0, 3), np.int64)], [np.zeros(0, np.int64)]
+    k = int(ext.max()) + 1 if len(ext) else 1
+    size_key = (ext[:, 0] * k + ext[:, 1]) * k + ext[:, 2]
+    sizes, first, which = np.unique(size_key, return_index=True, return_inverse=True)
+    for g in range(len(sizes)):  # one batch per box size (octomap: 1, 2, 4, ... cells)
+        shape = ext[first[g]]
+        rows = np.flatnonzero(which == g)
+        offs = np.stack(np.meshgrid(*(np.arange(k) for k in shape), indexing="ij"), -1)
+        cells.append((ilo[rows, None, :] + offs.reshape(1, -1, 3)).reshape(-1, 3))
+        owner.append(np.repeat(rows, offs.size // 3))
+    return np.concatenate(cells), np.concatenate(owner)
+
+
+#: Largest grid (cells) held as a dense boolean array; larger ones are looked up in sorted keys.
+_DENSE_CELLS = 1 << 26
+
+
+def _occupancy(cells: np.ndarray, span: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """Membership test for the grid cells ``cells`` (m, 3), all in ``[0, span)``: a function
+    from cells (k, 3) in that range to (k,) bool."""
+    if int(np.prod(span)) <= _DENSE_CELLS:
+        grid = np.zeros(tuple(int(v) for v in span), bool)
+        grid[tuple(cells.T)] = True
+        return lambda c: grid[tuple(c.T)]
+
+    def key(c: np.ndarray) -> np.ndarray:
+        return (c[:, 0] * span[1] + c[:, 1]) * span[2] + c[:, 2]
+
+    occupied = np.unique(key(cells))
+    return lambda c: (
+        occupied[np.minimum(np.searchsorted(occupied, key(c)), len(occupied) - 1)] == key(c)
+    )
+
+
+def exposed_sides(lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
+    """(n, 6) bool: which sides (-x, +x, -y, +y, -z, +z) of grid-aligned boxes are not covered
+    entirely by other boxes of the same set; None if the boxes are not cubes of one grid (whole
+    multiples of the smallest edge, at multiples of it), as OctoMap leaves are.
+
+    A ray from outside the boxes reaches a covered side only after crossing the surface of their
+    union, which lies on exposed sides: dropping the covered ones leaves every first hit, and so
+    every depth image, as it was."""
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    if not len(lo):
+        return np.zeros((0, 6), bool)
+    pitch = float(np.min(hi - lo))
+    ilo, ihi = np.rint(lo / pitch).astype(np.int64), np.rint(hi / pitch).astype(np.int64)
+    if not (
+        np.allclose(ilo * pitch, lo, rtol=0, atol=1e-6 * pitch)
+        and np.allclose(ihi * pitch, hi, rtol=0, atol=1e-6 * pitch)
+    ):
+        return None
+    base, span = ilo.min(axis=0) - 1, ihi.max(axis=0) - ilo.min(axis=0) + 3
+    occupied = _occupancy(_grid_cells(ilo, ihi)[0] - base, span)
+    exposed = np.zeros((len(lo), 6), bool)
+    for axis in range(3):
+        for sign in (0, 1):
+            # the layer of cells just outside this side: one cell thick along the axis
+            a, b = ilo.copy(), ihi.copy()
+            if sign:
+                a[:, axis], b[:, axis] = ihi[:, axis], ihi[:, axis] + 1
+            else:
+                a[:, axis], b[:, axis] = ilo[:, axis] - 1, ilo[:, axis]
+            cells, owner = _grid_cells(a, b)
+            free = ~occupied(cells - base)
+            exposed[np.unique(owner[free]), 2 * axis + sign] = True
+    return exposed
+
+
 def box_trimesh(box: Box) -> trimesh.Trimesh:
     """A closed 12-triangle mesh of ``box`` (via :func:`trimesh.creation.box`)."""
     lo, hi = np.asarray(box.lo), np.asarray(box.hi)
@@ -114,6 +192,9 @@ def obstacle_meshes(
         vb = check_voxel_boxes(voxel_boxes)
         if len(vb):
             v, f = box_arrays(vb[:, 0], vb[:, 1])
+            sides = exposed_sides(vb[:, 0], vb[:, 1])
+            if sides is not None:  # only the triangles a ray from outside can hit first
+                f = f[sides[:, _TRIANGLE_SIDE].reshape(-1)]
             out.append((VOXEL_NAME, trimesh.Trimesh(v, f, process=False)))
     return out
 

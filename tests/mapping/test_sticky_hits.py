@@ -165,3 +165,33 @@ def test_the_observed_range_follows_resolution_dropout_and_range_limits():
     ):
         with pytest.raises(ConfigError, match="observed_range"):
             observed_range(80, 80, 3.0, "depth", 0.1, **bad)
+
+
+def test_known_obstacle_runs_equal_the_filter_over_every_sensed_voxel():
+    """The sensed-occupied run (voxels at or above the threshold, and hit ones) equals the
+    definition over all sensed voxels, on a map with coarse leaves, carving and sticky hits."""
+    from secure3d.mapping.keys import unique_sorted
+
+    rng = np.random.default_rng(5)
+    m = OccupancyMap(0.1)
+    origin = np.array([0.05, 0.05, 1.05])
+    for _ in range(6):
+        m.insert_point_cloud(rng.uniform([1, -2, 0], [4, 2, 2], (300, 3)), origin)
+    m.insert_point_cloud(rng.uniform([1, -2, 0], [6, 2, 2], (200, 3)), origin)  # carves some hits
+    codes, vals = m._sensor_voxels()
+    occ = (vals >= m._params.threshold_log) | m._hits.contains(codes)
+    _, sensed = m._known_obstacle_runs()
+    np.testing.assert_array_equal(sensed, unique_sorted(codes[occ]))
+    assert sensed.dtype == np.int64 and 0 < len(sensed) < len(codes)
+    assert np.any(m._hits.contains(codes) & (vals < m._params.threshold_log))  # carved, kept
+    # coarse leaves: the layer's filtered codes equal the filter over its expanded voxels
+    from secure3d.mapping.store import LeafLayer
+
+    layer = LeafLayer()
+    starts = np.array([0, 8, 16, 64 + 512, 5000], dtype=np.int64)
+    depths = np.array([15, 15, 16, 14, 16], dtype=np.int8)
+    values = np.array([0.5, -1.0, 0.2, 0.9, -0.1], dtype=np.float32)
+    layer.set_leaves(starts, depths, values)
+    codes, vals = layer.voxels()
+    for threshold in (0.0, 0.3, -2.0):
+        np.testing.assert_array_equal(layer.voxels_at_least(threshold), codes[vals >= threshold])

@@ -80,3 +80,29 @@ def test_many_blocked_views_are_walked_past_the_scans(rng):
     want = _reference(point, np.array([n_cams]), R, o, frustum, 0.05, lo, hi, 1e-6)
     assert want[0][0] and found[0]
     assert best[0] == pytest.approx(want[1][0]) and best[0] < raw[0]
+
+
+def test_the_shortcuts_of_the_cone_test_give_the_search_answer(rng):
+    """The certificate kernel's per-box sight-cone test (the end ball first, tangent lower bounds)
+    against the slab test and golden-section search of ``cone_blocked`` it shortcuts, on random
+    cones that graze random boxes."""
+    from secure3d.geometry._box_index_kernels import _cone_box_gap
+    from secure3d.geometry._box_kernels import _hits
+    from secure3d.planning._certificate_kernel import _blocks
+
+    glo, ghi = np.empty(3), np.empty(3)
+    blocked = grazing = 0
+    for _ in range(5000):
+        lo = rng.uniform(-1, 1, (1, 3))
+        hi = lo + rng.uniform(0.05, 1.0, (1, 3))
+        p0 = rng.uniform(-4, 4, 3)
+        radius = rng.uniform(0.01, 0.4)
+        # aim at about the radius from the box: many cones graze it
+        c = rng.uniform(lo[0], hi[0]) + rng.normal(0, 1, 3) * rng.uniform(0, 2) * radius
+        d = c - p0
+        gap = _cone_box_gap(p0, d[0], d[1], d[2], lo[0], hi[0], radius)
+        want = _hits(*p0, *d, lo[0] - radius, hi[0] + radius) and gap < 0.0
+        assert _blocks(p0, c, radius, lo, hi, 0, glo, ghi) == want
+        blocked += want
+        grazing += 0.0 <= gap < 0.05
+    assert blocked > 500 and grazing > 200

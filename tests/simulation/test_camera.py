@@ -156,3 +156,59 @@ def test_blind_corner_hides_the_crate_until_the_robot_turns(maps_dir):
     assert "wall_east" not in seen_at_start, "7 m away: beyond the 6 m depth limit"
     turned = model.initial_state([6.75, 1.25, 1.25], yaw=np.pi / 2)
     assert "crate" in cam.render(*model.camera_pose(turned)).hit_names()
+
+
+def _voxel_world(rng, pitch=0.08, n=600):
+    """Grid-aligned cubes of one, two and four cells (an OctoMap's leaves), many touching."""
+    cells = rng.integers(0, 12, size=(n, 3))
+    size = rng.choice([1, 1, 1, 2, 4], size=n)
+    lo = (cells - cells % size[:, None]) * pitch  # a coarse leaf starts at a multiple of its size
+    lo, idx = np.unique(np.round(lo, 9), axis=0, return_index=True)
+    hi = lo + size[idx, None] * pitch
+    return np.stack([lo, hi], axis=1)
+
+
+def test_exposed_voxel_faces_give_the_same_depth_images_as_every_face():
+    import trimesh as tm
+
+    from secure3d.simulation.scene import VOXEL_NAME, box_arrays, exposed_sides, labelled_union
+
+    rng = np.random.default_rng(11)
+    vb = _voxel_world(rng)
+    sides = exposed_sides(vb[:, 0], vb[:, 1])
+    assert sides is not None and 0 < sides.sum() < sides.size  # some faces are covered
+    import secure3d.simulation.scene as scene_module
+
+    dense_cells = scene_module._DENSE_CELLS
+    try:  # the sorted-key form for grids too large for a dense array: the same sides
+        scene_module._DENSE_CELLS = 0
+        np.testing.assert_array_equal(exposed_sides(vb[:, 0], vb[:, 1]), sides)
+    finally:
+        scene_module._DENSE_CELLS = dense_cells
+    v, f = box_arrays(vb[:, 0], vb[:, 1])
+    full = labelled_union([(VOXEL_NAME, tm.Trimesh(v, f, process=False))])
+    reduced = world_trimesh(voxel_boxes=vb)
+    assert len(reduced.faces) == 2 * sides.sum() < len(full.faces)
+    spec = CameraSpec(width=48, height=36, hfov_deg=90, max_range=3.0)
+    cam_full, cam_reduced = DepthCamera(spec, full), DepthCamera(spec, reduced)
+    poses = 0
+    while poses < 40:
+        o = rng.uniform(-0.3, 1.3, 3)
+        if np.any(np.all((vb[:, 0] <= o) & (o <= vb[:, 1]), axis=1)):
+            continue  # a camera inside a voxel sees its inner faces
+        R = random_rotation(rng)
+        a, b = cam_full.render(R, o), cam_reduced.render(R, o)
+        np.testing.assert_array_equal(a.depth, b.depth)
+        np.testing.assert_array_equal(a.hit_ids, b.hit_ids)
+        poses += 1
+
+
+def test_boxes_off_a_common_grid_keep_every_face():
+    from secure3d.simulation.scene import exposed_sides
+
+    lo = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]])
+    assert exposed_sides(lo, lo + 0.08) is None
+    assert len(world_trimesh(voxel_boxes=np.stack([lo, lo + 0.08], axis=1)).faces) == 24
+    lo = np.array([[0.0, 0.0, 0.0], [0.08, 0.0, 0.0]])
+    sides = exposed_sides(lo, lo + 0.08)
+    assert sides.tolist() == [[True, False] + [True] * 4, [False, True] + [True] * 4]
