@@ -301,7 +301,7 @@ def extra_boxes(scenario: Scenario, n: int, seed: int = 0) -> tuple[Box, ...]:
 def with_boxes(scenario: Scenario, boxes: tuple[Box, ...]) -> Scenario:
     """The scenario with extra true obstacles, reported by the server (no attack on them)."""
     world = dataclasses.replace(scenario.world, boxes=(*scenario.world.boxes, *boxes))
-    return dataclasses.replace(scenario, world=world, name=f"{scenario.name}+{len(boxes)}")
+    return dataclasses.replace(scenario, world=world, name=f"{scenario.name}_plus{len(boxes)}")
 
 
 # ---- running the cases ---------------------------------------------------------------------------

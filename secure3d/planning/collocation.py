@@ -28,7 +28,7 @@ import casadi as ca
 import numpy as np
 
 from secure3d.planning import constraints as cons
-from secure3d.planning.assembled_derivatives import KernelCall, assembled_derivatives
+from secure3d.planning.assembled_derivatives import KernelCall, assembled_nlp
 from secure3d.planning.interrupt import stop_callback
 from secure3d.planning.interval_rows import parametric_interval_rows, structure_interval_rows
 from secure3d.planning.nlp_cache import (  # noqa: F401  (NLPCache, the identities: re-exported)
@@ -52,14 +52,16 @@ from secure3d.planning.transcribed import (  # noqa: F401  (re-exported: the for
     viewing_states,
 )
 
-#: Symbol type of the transcription. Measured on blind_corner (K=40): MX builds in ~0.2 s but its
-#: Hessian costs ~18 ms per iteration; SX builds in ~0.6 s and iterates in ~1.5 ms. Builds are
-#: cached (NLPCache), so SX wins.
+#: Symbol type in which the rows are written (the NLP the solver gets is an MX graph over them, see
+#: ASSEMBLED_DERIVATIVES). Measured on blind_corner (K=40) with CasADi's own derivatives: an MX
+#: transcription's Hessian costs ~18 ms per iteration, an SX one's ~1.5 ms.
 SYM = ca.SX
 
-#: Give IPOPT the constraint Jacobian and Lagrangian Hessian assembled from the node kernels
-#: (:mod:`secure3d.planning.assembled_derivatives`) instead of CasADi's whole-graph derivatives:
-#: same values to rounding, same sparsity, a third of the compilation time (benchmarks/results/README.md).
+#: Give IPOPT the NLP as a small MX graph over the node kernels, with the constraint Jacobian and
+#: Lagrangian Hessian assembled from the kernels' derivatives
+#: (:mod:`secure3d.planning.assembled_derivatives`), instead of one SX graph with CasADi's
+#: whole-graph derivatives: same values to rounding, same sparsity, a build in ~0.1 s instead of
+#: 0.7-0.9 s for the same assembly in one SX graph (benchmarks/results/nlp_iteration.md).
 ASSEMBLED_DERIVATIVES = True
 
 
@@ -274,10 +276,9 @@ class _Symbols:
 
 @dataclass
 class _NLPRows:
-    """Constraint rows in the order they are added: each block's expression and what it is (for
-    the assembled derivatives), each row's family name and bounds, and its node (-1: none)."""
+    """Constraint rows in the order they are added: each block (a :class:`KernelCall` or a column
+    of SX rows), each row's family name and bounds, and its node (-1: none)."""
 
-    exprs: list = field(default_factory=list)
     parts: list = field(default_factory=list)
     meta: list[tuple[str, float, float]] = field(default_factory=list)
     row_node: list[int] = field(default_factory=list)
@@ -289,9 +290,7 @@ class _NLPRows:
         n_cols: int,
         nodes: list[int] | None = None,
     ) -> None:
-        call = isinstance(out, KernelCall)
-        self.exprs.append(out.rows() if call else ca.vec(out))
-        self.parts.append(out if call else self.exprs[-1])
+        self.parts.append(out if isinstance(out, KernelCall) else ca.vec(out))
         self.meta.extend(rows * n_cols)
         self.row_node.extend(
             np.repeat(nodes, len(rows)) if nodes is not None else [-1] * (len(rows) * n_cols)
@@ -509,23 +508,24 @@ def _transcribed(
 ) -> TranscribedNLP:
     """The solver (assembled derivatives, Ctrl-C callback) and the record solve.py reads."""
     w, p, n_p, lay = v.w, v.p, v.n_p, v.lay
-    exprs, parts, meta, row_node = rows.exprs, rows.parts, rows.meta, rows.row_node
+    parts, meta, row_node = rows.parts, rows.meta, rows.row_node
     names = [m_[0] for m_ in meta]
-    g_all = ca.vertcat(*exprs)
     lbg = np.array([m_[1] for m_ in meta])
     ubg = np.array([m_[2] for m_ in meta])
     families = {n: np.flatnonzero(np.array(names) == n) for n in dict.fromkeys(names)}
     names_a = np.array(names)
 
-    nlp = {"x": w, "p": p, "f": J, "g": g_all}
     solver_name, opts = _solver_options(problem, planner)
-    if ASSEMBLED_DERIVATIVES:
-        derivatives = assembled_derivatives(w, p, J, g_all, parts, kern.derivatives)
-        if derivatives is not None:
-            opts["jac_g"], opts["hess_lag"] = derivatives
+    assembled = assembled_nlp(w, p, J, parts, kern.derivatives) if ASSEMBLED_DERIVATIVES else None
+    if assembled is not None:
+        nlp = assembled.nlp
+        opts["jac_g"], opts["hess_lag"] = assembled.jac_g, assembled.hess_lag
+    else:  # one SX graph, CasADi's own derivatives
+        g = ca.vertcat(*[part.rows() if isinstance(part, KernelCall) else part for part in parts])
+        nlp = {"x": w, "p": p, "f": J, "g": g}
     stop = None
     if solver_name == Solver.IPOPT:
-        stop = stop_callback(w.numel(), g_all.numel(), p.numel())
+        stop = stop_callback(w.numel(), len(meta), p.numel())
         opts["iteration_callback"] = stop  # Ctrl-C stops the solve (planning/interrupt.py)
     solver = ca.nlpsol(f"secure3d_{planner}", solver_name, nlp, opts)
     g_fun = solver.get_function("nlp_g")  # the rows as the solver evaluates them (no new graph)

@@ -76,12 +76,12 @@ class PlannerOptions:
     lookback_max_span : farthest look-back (nodes) the adaptive rule may pick; None: any earlier
         node with IPOPT, :data:`FATROP_MAX_SPAN` with fatrop (whose shift register of camera states
         is as deep as the longest look-back).
-    lookback_encoding : how the assignment reaches the compiled NLP. ``"structure"``: each node's
-        frustum rows read the assigned node's state directly, one compiled NLP per assignment (the
-        fastest solves: ~0.5 s cold on the blind corner, but a ~1 s build for every new
-        assignment). ``"parameter"``: a selection-matrix parameter and linear viewing-state rows,
-        one compiled NLP for every assignment (solves ~1.5x slower, no rebuilds; the simulator's
-        default, where every replan brings a new assignment).
+    lookback_encoding : how the assignment reaches the compiled NLP. ``"structure"`` (the default,
+        in closed loop too): each node's frustum rows read the assigned node's state directly, one
+        compiled NLP per assignment (a ~0.1 s build for every new assignment). ``"parameter"``: a
+        selection-matrix parameter and linear viewing-state rows, one compiled NLP for every
+        assignment, but the dense selection rows cost 2-4x the time per IPOPT iteration
+        (``benchmarks/results/nlp_iteration.md``).
     solver : ``"ipopt"`` (MUMPS) or ``"fatrop"``.
     margin : clearance required of every visibility and obstacle constraint (m): the ε of the
         paper's Assumption 2, which makes the discrete constraints imply the continuous ones.

@@ -62,8 +62,10 @@ class Loop:
         except (ValueError, RuntimeError) as exc:
             raise SimulationError(f"{scenario.name}: cannot build the true world: {exc}") from exc
         self.belief = belief_map(scenario)
-        # every replan brings a new look-back assignment: one compiled NLP for all of them
-        options.setdefault("lookback_encoding", "parameter")
+        # The look-back assignment is compiled into each NLP's structure (the planner's default):
+        # a new assignment costs a ~0.1 s build, and the NLP's KKT factorisation stays sparse.
+        # As a parameter (one NLP for every assignment) the dense selection rows cost 3-5x the
+        # time per IPOPT iteration (benchmarks/results/nlp_iteration.md).
         # Sensed surfaces reach the planner as many small boxes: with 8 slots per node most
         # replans in flight re-selected slots and re-solved 3 times (8 hidden-obstacle variants:
         # 0.44x real time with 8 slots, 0.52x with 10, 0.54x with 12, 0.26x with 16).
@@ -80,8 +82,8 @@ class Loop:
         # the planner's module-wide cache by default: runs in one process share compiled NLPs
         self.cache = cache if cache is not None else DEFAULT_CACHE
         # Compile the NLP before take-off, as a robot would (part of the set-up; see simulate). A
-        # look-back assignment compiled into the structure is known only at plan time: then the
-        # first plan compiles it, in flight.
+        # look-back assignment compiled into the structure (the default) is known only at plan
+        # time: then the first plan compiles it, in flight.
         self.cache.prepare(self.problem, planner)
         self.hidden = set(scenario.hidden_obstacles)
         self.start_problem = self.problem
