@@ -394,13 +394,12 @@ def _terminal_rows(rows: _NLPRows, problem: PlanningProblem, v: _Symbols) -> Non
     model, K, X, w, goal, add = problem.model, v.lay.K, v.X, v.w, v.goal, rows.add
     # ---- boundary conditions: x(0) fixed through variable bounds; at rest at the goal -------------
     x_end = X[:, K - 1]
-    pos_end, vel_end = model.position(x_end), model.velocity(x_end)
+    pos_end = model.position(x_end)
     for d in range(3):
         if ca.depends_on(pos_end[d], w):
             add(pos_end[d] - goal[d], [("terminal", 0.0, 0.0)], 1)
-    for d in range(3):
-        if ca.depends_on(vel_end[d], w):
-            add(vel_end[d], [("terminal", 0.0, 0.0)], 1)
+    for row in cons.rest_rows(model, x_end):
+        add(row, [("terminal", 0.0, 0.0)], 1)
     for extra in model_terminal_rows(model, x_end):
         add(extra, [("terminal", 0.0, 0.0)], 1)
 

@@ -71,6 +71,7 @@ import numpy as np
 
 from secure3d.errors import ConfigError
 from secure3d.planning.collocation import NodeKernels, model_terminal_rows, node_kernels
+from secure3d.planning.constraints import rest_rows
 from secure3d.planning.nlp_cache import nlp_key, register_transcription
 from secure3d.planning.problem import Planner, PlanningProblem
 from secure3d.planning.result import PlanStatus
@@ -509,9 +510,9 @@ def _terminal_rows(rows: _Rows, problem: PlanningProblem, v: _StageVariables) ->
     """Boundary conditions: at rest at the goal (last stage)."""
     model, K = problem.model, v.lay.K
     x_end = v.X[:, K - 1]
-    pos_end, vel_end = model.position(x_end), model.velocity(x_end)
+    pos_end = model.position(x_end)
     terminal = [pos_end[d] - v.goal[d] for d in range(3) if ca.depends_on(pos_end[d], v.w)]
-    terminal += [vel_end[d] for d in range(3) if ca.depends_on(vel_end[d], v.w)]
+    terminal += rest_rows(model, x_end)
     terminal += list(model_terminal_rows(model, x_end))
     rows.add(ca.vertcat(*terminal), [("terminal", 0.0, 0.0)] * len(terminal), [K - 1])
 
