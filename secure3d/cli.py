@@ -178,23 +178,9 @@ def _plan(args: argparse.Namespace) -> int:
             if not r.ok:
                 print(f"{r.planner}: {' '.join(r.message.split())}")
     if png is not None:
-        from secure3d.viz.figures import top_down_figure
-        from secure3d.world.attacks import server_claim
+        from secure3d.viz.run_figures import plans_figure
 
-        claim = server_claim(scenario)
-        top_down_figure(
-            scenario.world.bounds,
-            scenario.world.boxes,
-            out_path=png,
-            true_meshes=scenario.world.meshes,
-            claimed_boxes=claim.boxes,
-            claimed_meshes=claim.meshes,
-            hidden_names=scenario.hidden_obstacles,
-            plans=[r for r in results if len(r.positions)],
-            start=scenario.start.position,
-            goal=scenario.goal.position,
-            title=f"{scenario.name}: plans in the server's map",
-        )
+        plans_figure(scenario, results, png)
         print(f"wrote {png}", file=sys.stderr if args.json else sys.stdout)
     return 0 if all(r.ok for r in results) else 1
 

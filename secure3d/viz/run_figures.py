@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -16,7 +16,38 @@ if TYPE_CHECKING:  # pragma: no cover
     from secure3d.simulation.results import SimResult
     from secure3d.world.spec import Scenario
 
-__all__ = ["comparison_figures", "run_figure", "scenario_voxels"]
+__all__ = ["comparison_figures", "plans_figure", "run_figure", "scenario_layers", "scenario_voxels"]
+
+
+def scenario_layers(scenario: Scenario) -> dict:
+    """Keyword arguments of :func:`~secure3d.viz.figures.top_down_figure` drawing what every
+    figure of ``scenario`` shows: the true world (hidden obstacles marked), the server's claim, the
+    start and the goal."""
+    from secure3d.world.attacks import server_claim
+
+    claim = server_claim(scenario)
+    return {
+        "bounds": scenario.world.bounds,
+        "true_boxes": scenario.world.boxes,
+        "true_meshes": scenario.world.meshes,
+        "claimed_boxes": claim.boxes,
+        "claimed_meshes": claim.meshes,
+        "hidden_names": scenario.hidden_obstacles,
+        "start": np.asarray(scenario.start.position),
+        "goal": np.asarray(scenario.goal.position),
+    }
+
+
+def plans_figure(scenario: Scenario, plans: Sequence[Any], png: str | os.PathLike[str]) -> Path:
+    """Open-loop plans (``secure3d plan --png``) over ``scenario``'s world and claim."""
+    from secure3d.viz.figures import top_down_figure
+
+    return top_down_figure(
+        out_path=png,
+        plans=[p for p in plans if len(p.positions)],
+        title=f"{scenario.name}: plans in the server's map",
+        **scenario_layers(scenario),
+    )
 
 
 def scenario_voxels(scenario: Scenario) -> dict:
@@ -113,29 +144,20 @@ def comparison_figures(
     from secure3d.dynamics import model_from_spec
     from secure3d.viz.figures import top_down_figure
     from secure3d.viz.speed_figure import speed_profile_figure
-    from secure3d.world.attacks import server_claim
 
     written: dict[str, Path] = {}
     if top_down is not None:
-        claim = server_claim(scenario)
         Path(top_down).parent.mkdir(parents=True, exist_ok=True)
         written["top_down"] = top_down_figure(
-            scenario.world.bounds,
-            scenario.world.boxes,
             out_path=top_down,
-            true_meshes=scenario.world.meshes,
-            claimed_boxes=claim.boxes,
-            claimed_meshes=claim.meshes,
-            hidden_names=scenario.hidden_obstacles,
             plans=[r.plans[0][1] for r in results if r.plans],
             realised_paths={r.planner: r.positions for r in results},
             detection_points={
                 r.planner: r.detection_point for r in results if r.detection_point is not None
             },
             collision_points=[r.positions[-1] for r in results if r.collided],
-            start=np.asarray(scenario.start.position),
-            goal=np.asarray(scenario.goal.position),
             title=f"{scenario.name}: " + ", ".join(f"{r.planner} {r.outcome}" for r in results),
+            **scenario_layers(scenario),
         )
     if speed is not None:
         Path(speed).parent.mkdir(parents=True, exist_ok=True)
