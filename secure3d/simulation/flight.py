@@ -271,8 +271,13 @@ class Flight:
         ):
             # The plan stays certified until its first failing manoeuvre: keep following it and
             # replan `defer` before then (sooner if later evidence brings that manoeuvre closer),
-            # once, with all the camera sees meanwhile. The judged boxes stay as they were, so
-            # every later frame re-checks the plan.
+            # once, with all the camera sees meanwhile. The judged boxes take the new voxels now:
+            # the guard and later re-checks judge against them, and they must stay a superset of
+            # the known obstacles. (They used to stay as they were, "so every later frame
+            # re-checks": then a later frame's passing re-check, judged without these voxels,
+            # cleared the deferral and dropped them for good; a quadrotor campaign flew into
+            # them, 2 mm deep.)
+            loop.judged_lo, loop.judged_hi = lo, hi
             if self.deferred is None:
                 self.event("replan deferred", unsafe[0])
             self.deferred = (self.current.start + unsafe[1] - defer, unsafe)

@@ -286,6 +286,44 @@ def test_deferred_replans_wait_for_more_of_the_obstacle_and_stay_safe(maps_dir):
     assert replan_defer_for(0.0, 0.1) == 0.0 and replan_defer_for(0.3, 0.0) == 0.3
 
 
+def test_the_judged_boxes_cover_every_known_obstacle_voxel_through_deferred_replans(
+    maps_dir, monkeypatch
+):
+    """The tracking guard and the re-checks judge against ``Loop.judged_lo/hi``, which must stay a
+    superset of the belief's known obstacle voxels at every frame, deferred replans included. A
+    deferral used to leave them as they were, and a later passing re-check then dropped the voxels
+    that caused it for good: a quadrotor campaign variant flew 2 mm into them."""
+    from secure3d.mapping.keys import TREE_MAX_VAL, morton_decode
+    from secure3d.simulation import flight
+    from secure3d.world.attacks import random_hidden_obstacle_scenarios
+
+    base = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    variant = random_hidden_obstacle_scenarios(base, 4, 0)[3]  # defers (test above)
+    uncovered: list[tuple[float, int]] = []
+    observe = flight.Flight.observe
+
+    def observe_and_check(self):
+        out = observe(self)
+        loop = self.loop
+        if loop.judged_lo is not None and self.mode in flight.FLYING:
+            res = loop.belief.resolution
+            centres = (
+                morton_decode(loop.belief._known_obstacle_codes()) - TREE_MAX_VAL + 0.5
+            ) * res
+            inside = np.zeros(len(centres), bool)
+            for lo, hi in zip(loop.judged_lo, loop.judged_hi, strict=True):
+                inside |= np.all((centres >= lo - 1e-9) & (centres <= hi + 1e-9), axis=1)
+            if not inside.all():
+                uncovered.append((self.t, int((~inside).sum())))
+        return out
+
+    monkeypatch.setattr(flight.Flight, "observe", observe_and_check)
+    run = simulate(variant, "secure", seed=3, nodes=30)
+    assert any(e.kind == "replan deferred" for e in run.events), "the case needs a deferral"
+    assert not uncovered, f"known voxels outside the judged boxes at (t, count): {uncovered[:5]}"
+    assert not run.collided
+
+
 def test_a_robot_stuck_at_rest_looks_around_once_then_holds(maps_dir, monkeypatch):
     """Replans at rest that keep failing: after every retry start failed (STUCK_RETRIES) the robot
     turns to look around once, and after as many more it stops replanning and holds still."""
