@@ -35,9 +35,9 @@ def _allocate(tiles: np.ndarray, idx: np.ndarray, r: int, dims: np.ndarray) -> n
     returns the (n_slots, 3) tile coordinates of the slots."""
     coords = np.empty((64, 3), np.int64)
     n = 0
+    lo = np.empty(3, np.int64)  # scratch, reused for every cell
+    hi = np.empty(3, np.int64)
     for q in range(idx.shape[0]):
-        lo = np.empty(3, np.int64)
-        hi = np.empty(3, np.int64)
         for a in range(3):
             lo[a] = max(idx[q, a] - r, 0) >> TILE_BITS
             hi[a] = min(idx[q, a] + r, dims[a] - 1) >> TILE_BITS
