@@ -148,7 +148,8 @@ def _children(pid: int) -> set[int]:
 
 def _rows(out: Path) -> list[tuple[int, str]]:
     path = out / RUNS_NAME
-    if not path.exists():
+    # polled while the campaign writes it: a file just created has no complete parameter line yet
+    if not path.exists() or "\n" not in path.read_text():
         return []
     return [(r.variant, r.planner) for r in read_runs(path)[1]]
 
