@@ -22,6 +22,7 @@ from secure3d.planning import certificate, lookback, nlp_cache
 from secure3d.planning import solve as solve_module
 from secure3d.world import load_scenario
 from secure3d.world.families import variant_rng
+from secure3d.simulation.campaign_run import _family as campaign_family
 from secure3d.world.family_registry import FAMILIES
 
 STAGES = (
@@ -40,12 +41,12 @@ STAGES = (
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("base")
-    ap.add_argument("kind", choices=sorted(FAMILIES))
+    ap.add_argument("kind", choices=["auto", "corner", "forest", *sorted(FAMILIES)])
     ap.add_argument("variant", type=int)
     ap.add_argument("--budget", type=float, default=10.0, help="plan budget (s; 10)")
     args = ap.parse_args()
     base = load_scenario(args.base)
-    family = FAMILIES[args.kind]
+    family = campaign_family(args.kind, 1)
     scenario = family.variant(
         family.prepare(base), base, variant_rng(0, args.variant), args.variant
     )

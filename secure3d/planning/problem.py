@@ -391,6 +391,32 @@ def observed_frustum(scenario: Scenario, min_obstacle_size: object | None = None
     return PinholeFrustum(hfov=cam.hfov, vfov=cam.vfov, far=far, far_kind=cam.far_kind)
 
 
+def rest_footprint(scenario: Scenario, **options: object) -> float:
+    """Half-width (m) of the narrowest corridor the secure planner can use: the largest semi-axis
+    of the reactive set at rest at the start (plus how far its centre sits off the body, in the
+    horizontal plane), plus the planner's margin. Corridors narrower than twice this, in the
+    belief map, hold no plan the secure planner or its certificate accepts.
+
+    ``options``: planner options as for :func:`problem_from_scenario` (``reactive_family``,
+    ``controller``, ``margin`` are the ones that matter)."""
+    from secure3d.dynamics import model_from_spec
+    from secure3d.reactive.family_store import family_for
+
+    spec = scenario.planner
+    margin = float(options.get("margin", spec.margin))  # type: ignore[arg-type]
+    _check_positive("margin", margin, allow_zero=True)
+    model = model_from_spec(scenario.vehicle, scenario.camera)
+    family = family_for(
+        model,
+        controller=str(options.get("controller", spec.controller)),
+        kind=str(options.get("reactive_family", spec.reactive_family)),
+    )
+    x = model.rest_state(np.array(scenario.start.position, dtype=float), scenario.start.yaw)
+    c, M = family.ellipsoid(x)
+    offset = float(np.linalg.norm((np.asarray(c) - x[:3])[:2]))
+    return float(np.linalg.eigvalsh(np.asarray(M)).max()) + offset + margin
+
+
 def problem_from_scenario(
     scenario: Scenario,
     belief: OccupancyMap | None = None,

@@ -71,7 +71,8 @@ def parse_shard(text: str | tuple[int, int] | None) -> tuple[int, int]:
     return k, n
 
 
-def _family(kind: str, count: int) -> Family:
+def _family(kind: str, count: int, footprint: float | None = None) -> Family:
+    """The family a campaign draws from (``footprint``: see ``hidden_obstacle_family``)."""
     from secure3d.world.attacks import hidden_obstacle_family
     from secure3d.world.family_registry import FAMILIES
 
@@ -84,7 +85,20 @@ def _family(kind: str, count: int) -> Family:
         raise ConfigError(f"kind: must be one of {names} (got {kind!r})")
     if not is_int_in(count, 1):
         raise ConfigError(f"count: must be a positive integer (got {count!r})")
-    return hidden_obstacle_family(kind, count)  # type: ignore[arg-type]
+    return hidden_obstacle_family(kind, count, footprint)  # type: ignore[arg-type]
+
+
+def campaign_family(
+    base: Scenario, kind: str, count: int, options: Mapping[str, object]
+) -> Family:
+    """The family of a campaign over ``base``: hidden obstacles leave gaps the secure planner can
+    pass at a standstill (its :func:`~secure3d.planning.problem.rest_footprint` under the
+    campaign's planner ``options``), so a variant's goal is reachable by a sound planner."""
+    if kind in ("auto", "corner", "forest"):
+        from secure3d.planning.problem import rest_footprint
+
+        return _family(kind, count, rest_footprint(base, **options))
+    return _family(kind, count)
 
 
 @dataclass(frozen=True)
@@ -129,7 +143,7 @@ def _job_stream(
     ``scenarios`` keeps each variant's scenario until its runs are written."""
     from secure3d.world.families import variant_rng
 
-    family = _family(plan.kind, plan.count)
+    family = campaign_family(plan.base, plan.kind, plan.count, plan.options)
     prepared = family.prepare(plan.base)
     options = dict(plan.options, replan_defer=plan.replan_defer)
     for i in plan.variants():

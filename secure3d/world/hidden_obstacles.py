@@ -297,8 +297,11 @@ class _HiddenPlacement:
     keep: float
 
     @classmethod
-    def prepare(cls, base: Scenario, kind: str) -> _HiddenPlacement:
-        """Find the start-goal path of ``base`` and where along it obstacles may go."""
+    def prepare(
+        cls, base: Scenario, kind: str, footprint: float | None = None
+    ) -> _HiddenPlacement:
+        """Find the start-goal path of ``base`` and where along it obstacles may go (``footprint``:
+        see :func:`hidden_obstacle_family`)."""
         obstacles = true_obstacles(base)
         grid, path = _placement_grid(base, obstacles)
         lo0, hi0 = obstacles.aabbs()
@@ -318,10 +321,7 @@ class _HiddenPlacement:
             a=_nearest_free(grid, ends[0], grid.free),
             g=_nearest_free(grid, ends[1], grid.free),
             half_range=(0.2, 0.6) if used == "corner" else (0.1, 0.25),
-            keep=max(
-                r + PLACEMENT_CLEARANCE,
-                2 * r + 2 * base.server_map.resolution + GAP_ALLOWANCE,
-            ),
+            keep=_keep(r, base.server_map.resolution, footprint),
         )
 
     def _try_box(
@@ -367,24 +367,49 @@ class _HiddenPlacement:
         return _with_hidden(base, added, i, self.used)
 
 
+def _keep(body_radius: float, resolution: float, footprint: float | None) -> float:
+    """The least distance (m) a hidden obstacle keeps from the start, the goal and the obstacles
+    beside it: the body radius + :data:`PLACEMENT_CLEARANCE`, a gap of the body's diameter + two
+    map voxels + :data:`GAP_ALLOWANCE`, and a gap that still holds twice the planner's
+    ``footprint`` (half-width at a standstill) after losing a map voxel on each side."""
+    keep = max(body_radius + PLACEMENT_CLEARANCE, 2 * body_radius + 2 * resolution + GAP_ALLOWANCE)
+    if footprint is not None:
+        keep = max(keep, 2 * footprint + 2 * resolution)
+    return keep
+
+
 def hidden_obstacle_family(
-    kind: Literal["corner", "forest", "auto"] = "auto", count: int = 1
+    kind: Literal["corner", "forest", "auto"] = "auto",
+    count: int = 1,
+    footprint: float | None = None,
 ) -> Family:
     """The hidden-obstacle placement of :func:`random_hidden_obstacle_scenarios` as a
     :class:`~secure3d.world.families.Family`: variant ``i`` is drawn from its own generator
     (:func:`~secure3d.world.families.variant_rng`), so it is a pure function of (base, seed, i)
     and campaigns can be sharded. (:func:`random_hidden_obstacle_scenarios` draws every variant
-    from one stream instead, so its variants differ from these.)"""
+    from one stream instead, so its variants differ from these.)
+
+    ``footprint`` (m, optional): the half-width of the narrowest corridor the planners flown can
+    use at a standstill (:func:`secure3d.planning.problem.rest_footprint`: the secure planner's
+    reactive set at rest plus its margin). Gaps beside an obstacle then hold twice it after losing
+    a map voxel on each side, so that every variant can be passed by a sound planner; narrower
+    ones only test that the robot holds. Default: the body radius rule alone."""
     from secure3d.world.families import Family
 
     if kind not in ("corner", "forest", "auto"):
         raise ScenarioError(f"kind: must be one of corner, forest, auto (got {kind!r})")
     if not is_int_in(count, 1):
         raise ScenarioError(f"count: must be a positive integer (got {count!r})")
+    if footprint is not None and not (
+        isinstance(footprint, (int, float))
+        and not isinstance(footprint, bool)
+        and 0.0 < footprint < 5.0
+    ):
+        raise ScenarioError(f"footprint: must be a number of metres in (0, 5) (got {footprint!r})")
     return Family(
         name=kind,
         description=f"{count} hidden obstacle(s) placed by rule {kind!r}",
-        prepare=functools.partial(_HiddenPlacement.prepare, kind=kind),
+        prepare=functools.partial(_HiddenPlacement.prepare, kind=kind, footprint=footprint),
         variant=lambda prep, base, rng, i: prep.variant(base, rng, i, count),
     )
 

@@ -374,3 +374,53 @@ def test_runs_files_carry_the_certificate_counts_and_older_files_still_read(tmp_
     bad.write_text(_header_line({"n": 1}) + "variant,nonsense\n")
     with pytest.raises(ConfigError, match="unexpected columns"):
         read_runs(bad)
+
+
+def _gaps_beside(base, variant) -> list[float]:
+    """Gaps between each added hidden box and the obstacles beside it (not under or over it)."""
+    import numpy as np
+
+    from secure3d.world.truth import true_obstacles
+
+    lo0, hi0 = true_obstacles(base).aabbs()
+    gaps = []
+    for box in variant.world.boxes[len(base.world.boxes) :]:
+        lo, hi = np.array(box.lo), np.array(box.hi)
+        beside = (hi0[:, 2] > lo[2] + 1e-9) & (lo0[:, 2] < hi[2] - 1e-9)
+        per_axis = np.maximum(0.0, np.maximum(lo0[beside] - hi, lo - hi0[beside]))
+        gaps += [float(g) for g in np.linalg.norm(per_axis, axis=1) if g > 0.0]
+    return gaps
+
+
+def test_hidden_obstacles_leave_gaps_the_secure_robot_can_pass_at_rest() -> None:
+    """A quadrotor's fitted reactive set at rest is ~0.1 m wider than its body: campaign variants
+    leave every gap wide enough for it (after a map voxel on each side), not just for the body."""
+    from secure3d.planning.problem import rest_footprint
+    from secure3d.simulation.campaign_run import _family, campaign_family
+    from secure3d.world import load_scenario
+    from secure3d.world.families import family_variants
+
+    base = load_scenario("blind_corner_quadrotor")
+    footprint = rest_footprint(base)
+    assert footprint > base.vehicle.body_radius + base.planner.margin + 0.05
+    need = 2 * footprint + 2 * base.server_map.resolution
+    old = family_variants(_family("auto", 1), base, 12, seed=0)
+    new = family_variants(campaign_family(base, "auto", 1, {}), base, 12, seed=0)
+    assert min(g for v in old for g in _gaps_beside(base, v)) < need, "the body rule alone"
+    assert min(g for v in new for g in _gaps_beside(base, v)) >= need - 1e-9
+
+
+def test_the_rest_footprint_is_the_reactive_set_at_rest_plus_the_margin() -> None:
+    import numpy as np
+
+    from secure3d.planning.problem import problem_from_scenario, rest_footprint
+    from secure3d.world import load_scenario
+
+    base = load_scenario("blind_corner")
+    problem = problem_from_scenario(base)
+    _, M = problem.family.ellipsoid(problem.x0)
+    want = float(np.linalg.eigvalsh(M).max()) + problem.options.margin
+    assert abs(rest_footprint(base) - want) < 1e-12
+    assert abs(rest_footprint(base, margin=0.1) - (want + 0.1 - problem.options.margin)) < 1e-12
+    with pytest.raises(ConfigError, match="margin"):
+        rest_footprint(base, margin=-1.0)
