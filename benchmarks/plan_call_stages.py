@@ -20,9 +20,9 @@ import time
 import secure3d
 from secure3d.planning import certificate, lookback, nlp_cache
 from secure3d.planning import solve as solve_module
+from secure3d.simulation.campaign_run import _family as campaign_family
 from secure3d.world import load_scenario
 from secure3d.world.families import variant_rng
-from secure3d.simulation.campaign_run import _family as campaign_family
 from secure3d.world.family_registry import FAMILIES
 
 STAGES = (
