@@ -88,9 +88,7 @@ def _family(kind: str, count: int, footprint: float | None = None) -> Family:
     return hidden_obstacle_family(kind, count, footprint)  # type: ignore[arg-type]
 
 
-def campaign_family(
-    base: Scenario, kind: str, count: int, options: Mapping[str, object]
-) -> Family:
+def campaign_family(base: Scenario, kind: str, count: int, options: Mapping[str, object]) -> Family:
     """The family of a campaign over ``base``: hidden obstacles leave gaps the secure planner can
     pass at a standstill (its :func:`~secure3d.planning.problem.rest_footprint` under the
     campaign's planner ``options``), so a variant's goal is reachable by a sound planner."""

@@ -297,9 +297,7 @@ class _HiddenPlacement:
     keep: float
 
     @classmethod
-    def prepare(
-        cls, base: Scenario, kind: str, footprint: float | None = None
-    ) -> _HiddenPlacement:
+    def prepare(cls, base: Scenario, kind: str, footprint: float | None = None) -> _HiddenPlacement:
         """Find the start-goal path of ``base`` and where along it obstacles may go (``footprint``:
         see :func:`hidden_obstacle_family`)."""
         obstacles = true_obstacles(base)
