@@ -167,11 +167,40 @@ def test_plans_and_certificates_are_bit_identical_to_the_golden_values(golden, c
     assert current["plans"][label] == golden["plans"][label], label
 
 
+#: Relative tolerance on the campaign's pinned floats (``*.hex``). A flight's clearance sums many
+#: small BLAS products along the tracked path, and OpenBLAS picks its kernels by CPU: on an AVX-512
+#: machine one clearance of the golden values (written on another) moved by 2e-15 m in the last
+#: bits, every other value bit-identical. A change of behaviour moves these by far more than this.
+CAMPAIGN_FLOAT_RTOL = 1e-12
+
+
+def _same_row(row: dict[str, str], want: dict[str, str]) -> bool:
+    if row.keys() != want.keys():
+        return False
+    for key, value in row.items():
+        if value == want[key]:
+            continue
+        if not key.endswith(".hex") or value is None or want[key] is None:
+            return False
+        a, b = float.fromhex(value), float.fromhex(want[key])
+        if abs(a - b) > CAMPAIGN_FLOAT_RTOL * max(abs(a), abs(b)):
+            return False
+    return True
+
+
 def test_a_20_run_campaign_writes_the_golden_rows(golden, current):
     rows = current["campaign"]
     assert len(rows) == 2 * CAMPAIGN_VARIANTS
     for i, (row, want) in enumerate(zip(rows, golden["campaign"], strict=True)):
-        assert row == want, f"row {i}"
+        assert _same_row(row, want), f"row {i}: {row} != {want}"
+
+
+def test_the_campaign_row_comparison_tolerates_only_the_last_bits():
+    row = {"outcome": "reached goal", "min_clearance.hex": (0.088).hex()}
+    assert _same_row(row, dict(row))
+    assert _same_row(row, {**row, "min_clearance.hex": (0.088 * (1 + 1e-14)).hex()})
+    assert not _same_row(row, {**row, "min_clearance.hex": (0.088 * (1 + 1e-9)).hex()})
+    assert not _same_row(row, {**row, "outcome": "collided"})
 
 
 if __name__ == "__main__":

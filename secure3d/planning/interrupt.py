@@ -26,7 +26,15 @@ import casadi as ca
 
 from secure3d.sigint import held_sigint
 
-__all__ = ["budget_spent", "deadline", "interruptible", "stop_callback", "stopped_for_budget"]
+__all__ = [
+    "BudgetSpent",
+    "budget_spent",
+    "deadline",
+    "deadline_passed",
+    "interruptible",
+    "stop_callback",
+    "stopped_for_budget",
+]
 
 _requested = threading.Event()
 _budget = threading.local()
@@ -40,10 +48,21 @@ def _deadline_now() -> float:
     return getattr(_budget, "deadline", math.inf)
 
 
+class BudgetSpent(Exception):  # noqa: N818 - a signal between the planner's layers, not an error
+    """Raised by work that checks :func:`deadline_passed` as it goes (the certificate) once the
+    plan call's budget is spent; the planner reports ``TIME_BUDGET``."""
+
+
 def budget_spent(ahead: float = 0.0) -> bool:
-    """True once the innermost :func:`deadline` of this thread has passed, or will have passed
-    ``ahead`` seconds from now."""
-    return time.monotonic() + ahead >= _deadline_now()
+    """True once the innermost :func:`deadline` of this thread, less its ``reserve`` (the time kept
+    for what follows the solves), has passed, or will have passed ``ahead`` seconds from now."""
+    return time.monotonic() + ahead + getattr(_budget, "reserve", 0.0) >= _deadline_now()
+
+
+def deadline_passed() -> bool:
+    """True once the innermost :func:`deadline` of this thread itself has passed (its reserve is
+    there to be used)."""
+    return time.monotonic() >= _deadline_now()
 
 
 def stopped_for_budget() -> bool:
@@ -52,17 +71,22 @@ def stopped_for_budget() -> bool:
 
 
 @contextlib.contextmanager
-def deadline(seconds: float) -> Iterator[None]:
-    """Give the solves inside a wall-time budget of ``seconds`` (nested budgets keep the earlier)."""
+def deadline(seconds: float, reserve: float = 0.0) -> Iterator[None]:
+    """Give the solves inside a wall-time budget of ``seconds`` (nested budgets keep the earlier),
+    of which they leave the last ``reserve`` seconds to the work after them (:func:`budget_spent`
+    counts it as spent; :func:`deadline_passed` does not)."""
     outer = _deadline_now()
     outer_longest = getattr(_budget, "longest", 0.0)
+    outer_reserve = getattr(_budget, "reserve", 0.0)
     _budget.deadline = min(outer, time.monotonic() + float(seconds))
     _budget.longest = 0.0  # the longest IPOPT iteration within this budget
+    _budget.reserve = float(reserve)
     try:
         yield
     finally:
         _budget.deadline = outer
         _budget.longest = outer_longest
+        _budget.reserve = outer_reserve
 
 
 class _StopCallback(ca.Callback):

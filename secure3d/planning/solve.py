@@ -24,7 +24,7 @@ from secure3d.errors import ConfigError
 from secure3d.planning import lookback as lb
 from secure3d.planning.blas import pin_blas_threads
 from secure3d.planning.guess import Guess, NoPathError, initial_guess, profile_guess
-from secure3d.planning.interrupt import budget_spent, deadline
+from secure3d.planning.interrupt import BudgetSpent, budget_spent, deadline
 from secure3d.planning.nlp_cache import NLPCache
 from secure3d.planning.nlp_solve import (  # noqa: F401  (the constants: re-exported)
     FEASIBILITY_TOL,
@@ -52,6 +52,12 @@ DEFAULT_CACHE = NLPCache(max_size=8)
 #: campaigns with a 10 s budget, calls that hit it overran it by 0.03-0.1 s (median) without it.
 BUDGET_RESERVE = 0.05
 BUDGET_RESERVE_MAX = 0.5
+
+#: Part of a secure plan call's budget its solves leave to the certificate (at most
+#: CERTIFY_RESERVE_MAX s): certifying a plan takes 0.1-1.4 s (a 37 s quadrotor plan: 30,000
+#: manoeuvre points). A certificate that still finds the budget spent stops (``TIME_BUDGET``).
+CERTIFY_RESERVE = 0.1
+CERTIFY_RESERVE_MAX = 1.5
 
 #: Re-selections of the obstacle slots on a solution before it is accepted.
 SLOT_REFRESHES = 3
@@ -356,7 +362,9 @@ def plan_problem(
     cache = DEFAULT_CACHE if cache is None else cache
     pin_blas_threads()  # the same iterates whatever the machine's cores (planning/blas.py)
     budget = problem.options.plan_budget
-    with deadline(budget - min(BUDGET_RESERVE * budget, BUDGET_RESERVE_MAX)):
+    certifies = planner == Planner.SECURE and problem.options.certify
+    reserve = min(CERTIFY_RESERVE * budget, CERTIFY_RESERVE_MAX) if certifies else 0.0
+    with deadline(budget - min(BUDGET_RESERVE * budget, BUDGET_RESERVE_MAX), reserve):
         return _plan_within_budget(
             problem, planner, warm, warm_time, cache, solve_rounds or _solve_rounds
         )
@@ -468,6 +476,28 @@ def _judged(
     result = _result(problem, planner, s, cost)
     if not (result.ok and planner == Planner.SECURE and problem.options.certify):
         return result
+    from dataclasses import replace
+
+    try:
+        return _certified(problem, planner, s, cost, cache, result)
+    except BudgetSpent as exc:
+        return replace(
+            _failed(problem, planner, PlanStatus.TIME_BUDGET, f"solver: {result.message}; {exc}"),
+            build_time=cost.build,
+            solve_time=cost.solve,
+            iterations=cost.iterations,
+        )
+
+
+def _certified(
+    problem: PlanningProblem,
+    planner: str,
+    s: _Solve,
+    cost: SolveCost,
+    cache: NLPCache,
+    result: PlanResult,
+) -> PlanResult:
+    """:func:`_judged`'s certificate and tightened re-solves (raises BudgetSpent)."""
     from dataclasses import replace
 
     from secure3d.planning.certificate import certify

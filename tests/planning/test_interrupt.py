@@ -92,3 +92,65 @@ def test_the_budget_stops_a_solve_before_an_iteration_twice_the_longest_would_ov
     assert interrupt.stopped_for_budget()
     # (with the last iteration's length alone it would have run on to 9.7 s, where an iteration
     # as long as the long one ends at 11.7 s, past the budget)
+
+
+def test_a_deadline_reserve_is_spent_for_solves_but_not_for_the_work_after_them(monkeypatch):
+    import types
+
+    from secure3d.planning import interrupt
+
+    clock = types.SimpleNamespace(now=100.0)
+    monkeypatch.setattr(interrupt, "time", types.SimpleNamespace(monotonic=lambda: clock.now))
+    with interrupt.deadline(10.0, reserve=1.5):
+        clock.now = 108.4
+        assert not interrupt.budget_spent() and not interrupt.deadline_passed()
+        clock.now = 108.6  # within the reserve: no more solving, certifying goes on
+        assert interrupt.budget_spent() and not interrupt.deadline_passed()
+        with interrupt.deadline(100.0):  # a nested budget keeps the earlier deadline
+            assert not interrupt.budget_spent() and not interrupt.deadline_passed()
+        assert interrupt.budget_spent()  # the outer reserve is back
+        clock.now = 110.0
+        assert interrupt.deadline_passed()
+    assert not interrupt.budget_spent() and not interrupt.deadline_passed()
+
+
+def test_a_certificate_stops_once_the_plan_calls_deadline_has_passed(maps_dir):
+    import pytest
+
+    import secure3d
+    from secure3d.planning import interrupt
+    from secure3d.planning.certificate import certify
+    from secure3d.planning.problem import problem_from_scenario
+
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    plan = secure3d.plan(scenario, "secure")
+    problem = problem_from_scenario(scenario)
+    with interrupt.deadline(0.0), pytest.raises(interrupt.BudgetSpent):
+        certify(plan, problem)
+    assert certify(plan, problem).ok  # outside a plan call: no deadline
+
+
+def test_a_plan_call_never_certifies_past_its_budget(maps_dir):
+    """A solve that ends at the budget leaves no time to certify: the call reports TIME_BUDGET at
+    the budget rather than a certificate later (a quadrotor call overran 10 s by 1 s so)."""
+    import secure3d
+    from secure3d.planning.problem import problem_from_scenario
+    from secure3d.planning.result import PlanStatus
+    from secure3d.planning.solve import _solve_rounds, plan_problem
+
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    budget = 6.0
+    problem = problem_from_scenario(scenario, plan_budget=budget)
+    t0 = time.perf_counter()
+
+    def solve_then_wait(*args, **kwargs):
+        out = _solve_rounds(*args, **kwargs)
+        time.sleep(max(0.0, t0 + budget - time.perf_counter()))  # a solve that took the budget
+        return out
+
+    result = plan_problem(problem, "secure", solve_rounds=solve_then_wait)
+    wall = time.perf_counter() - t0
+    assert result.status is PlanStatus.TIME_BUDGET, result.message
+    assert "certifying" in result.message
+    assert result.iterations > 0
+    assert wall < budget + 0.5, wall
