@@ -478,31 +478,20 @@ def _judged(
         return result
     from dataclasses import replace
 
-    try:
-        return _certified(problem, planner, s, cost, cache, result)
-    except BudgetSpent as exc:
-        return replace(
-            _failed(problem, planner, PlanStatus.TIME_BUDGET, f"solver: {result.message}; {exc}"),
-            build_time=cost.build,
-            solve_time=cost.solve,
-            iterations=cost.iterations,
-        )
-
-
-def _certified(
-    problem: PlanningProblem,
-    planner: str,
-    s: _Solve,
-    cost: SolveCost,
-    cache: NLPCache,
-    result: PlanResult,
-) -> PlanResult:
-    """:func:`_judged`'s certificate and tightened re-solves (raises BudgetSpent)."""
-    from dataclasses import replace
-
     from secure3d.planning.certificate import certify
 
-    cert = certify(result, problem)
+    def out_of_time(exc: BudgetSpent) -> PlanResult:
+        failed = _failed(
+            problem, planner, PlanStatus.TIME_BUDGET, f"solver: {result.message}; {exc}"
+        )
+        return replace(
+            failed, build_time=cost.build, solve_time=cost.solve, iterations=cost.iterations
+        )
+
+    try:
+        cert = certify(result, problem)
+    except BudgetSpent as exc:
+        return out_of_time(exc)
     rejected: list[Certificate] = []
     for extra in CERTIFY_TIGHTENING:
         if cert.ok or budget_spent():
@@ -517,7 +506,10 @@ def _certified(
             break
         s = t_
         result = _result(problem, planner, s, cost)
-        cert = certify(result, problem)
+        try:
+            cert = certify(result, problem)
+        except BudgetSpent as exc:
+            return out_of_time(exc)
     result = replace(
         result, build_time=cost.build, solve_time=cost.solve, iterations=cost.iterations
     )
