@@ -304,85 +304,114 @@ def _obstacle_and_visibility_rows(
 ) -> None:
     """The baseline's obstacle rows, or the secure planner's visibility and obstacle rows (eq. NLP)
     for a look-back assignment that is structure, or passed as parameters (viewing states)."""
-    o, lay, K, nx, add = problem.options, v.lay, v.lay.K, v.lay.nx, rows.add
-    secure, parametric = planner == Planner.SECURE, v.lay.viewing
-    X, w, p, Boxes, Lam, start_lo, start_hi = v.X, v.w, v.p, v.Boxes, v.Lam, v.start_lo, v.start_hi
-    n_boxes, n_sides, n_sel = v.n_boxes, v.n_sides, v.n_sel
     # ---- obstacles and visibility (eq. NLP: S_r(x_i) inside S_s(x_j), clear of Ĉ_obst) ----------
-    nodes = list(range(1, K))
-    if not secure:
-        X_next = ca.horzcat(X[:, 2:], X[:, K - 1])
-        add(
-            KernelCall(kern.obs_base, [X[:, 1:], X_next, Boxes[:, 1:], Lam[:, 1:]], K - 1),
-            kern.obs_base_rows,
-            K - 1,
-        )
-    elif not parametric:
-        view = [k for k in nodes if assignment[k] >= 0]
-        start = [k for k in nodes if assignment[k] < 0]
-        if view:
-            Xi, Xj = X[:, view], X[:, [assignment[k] for k in view]]
-            add(
-                KernelCall(kern.vis, [Xi, Xj], len(view)),
-                [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
-                len(view),
-            )
-            add(
-                KernelCall(kern.obs_view, [Xi, Xj, Boxes[:, view], Lam[:, view]], len(view)),
-                kern.obs_view_rows,
-                len(view),
-            )
-        if start:
-            Xs = X[:, start]
-            n_s = len(start)
-            add(
-                KernelCall(
-                    kern.start, [Xs, ca.repmat(start_lo, 1, n_s), ca.repmat(start_hi, 1, n_s)], n_s
-                ),
-                [("start_region", o.margin, ca.inf)] * 6,
-                n_s,
-            )
-            add(
-                KernelCall(kern.obs_start, [Xs, Boxes[:, start], Lam[:, start]], n_s),
-                kern.obs_start_rows,
-                n_s,
-            )
-        if o.interval_rows:
-            structure_interval_rows(add, kern, problem, X, Boxes, Lam, assignment)
+    if planner != Planner.SECURE:
+        _baseline_obstacle_rows(rows, kern, v)
+    elif not v.lay.viewing:
+        _structure_visibility_rows(rows, problem, kern, v, assignment)
     else:
-        # Viewing states: y_i = sum_j S_ij x_j over earlier nodes j (S a one-hot parameter row, or
-        # zero for a node in the start region). Linear coupling rows keep the nonlinear frustum
-        # rows local to (x_i, y_i), so the Hessian stays block-sparse for every assignment.
-        dims = list(lay.view_dims)
-        Yv = ca.reshape(w[int(lay.i_Y[0, 0]) : int(lay.i_Y[-1, -1]) + 1], len(dims), K)
-        Sel = ca.reshape(p[9 + n_boxes + n_sides : 9 + n_boxes + n_sides + n_sel], K, K)
-        link = ca.horzcat(*[Yv[:, i] - ca.mtimes(X[dims, :i], Sel[i, :i].T) for i in nodes])
-        add(link, [("viewing_state", 0.0, 0.0)] * len(dims), len(nodes), nodes)
-        # the full viewing state, zero in the coordinates the camera pose does not depend on
-        Y = SYM.zeros(nx, K)
-        for r_, d in enumerate(dims):
-            Y[d, :] = Yv[r_, :]
-        Xi, Yi, Bi, Li = X[:, 1:], Y[:, 1:], Boxes[:, 1:], Lam[:, 1:]
+        _parametric_visibility_rows(rows, problem, kern, v)
+
+
+def _baseline_obstacle_rows(rows: _NLPRows, kern: NodeKernels, v: _Symbols) -> None:
+    """The baseline's rows: the segment from each node to the next clear of its obstacle slots."""
+    K, X = v.lay.K, v.X
+    X_next = ca.horzcat(X[:, 2:], X[:, K - 1])
+    rows.add(
+        KernelCall(kern.obs_base, [X[:, 1:], X_next, v.Boxes[:, 1:], v.Lam[:, 1:]], K - 1),
+        kern.obs_base_rows,
+        K - 1,
+    )
+
+
+def _structure_visibility_rows(
+    rows: _NLPRows,
+    problem: PlanningProblem,
+    kern: NodeKernels,
+    v: _Symbols,
+    assignment: tuple[int, ...],
+) -> None:
+    """The secure planner's rows for an assignment compiled as structure: node i's frustum rows
+    read x_j directly (or the start region's rows for j = -1)."""
+    o, K, add = problem.options, v.lay.K, rows.add
+    X, Boxes, Lam = v.X, v.Boxes, v.Lam
+    nodes = list(range(1, K))
+    view = [k for k in nodes if assignment[k] >= 0]
+    start = [k for k in nodes if assignment[k] < 0]
+    if view:
+        Xi, Xj = X[:, view], X[:, [assignment[k] for k in view]]
         add(
-            KernelCall(kern.vis, [Xi, Yi], K - 1),
+            KernelCall(kern.vis, [Xi, Xj], len(view)),
             [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
-            K - 1,
-            nodes,
+            len(view),
         )
+        add(
+            KernelCall(kern.obs_view, [Xi, Xj, Boxes[:, view], Lam[:, view]], len(view)),
+            kern.obs_view_rows,
+            len(view),
+        )
+    if start:
+        Xs = X[:, start]
+        n_s = len(start)
         add(
             KernelCall(
-                kern.start,
-                [Xi, ca.repmat(start_lo, 1, K - 1), ca.repmat(start_hi, 1, K - 1)],
-                K - 1,
+                kern.start, [Xs, ca.repmat(v.start_lo, 1, n_s), ca.repmat(v.start_hi, 1, n_s)], n_s
             ),
             [("start_region", o.margin, ca.inf)] * 6,
-            K - 1,
-            nodes,
+            n_s,
         )
-        # [dual, clear, occlusion] per slot; occlusion rows are switched off for start nodes
-        add(KernelCall(kern.obs_view, [Xi, Yi, Bi, Li], K - 1), kern.obs_view_rows, K - 1, nodes)
-        if o.interval_rows and K > 2:
-            parametric_interval_rows(add, kern, problem, X, Y, Boxes, Lam, nodes)
+        add(
+            KernelCall(kern.obs_start, [Xs, Boxes[:, start], Lam[:, start]], n_s),
+            kern.obs_start_rows,
+            n_s,
+        )
+    if o.interval_rows:
+        structure_interval_rows(add, kern, problem, X, Boxes, Lam, assignment)
+
+
+def _parametric_visibility_rows(
+    rows: _NLPRows, problem: PlanningProblem, kern: NodeKernels, v: _Symbols
+) -> None:
+    """The secure planner's rows for a look-back assignment passed as parameters.
+
+    Viewing states: y_i = sum_j S_ij x_j over earlier nodes j (S a one-hot parameter row, or zero
+    for a node in the start region). Linear coupling rows keep the nonlinear frustum rows local to
+    (x_i, y_i), so the Hessian stays block-sparse for every assignment.
+    """
+    o, lay, K, nx, add = problem.options, v.lay, v.lay.K, v.lay.nx, rows.add
+    X, w, p, Boxes, Lam = v.X, v.w, v.p, v.Boxes, v.Lam
+    n_boxes, n_sides, n_sel = v.n_boxes, v.n_sides, v.n_sel
+    nodes = list(range(1, K))
+    dims = list(lay.view_dims)
+    Yv = ca.reshape(w[int(lay.i_Y[0, 0]) : int(lay.i_Y[-1, -1]) + 1], len(dims), K)
+    Sel = ca.reshape(p[9 + n_boxes + n_sides : 9 + n_boxes + n_sides + n_sel], K, K)
+    link = ca.horzcat(*[Yv[:, i] - ca.mtimes(X[dims, :i], Sel[i, :i].T) for i in nodes])
+    add(link, [("viewing_state", 0.0, 0.0)] * len(dims), len(nodes), nodes)
+    # the full viewing state, zero in the coordinates the camera pose does not depend on
+    Y = SYM.zeros(nx, K)
+    for r_, d in enumerate(dims):
+        Y[d, :] = Yv[r_, :]
+    Xi, Yi, Bi, Li = X[:, 1:], Y[:, 1:], Boxes[:, 1:], Lam[:, 1:]
+    add(
+        KernelCall(kern.vis, [Xi, Yi], K - 1),
+        [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
+        K - 1,
+        nodes,
+    )
+    add(
+        KernelCall(
+            kern.start,
+            [Xi, ca.repmat(v.start_lo, 1, K - 1), ca.repmat(v.start_hi, 1, K - 1)],
+            K - 1,
+        ),
+        [("start_region", o.margin, ca.inf)] * 6,
+        K - 1,
+        nodes,
+    )
+    # [dual, clear, occlusion] per slot; occlusion rows are switched off for start nodes
+    add(KernelCall(kern.obs_view, [Xi, Yi, Bi, Li], K - 1), kern.obs_view_rows, K - 1, nodes)
+    if o.interval_rows and K > 2:
+        parametric_interval_rows(add, kern, problem, X, Y, Boxes, Lam, nodes)
 
 
 def _transcribed(
