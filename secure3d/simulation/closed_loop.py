@@ -41,9 +41,6 @@ from secure3d.simulation.loop import (
     observed_box,
     scan_headings,
 )
-from secure3d.simulation.loop import Loop as _Loop  # noqa: F401  (older name, kept for tests)
-from secure3d.simulation.loop import new_obstacle_voxels as _new_obstacle_voxels  # noqa: F401
-from secure3d.simulation.loop import scan_control as _scan_control  # noqa: F401
 from secure3d.simulation.modes import (
     ARRIVAL_SPEED,
     CONTACT_SAMPLES,
