@@ -306,11 +306,12 @@ def _bench_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _run_script(name: str, argv: Sequence[str]) -> int:
-    """Run a repository script in a fresh interpreter; its exit status is ours."""
+def _run_script(name: str, argv: Sequence[str], scripts: Path) -> int:
+    """Run the repository script ``scripts / name`` in a fresh interpreter; its exit status is
+    ours."""
     import subprocess
 
-    script = _BENCHMARKS / name
+    script = scripts / name
     if not script.is_file():
         raise ConfigError(
             f"{script} not found: the benchmarks ship with the source repository, not the package"
@@ -327,7 +328,7 @@ def _bench(args: argparse.Namespace) -> int:
         stamp = time.strftime("%Y%m%d-%H%M%S")
         defaults = ["-n", "20", "--out", f"out/bench_campaign/{stamp}"]
         return main(["campaign", str(scenario), *defaults, *args.args])
-    return _run_script(f"bench_{args.target}.py", args.args)
+    return _run_script(f"bench_{args.target}.py", args.args, args.scripts)
 
 
 # ---- reactive ----------------------------------------------------------------------------------
@@ -344,7 +345,7 @@ def _reactive_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _reactive(args: argparse.Namespace) -> int:
-    return _run_script("fit_reactive_sets.py", args.args)
+    return _run_script("fit_reactive_sets.py", args.args, args.scripts)
 
 
 COMMANDS: tuple[Command, ...] = (
@@ -422,8 +423,9 @@ def _log_to_stderr() -> None:
         logger.setLevel(logging.INFO)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The top-level parser with one subparser per entry of :data:`COMMANDS`."""
+def build_parser(scripts: Path = _BENCHMARKS) -> argparse.ArgumentParser:
+    """The top-level parser with one subparser per entry of :data:`COMMANDS`; ``bench`` and
+    ``reactive fit`` run the scripts in the folder ``scripts`` (offered only if it exists)."""
     parser = _Parser(
         prog=PROG,
         description="Secure minimum-time planning for aerial robots whose map cannot be trusted.",
@@ -431,15 +433,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for command in COMMANDS:
-        if command.name == "bench" and not _BENCHMARKS.is_dir():
+        if command.name == "bench" and not scripts.is_dir():
             continue  # an installed wheel has no benchmark scripts
         p = sub.add_parser(command.name, help=command.help, description=command.help)
         command.add_arguments(p)
-        p.set_defaults(run=command.run)
+        p.set_defaults(run=command.run, scripts=scripts)
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, *, scripts: Path = _BENCHMARKS) -> int:
     """Run the command line; return the exit status (0 success, 1 I/O error, 2 bad input,
     130 interrupted by Ctrl-C, within a second whatever runs: :mod:`secure3d.sigint`).
 
@@ -447,10 +449,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ----------
     argv : sequence of str, optional
         Arguments without the program name; default ``sys.argv[1:]``.
+    scripts : folder of the repository scripts that ``bench`` and ``reactive fit`` run (default:
+        the source checkout's ``benchmarks/``).
     """
     with cli_interrupts(f"{PROG}: error: interrupted"):
         try:
-            return _run(argv)
+            return _run(argv, scripts)
         except KeyboardInterrupt:
             return _interrupted()
         except Exception as exc:
@@ -482,8 +486,8 @@ def _report(exc: Exception) -> int:
     raise exc
 
 
-def _run(argv: Sequence[str] | None) -> int:
-    parser = build_parser()
+def _run(argv: Sequence[str] | None, scripts: Path) -> int:
+    parser = build_parser(scripts)
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version and usage errors

@@ -240,17 +240,15 @@ sys.exit(3)
     ],
 )
 def test_scripts_get_the_extra_arguments_and_give_their_status(
-    argv: list[str], script: str, tmp_path: Path, monkeypatch, capfd
+    argv: list[str], script: str, tmp_path: Path, capfd
 ) -> None:
     (tmp_path / script).write_text(FAKE_SCRIPT)
-    monkeypatch.setattr(cli, "_BENCHMARKS", tmp_path)
-    assert main(argv) == 3
+    assert main(argv, scripts=tmp_path) == 3
     assert capfd.readouterr().out.strip() == f"ran {script} {argv[2:]}"
 
 
-def test_missing_script_is_one_line(tmp_path: Path, monkeypatch, capsys) -> None:
-    monkeypatch.setattr(cli, "_BENCHMARKS", tmp_path)
-    assert main(["bench", "planner"]) == 2
+def test_missing_script_is_one_line(tmp_path: Path, capsys) -> None:
+    assert main(["bench", "planner"], scripts=tmp_path) == 2
     _one_line_error(capsys, "bench_planner.py not found")
 
 

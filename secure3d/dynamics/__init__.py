@@ -23,13 +23,17 @@ from secure3d.errors import ConfigError
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.world.spec import CameraSpec, VehicleSpec
 
+#: The vehicle registry: model name -> class. Adding a vehicle is its module and one entry here.
 MODELS: dict[str, type[VehicleModel]] = {
     PointMass.name: PointMass,
     Quadrotor.name: Quadrotor,
     DiffDrive.name: DiffDrive,
 }
+#: The vehicle a scenario flies unless it names one (``vehicle.model``).
+DEFAULT_MODEL = PointMass.name
 
 __all__ = [
+    "DEFAULT_MODEL",
     "MODELS",
     "CameraMount",
     "DiffDrive",
@@ -53,7 +57,7 @@ def make_model(
 
     Parameters
     ----------
-    name : ``"point_mass"``, ``"quadrotor"`` or ``"diff_drive"``.
+    name : a key of :data:`MODELS` (``"point_mass"``, ``"quadrotor"`` or ``"diff_drive"``).
     body_radius : radius of the ball bounding the body (m).
     mount : camera mount (default: level camera at the body centre).
     **limits : fields of the model's limits dataclass (e.g. ``max_accel=3.0``); missing fields keep

@@ -123,6 +123,9 @@ class VehicleModel(ABC):
     double_integrator: ClassVar[bool] = False
     #: State entries holding an attitude quaternion (w, x, y, z), or None without one.
     quaternion_slice: ClassVar[slice | None] = None
+    #: The feedback law that makes this vehicle follow a plan: a key of
+    #: ``secure3d.simulation.tracking.TRACKERS`` (a new vehicle names an existing law, or adds one).
+    tracker_kind: ClassVar[str]
 
     def __init__(
         self, limits: Any = None, body_radius: float = 0.2, mount: CameraMount | None = None

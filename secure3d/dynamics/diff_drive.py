@@ -54,6 +54,7 @@ class DiffDrive(VehicleModel):
 
     name = "diff_drive"
     feature_map = "diff_drive/v1"
+    tracker_kind = "kanayama"
     state_names = ("x", "y", "theta", "v", "omega")
     control_names = ("a", "alpha")
     limits_type = DiffDriveLimits

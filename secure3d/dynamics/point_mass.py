@@ -55,6 +55,7 @@ class PointMass(VehicleModel):
 
     name = "point_mass"
     feature_map = "point_mass/v1"
+    tracker_kind = "acceleration_pd"
     double_integrator = True
     state_names = ("px", "py", "pz", "vx", "vy", "vz", "yaw")
     control_names = ("ax", "ay", "az", "yaw_rate")

@@ -109,6 +109,7 @@ class Quadrotor(VehicleModel):
 
     name = "quadrotor"
     feature_map = "quadrotor/v1"
+    tracker_kind = "geometric_attitude"
     state_names = ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")
     control_names = ("thrust", "wx", "wy", "wz")
     limits_type = QuadrotorLimits

@@ -82,10 +82,46 @@ def observed_range(
     Returns
     -------
     float
-        ``min(max_range, z_res - w / 2, z_vox)`` (> 0), with the limits derived below.
+        ``min(max_range, z_res - w / 2, z_vox)`` (> 0): z_res from the pixel pitch (and dropout,
+        :func:`_pixel_pitch_depth`), z_vox from the discretisation (:func:`_discretised_far`).
 
     Notes
     -----
+    *Far face.* The planner and the certificate see a point (of a manoeuvre's body ball) inside the
+    field of view; an obstacle touching it contains a ball of diameter w through that point, whose
+    centre may lie w / 2 deeper. The far limit is therefore ``z_res - w / 2``. (The side faces have
+    no such allowance: an obstacle ball straddling the image border is guaranteed only once it is
+    inside the image; see docs/guarantees.md.)
+
+    *Range.* A Euclidean limit bounds z-depth too (``z <= range``), so ``min(max_range, z_res)`` as a
+    range is sound; the field of view is inner-approximated from it as before.
+
+    *Noise.* Depth noise moves a hit along its ray; the guarantee places it within the noise of the
+    surface, not necessarily in the surface's voxel.
+    """
+    fx = _number(fx, "fx")
+    fy = _number(fy, "fy")
+    far = _number(max_range, "max_range")
+    if far_kind not in ("depth", "range"):
+        raise ConfigError(f"observed_range: far_kind must be 'depth' or 'range', got {far_kind!r}")
+    res = _number(resolution, "resolution")
+    w = _number(min_obstacle_size, "min_obstacle_size")
+    z_res = _pixel_pitch_depth(fx, fy, w, rays_needed(dropout, miss_probability))
+    if discretize and far_kind == "range":
+        far = _discretised_far(far, res, max_range, resolution)
+    z_obs = z_res - 0.5 * w
+    if z_obs <= 0.0:
+        raise ConfigError(
+            f"observed_range: min_obstacle_size {min_obstacle_size!r} is too small for this camera"
+            f" (fx {fx:g}, fy {fy:g} px): no depth is surely observed"
+        )
+    return min(far, z_obs)
+
+
+def _pixel_pitch_depth(fx: float, fy: float, w: float, n: int) -> float:
+    """z_res (m): the largest z-depth at which at least ``n`` pixel rays meet every ball of
+    diameter ``w`` in the field of view (focal lengths ``fx``, ``fy`` in pixels).
+
     *Pixel pitch.* At z-depth z the pixel rays cross the plane ``{depth = z}`` in a rectangular
     lattice of pitch ``(z / fx, z / fy)``, and every lattice point inside the field of view is a
     pixel centre. A ball of diameter w centred at depth z cuts that plane in a disc of diameter w,
@@ -98,21 +134,21 @@ def observed_range(
     Off the optical axis the lattice is the same in the plane, so no pixel does worse. (A band,
     like a long pole seen side on, needs only ``z <= w f``; the disc is the worst case.)
 
-    *Far face.* The planner and the certificate see a point (of a manoeuvre's body ball) inside the
-    field of view; an obstacle touching it contains a ball of diameter w through that point, whose
-    centre may lie w / 2 deeper. The far limit is therefore ``z_res - w / 2``. (The side faces have
-    no such allowance: an obstacle ball straddling the image border is guaranteed only once it is
-    inside the image; see docs/guarantees.md.)
-
     *Dropout.* A frame then still misses the ball if every ray through it is lost. Requiring
     ``n = rays_needed(dropout, miss_probability)`` rays keeps that below ``miss_probability`` per
     frame: the disc contains a square of side ``w / sqrt(2)``, which holds at least ``m x m``
     lattice points when both pitches are at most ``w / (sqrt(2) m)``; with ``m = ceil(sqrt(n))``,
 
         z_res = w min(fx, fy) / (sqrt(2) m)         (p > 0; a statement per frame, not a certainty).
+    """
+    if n == 1:
+        return w / math.hypot(1.0 / fx, 1.0 / fy)
+    return w * min(fx, fy) / (math.sqrt(2.0) * math.ceil(math.sqrt(n)))
 
-    *Range.* A Euclidean limit bounds z-depth too (``z <= range``), so ``min(max_range, z_res)`` as a
-    range is sound; the field of view is inner-approximated from it as before.
+
+def _discretised_far(far: float, res: float, max_range: float, resolution: float) -> float:
+    """z_vox (m): the range limit ``far`` of frames inserted with ``discretize``, at voxel edge
+    ``res`` (``max_range`` and ``resolution`` as the caller gave them, for the error message).
 
     *Discretisation.* ``discretize`` casts one ray per *end voxel*, to its centre; every end voxel is
     still marked occupied, so it loses no hit of the full pixel grid (a thin obstacle is never
@@ -120,33 +156,11 @@ def observed_range(
     :meth:`~secure3d.mapping.occupancy.OccupancyMap.insert_depth_image` clips z-depth frames a voxel
     beyond the far corner, so none is lost there; a range-limited frame loses hits up to half a
     voxel diagonal inside ``max_range``, so ``z_vox = max_range - (sqrt(3) / 2) resolution`` then.
-
-    *Noise.* Depth noise moves a hit along its ray; the guarantee places it within the noise of the
-    surface, not necessarily in the surface's voxel.
     """
-    fx = _number(fx, "fx")
-    fy = _number(fy, "fy")
-    far = _number(max_range, "max_range")
-    if far_kind not in ("depth", "range"):
-        raise ConfigError(f"observed_range: far_kind must be 'depth' or 'range', got {far_kind!r}")
-    res = _number(resolution, "resolution")
-    w = _number(min_obstacle_size, "min_obstacle_size")
-    n = rays_needed(dropout, miss_probability)
-    if n == 1:
-        z_res = w / math.hypot(1.0 / fx, 1.0 / fy)
-    else:
-        z_res = w * min(fx, fy) / (math.sqrt(2.0) * math.ceil(math.sqrt(n)))
-    if discretize and far_kind == "range":
-        far -= 0.5 * math.sqrt(3.0) * res
-        if far <= 0.0:
-            raise ConfigError(
-                f"observed_range: max_range {max_range!r} is within half a voxel diagonal of the"
-                f" sensor at resolution {resolution!r}: nothing is surely observed"
-            )
-    z_obs = z_res - 0.5 * w
-    if z_obs <= 0.0:
+    far -= 0.5 * math.sqrt(3.0) * res
+    if far <= 0.0:
         raise ConfigError(
-            f"observed_range: min_obstacle_size {min_obstacle_size!r} is too small for this camera"
-            f" (fx {fx:g}, fy {fy:g} px): no depth is surely observed"
+            f"observed_range: max_range {max_range!r} is within half a voxel diagonal of the"
+            f" sensor at resolution {resolution!r}: nothing is surely observed"
         )
-    return min(far, z_obs)
+    return far

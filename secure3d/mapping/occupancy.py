@@ -28,22 +28,17 @@ Each voxel reports one :class:`Trust` level. Coordinates are metres in the world
 from __future__ import annotations
 
 import math
-import os
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
-from secure3d.errors import ConfigError, GeometryError, MapFormatError
+from secure3d.errors import ConfigError, GeometryError
 from secure3d.mapping import octomap_io
-from secure3d.mapping.boxes import boxes_near_points
 from secure3d.mapping.claim import (  # noqa: F401  (BOUNDARY_TOUCH, MAX_CLAIM_VOXELS: re-exported)
     BOUNDARY_TOUCH,
     MAX_CLAIM_VOXELS,
     ClaimLayer,
-    box_claim_codes,
-    mesh_claim_codes,
 )
 from secure3d.mapping.depth import depth_image_points, far_plane_reach
 from secure3d.mapping.hits import HitLayer
@@ -58,13 +53,13 @@ from secure3d.mapping.keys import (
     morton_encode,
     scan_update,
 )
-from secure3d.mapping.obstacle_boxes import obstacle_boxes
+from secure3d.mapping.occupancy_claims import ClaimEditing
+from secure3d.mapping.occupancy_files import OccupancyFiles
+from secure3d.mapping.occupancy_views import ObstacleViews
 from secure3d.mapping.octomap_header import MAX_FILE_BYTES  # noqa: F401  (re-exported)
 from secure3d.mapping.sensor_model import InsertStats, OccupancyParams, Trust
 from secure3d.mapping.store import LeafLayer
-from secure3d.mapping.surface import boundary_mesh
-from secure3d.outputs import atomic_write_bytes
-from secure3d.validation import is_int_in, is_real
+from secure3d.validation import is_real
 
 
 def _check_resolution(resolution: object) -> float:
@@ -90,7 +85,7 @@ def _check_bounds(bounds: object) -> tuple[NDArray[np.float64], NDArray[np.float
     return lo, hi
 
 
-class OccupancyMap:
+class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
     """OctoMap-compatible occupancy map with a separate layer for the server's claim.
 
     Parameters
@@ -521,300 +516,3 @@ class OccupancyMap:
         ):
             raise GeometryError(f"box: expected finite lo (3,), hi (3,), got {lo!r}, {hi!r}")
         return lo_a, hi_a
-
-    # ------------------------------------------------------------------ claim layer
-
-    def _merge_claims(self, codes: NDArray[np.int64], occupied: NDArray[np.bool_]) -> None:
-        """New claims override older ones on the same voxel."""
-        self._claim.merge(codes, occupied)
-        self._changed()
-
-    def set_claim_voxels(self, centres: ArrayLike, occupied: bool | ArrayLike = True) -> None:
-        """Record the server's claim for the voxels containing ``centres``.
-
-        Parameters
-        ----------
-        centres : (n, 3) float
-            Points (m), typically voxel centres; each names the voxel containing it.
-        occupied : bool or (n,) bool
-            Claimed occupied (True) or free (False), per point or for all.
-
-        Raises
-        ------
-        GeometryError
-            Non-finite points or points outside the key range (the count is in the message).
-        """
-        codes, valid = self._codes(centres)
-        if not valid.all():
-            raise GeometryError(
-                f"set_claim_voxels: {int((~valid).sum())} of {valid.size} points are non-finite "
-                "or outside the key range"
-            )
-        occ = np.broadcast_to(np.asarray(occupied, dtype=bool), codes.shape)
-        # The last claim of a voxel within one call wins, like later calls.
-        rev_codes, rev_first = np.unique(codes[::-1], return_index=True)
-        self._merge_claims(rev_codes, occ[::-1][rev_first])
-
-    def set_claim_boxes(self, lo: ArrayLike, hi: ArrayLike, occupied: bool = True) -> None:
-        """Claim axis-aligned boxes occupied or free.
-
-        An occupied claim covers every voxel overlapping the box (conservative for obstacles); a
-        free claim covers only voxels entirely inside it (conservative for free space).
-
-        Parameters
-        ----------
-        lo, hi : (n, 3) float
-            Box corners (m), ``lo <= hi``.
-        occupied : bool
-        """
-        lo_a = check_points(lo, "lo")
-        hi_a = check_points(hi, "hi")
-        if lo_a.shape != hi_a.shape:
-            raise GeometryError(f"lo and hi: shapes differ, {lo_a.shape} vs {hi_a.shape}")
-        if not np.all(np.isfinite(lo_a) & np.isfinite(hi_a)) or np.any(hi_a < lo_a):
-            raise GeometryError("set_claim_boxes: boxes must be finite with lo <= hi")
-        codes = box_claim_codes(lo_a, hi_a, self._resolution, occupied)
-        self._merge_claims(codes, np.full(len(codes), bool(occupied)))
-
-    def set_claim_mesh(self, vertices: ArrayLike, faces: ArrayLike, occupied: bool = True) -> None:
-        """Claim the interior of a closed triangle mesh occupied or free.
-
-        Voxel centres are classified with Open3D's signed distance (negative inside, by ray
-        parity). An occupied claim takes every voxel whose centre is inside or within half a
-        voxel diagonal of the surface (so every voxel the solid touches); a free claim only voxels
-        entirely inside (centre deeper than half a diagonal).
-
-        Parameters
-        ----------
-        vertices : (v, 3) float
-        faces : (f, 3) int
-            A closed (watertight) mesh, any orientation.
-        occupied : bool
-        """
-        verts = check_points(vertices, "vertices")
-        tri = np.asarray(faces)
-        if tri.ndim != 2 or tri.shape[1] != 3 or tri.shape[0] == 0:
-            raise GeometryError(f"faces: expected (f, 3) indices, got shape {tri.shape}")
-        if not np.all(np.isfinite(verts)) or tri.min() < 0 or tri.max() >= verts.shape[0]:
-            raise GeometryError("set_claim_mesh: non-finite vertices or face index out of range")
-        codes = mesh_claim_codes(verts, tri, self._resolution, occupied)
-        self._merge_claims(codes, np.full(len(codes), bool(occupied)))
-
-    def set_claim_from_map(self, other: OccupancyMap) -> None:
-        """Take another map's sensor layer (e.g. a ``.bt`` from the server) as the claim.
-
-        Its occupied voxels become claimed occupied, its free voxels claimed free; earlier claims on
-        the same voxels are overridden.
-
-        Raises
-        ------
-        ConfigError
-            The resolutions differ.
-        """
-        if not isinstance(other, OccupancyMap):
-            raise ConfigError(f"set_claim_from_map: expected OccupancyMap, got {type(other)}")
-        if other.resolution != self._resolution:
-            raise ConfigError(
-                f"set_claim_from_map: resolution {other.resolution} differs from this map's "
-                f"{self._resolution}"
-            )
-        codes, vals = other._sensor.voxels(MAX_CLAIM_VOXELS)
-        self._merge_claims(codes, vals >= other.params.threshold_log)
-
-    def clear_claim(self) -> None:
-        """Forget everything the server claimed."""
-        self._claim.clear()
-        self._changed()
-
-    # ------------------------------------------------------------------ planner views
-
-    def known_obstacle_boxes(
-        self, max_boxes: int | None = None, include_bounds: bool = True, close_gaps: int = 0
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Known obstacle voxels merged into axis-aligned boxes (cached until the map changes).
-
-        Parameters
-        ----------
-        max_boxes : int or None
-            Budget; if the exact cover needs more boxes, a conservative coarser cover is returned
-            (a superset of the obstacles, see :func:`secure3d.mapping.boxes.merge_cells_budget`).
-        include_bounds : bool
-            With ``bounds`` set, add six slabs (as thick as the bounds' largest extent) around
-            them, so "outside is unplannable" reaches the planner as obstacles.
-        close_gaps : int
-            Morphological closing radius (voxels) applied before merging: gaps up to ``2 *
-            close_gaps`` voxels wide between obstacle voxels are filled. Sensed surfaces come as
-            combs of hit voxels separated by carved ones; closing them gives a planner a few solid
-            boxes instead of hundreds of slivers. Only ever adds obstacles (conservative), at the
-            price of closing openings narrower than the gap.
-
-        Returns
-        -------
-        lo, hi : (m, 3) float64
-            Box corners (m).
-        """
-        if not is_int_in(close_gaps, 0):
-            raise ConfigError(f"close_gaps: must be an integer >= 0, got {close_gaps!r}")
-        key = (self._version, max_boxes, include_bounds, close_gaps)
-        if self._box_cache is not None and self._box_cache[:4] == key:
-            return self._box_cache[4].copy(), self._box_cache[5].copy()
-        lo, hi = obstacle_boxes(
-            self._known_obstacle_codes(),
-            self._resolution,
-            self._bounds if include_bounds else None,
-            max_boxes,
-            close_gaps,
-        )
-        self._box_cache = (*key, lo, hi)
-        return lo.copy(), hi.copy()
-
-    def boxes_near(
-        self, points: ArrayLike, radius: float, max_boxes: int | None = None
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Known obstacle boxes within ``radius`` of any of ``points`` (a corridor).
-
-        Parameters
-        ----------
-        points : (k, 3) float
-        radius : float
-            Distance (m) from the points; boxes touching that neighbourhood are returned.
-        max_boxes : int or None
-            Passed to :meth:`known_obstacle_boxes`.
-
-        Returns
-        -------
-        lo, hi : (m, 3) float64
-        """
-        p = check_points(points)
-        if not np.all(np.isfinite(p)):
-            raise GeometryError("boxes_near: points must be finite")
-        if not (isinstance(radius, (int, float, np.integer, np.floating)) and radius >= 0.0):
-            raise GeometryError(f"boxes_near: radius must be a number >= 0, got {radius!r}")
-        lo, hi = self.known_obstacle_boxes(max_boxes)
-        near = boxes_near_points(lo, hi, p, float(radius))
-        return lo[near], hi[near]
-
-    def surface_mesh(self, which: str = "known") -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-        """Closed outer surface of a voxel set (faces between set and non-set voxels).
-
-        Parameters
-        ----------
-        which : {"known", "sensed", "claimed"}
-            Known obstacles, sensed occupied voxels, or claimed occupied voxels.
-
-        Returns
-        -------
-        vertices : (v, 3) float64
-            Voxel corners (m).
-        faces : (f, 3) int64
-            Triangles, counter-clockwise seen from outside.
-        """
-        if which == "known":
-            codes = self._known_obstacle_codes()
-        elif which == "sensed":
-            codes, vals = self._sensor_voxels()
-            codes = codes[vals >= self._params.threshold_log]
-        elif which == "claimed":
-            codes = self._claim.occupied_codes()
-        else:
-            raise ConfigError(f"surface_mesh: which must be known/sensed/claimed, got {which!r}")
-        corners, faces = boundary_mesh(morton_decode(codes))
-        return (corners - TREE_MAX_VAL).astype(np.float64) * self._resolution, faces
-
-    # ------------------------------------------------------------------ files
-
-    def to_bytes(self, fmt: str = "bt") -> bytes:
-        """The sensor layer as an OctoMap ``.bt`` or ``.ot`` buffer.
-
-        The tree is pruned as OctoMap keeps it while inserting (every group of 8 sibling leaves
-        with equal log-odds merged); ``.bt`` then follows ``writeBinary`` (max-likelihood leaves,
-        ``prune()``). For maps built by insertion, and for files OctoMap wrote, the output is
-        byte-identical to OctoMap's ``writeBinary``/``write`` (tested). The claim layer is not
-        written.
-
-        Parameters
-        ----------
-        fmt : {"bt", "ot"}
-        """
-        starts, depths, vals = octomap_io.prune(*self._sensor.leaves())
-        if fmt == "ot":
-            return octomap_io.write_ot_bytes(self._resolution, starts, depths, vals)
-        if fmt != "bt":
-            raise ConfigError(f"fmt: expected 'bt' or 'ot', got {fmt!r}")
-        p = self._params
-        occ = vals >= p.threshold_log
-        binary = np.where(occ, p.clamp_max_log, p.clamp_min_log).astype(np.float32)
-        starts, depths, binary = octomap_io.prune(
-            starts, depths, binary, stop_at_first_unpruned_level=True
-        )
-        return octomap_io.write_bt_bytes(
-            self._resolution, starts, depths, binary >= p.threshold_log
-        )
-
-    @classmethod
-    def from_bytes(
-        cls,
-        data: bytes,
-        params: OccupancyParams = OccupancyParams(),  # noqa: B008 (frozen, immutable)
-        bounds: tuple[ArrayLike, ArrayLike] | None = None,
-    ) -> OccupancyMap:
-        """Map from a ``.bt`` or ``.ot`` buffer (recognised by its first line).
-
-        ``.bt`` leaves get the clamping bounds of ``params`` as log-odds (OctoMap's reader does
-        the same); ``.ot`` leaves keep their stored log-odds.
-
-        Raises
-        ------
-        MapFormatError
-            The buffer is not a valid OctoMap file (see
-            :func:`secure3d.mapping.octomap_io.read_bt_bytes` and ``read_ot_bytes``).
-        """
-        if not isinstance(data, (bytes, bytearray, memoryview)):
-            raise MapFormatError(f"expected bytes, got {type(data).__name__}")
-        return cls._from_leaves(octomap_io.read_octomap_bytes(bytes(data)), params, bounds)
-
-    @classmethod
-    def _from_leaves(
-        cls,
-        leaves: octomap_io.Leaves,
-        params: OccupancyParams,
-        bounds: tuple[ArrayLike, ArrayLike] | None,
-    ) -> OccupancyMap:
-        if leaves.fmt == "bt":
-            values = np.where(leaves.values > 0, params.clamp_max_log, params.clamp_min_log)
-        else:
-            values = leaves.values
-        out = cls(leaves.resolution, params, bounds)
-        out._sensor.set_leaves(leaves.starts, leaves.depths, values.astype(np.float32))
-        return out
-
-    @classmethod
-    def read_bt(
-        cls,
-        path: str | os.PathLike[str],
-        params: OccupancyParams = OccupancyParams(),  # noqa: B008 (frozen, immutable)
-        bounds: tuple[ArrayLike, ArrayLike] | None = None,
-    ) -> OccupancyMap:
-        """Read an OctoMap ``.bt`` (or ``.ot``) file, header first; see :meth:`from_bytes`.
-
-        Only the header (at most 4 KB) is read before it is validated, then only as many bytes as
-        its ``size`` allows: ``read_bt("/dev/zero")`` fails after 4 KB.
-
-        Raises
-        ------
-        MapFormatError
-            Malformed, truncated or hostile content, or a file larger than ``MAX_FILE_BYTES``.
-        OSError
-            The file cannot be read.
-        """
-        return cls._from_leaves(octomap_io.read_octomap_file(Path(path)), params, bounds)
-
-    read_ot = read_bt
-
-    def write_bt(self, path: str | os.PathLike[str]) -> None:
-        """Write the sensor layer as ``.bt`` atomically (temporary file, then ``os.replace``)."""
-        atomic_write_bytes(path, self.to_bytes("bt"))
-
-    def write_ot(self, path: str | os.PathLike[str]) -> None:
-        """Write the sensor layer as ``.ot`` (log-odds kept) atomically."""
-        atomic_write_bytes(path, self.to_bytes("ot"))

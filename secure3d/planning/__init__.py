@@ -2,7 +2,8 @@
 
 - :func:`plan` / :func:`plan_problem`: build, guess, solve (IPOPT or fatrop), certify;
 - :class:`PlanningProblem`, :class:`PlannerOptions`: *what* is solved;
-- :mod:`.collocation`: *how* it is transcribed; :mod:`.constraints`: the constraint families;
+- :mod:`.collocation` (IPOPT) and :mod:`.fatrop_transcription`: *how* it is transcribed, both over
+  the node kernels of :mod:`.kernels`; :mod:`.constraints`: the constraint families;
 - :func:`certify`: the independent safety check (shares no constraint code with the NLP).
 """
 

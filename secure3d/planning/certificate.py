@@ -346,32 +346,56 @@ def certify(
     views[kept] = np.where(bad, -2, view)  # bad covers every point not observed in time
     if len(margin) == 0:  # nothing left to judge (t_from past the end of the plan)
         return Certificate(True, np.inf, np.inf, np.inf, None, 0, 0, views, sampled)
-    first = None
-    if bad.any():
-        k = int(np.flatnonzero(bad)[np.argmin(owner[bad])])
-        if obstacle_margin[k] < -tol:
-            reason = "reactive manoeuvre meets a known obstacle or leaves the map"
-        else:
-            pos = np.searchsorted(unresolved, k)
-            hidden = pos < len(unresolved) and unresolved[pos] == k and occluded_only[pos]
-            reason = (
-                "manoeuvre point inside an earlier field of view but occluded by a known obstacle"
-                if hidden
-                else "manoeuvre point not observed at any earlier time"
-            )
-        first = Violation(
-            time=float(t[owner[k]]), point=flat[k].copy(), reason=reason, margin=float(margin[k])
-        )
     return Certificate(
         ok=not bad.any(),
         min_margin=float(margin.min()),
         min_visibility_margin=float(vis_margin.min()),
         min_obstacle_margin=float(obstacle_margin.min()),
-        first_violation=first,
+        first_violation=_first_violation(
+            bad, owner, t, flat, margin, obstacle_margin < -tol, unresolved, occluded_only
+        ),
         n_samples=n_t,
         n_points=len(flat),
         views=views,
         sampled=sampled,
+    )
+
+
+def _first_violation(
+    bad: np.ndarray,
+    owner: np.ndarray,
+    t: np.ndarray,
+    points: np.ndarray,
+    margin: np.ndarray,
+    hits_obstacle: np.ndarray,
+    unresolved: np.ndarray,
+    occluded_only: np.ndarray,
+) -> Violation | None:
+    """The earliest failing point and why it fails (None when no point fails).
+
+    Parameters
+    ----------
+    bad, hits_obstacle : (n,) bool, per judged point: fails; its obstacle margin fails.
+    owner : (n,) int, each point's sample; t : (n_t,) float, the sample times. points : (n, 3).
+    margin : (n,) float, the smaller of the obstacle and visibility margins.
+    unresolved : (m,) int, sorted indices of the points outside the start region (they need a view);
+    occluded_only : (m,) bool, for those, inside an earlier field of view but occluded.
+    """
+    if not bad.any():
+        return None
+    k = int(np.flatnonzero(bad)[np.argmin(owner[bad])])
+    if hits_obstacle[k]:
+        reason = "reactive manoeuvre meets a known obstacle or leaves the map"
+    else:
+        pos = np.searchsorted(unresolved, k)
+        hidden = pos < len(unresolved) and unresolved[pos] == k and occluded_only[pos]
+        reason = (
+            "manoeuvre point inside an earlier field of view but occluded by a known obstacle"
+            if hidden
+            else "manoeuvre point not observed at any earlier time"
+        )
+    return Violation(
+        time=float(t[owner[k]]), point=points[k].copy(), reason=reason, margin=float(margin[k])
     )
 
 

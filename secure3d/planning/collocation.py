@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from secure3d.planning import constraints as cons
 from secure3d.planning.assembled_derivatives import KernelCall, assembled_nlp
 from secure3d.planning.interrupt import stop_callback
 from secure3d.planning.interval_rows import parametric_interval_rows, structure_interval_rows
+from secure3d.planning.kernels import NodeKernels, camera_dims, node_kernels, terminal_rows
 from secure3d.planning.nlp_cache import (  # noqa: F401  (NLPCache, the identities: re-exported)
     NLPCache,
     family_identity,
@@ -95,108 +95,6 @@ def _solver_options(problem: PlanningProblem, planner: str = "secure") -> tuple[
         # 2.5 s in all and planar_blind_corner's hit the iteration limit.
         opts["ipopt.nlp_scaling_method"] = "none"
     return "ipopt", opts
-
-
-@dataclass
-class NodeKernels:
-    """CasADi Functions for the per-node constraint families, built once per problem shape.
-
-    Calling them on slices of the decision vector (rather than rebuilding expressions in Python for
-    every node) keeps the transcription fast; each carries its rows' family names and bounds.
-    """
-
-    dyn: ca.Function
-    path: ca.Function
-    path_rows: list[tuple[str, float, float]]
-    vis: ca.Function
-    start: ca.Function
-    obs_view: ca.Function
-    obs_start: ca.Function
-    obs_base: ca.Function
-    obs_view_rows: list[tuple[str, float, float]]
-    obs_start_rows: list[tuple[str, float, float]]
-    obs_base_rows: list[tuple[str, float, float]]
-    #: the kernels' derivative Functions (see :func:`assembled_derivatives`), built on first use
-    derivatives: dict = field(default_factory=dict)
-
-
-def _rows_function(
-    name: str, inputs: list[ca.SX], rows: list[cons.Row]
-) -> tuple[ca.Function, list]:
-    expr = ca.vertcat(*[r[1] for r in rows]) if rows else ca.SX(0, 1)
-    meta = [(r[0], float(r[2]), float(r[3])) for r in rows]
-    return ca.Function(name, inputs, [expr]), meta
-
-
-def node_kernels(problem: PlanningProblem) -> NodeKernels:
-    """Build the per-node constraint Functions of ``problem`` (any look-back assignment)."""
-    model, family, o = problem.model, problem.family, problem.options
-    nx, nu, S = model.nx, model.nu, o.obstacle_slots
-    xi, xj, ui = ca.SX.sym("xi", nx), ca.SX.sym("xj", nx), ca.SX.sym("ui", nu)
-    xk1, uk1, um = ca.SX.sym("xk1", nx), ca.SX.sym("uk1", nu), ca.SX.sym("um", nu)
-    h = ca.SX.sym("h")
-    boxes, lams = ca.SX.sym("boxes", 6 * S), ca.SX.sym("lams", 6 * S)
-    lo, hi = ca.SX.sym("lo", 3), ca.SX.sym("hi", 3)
-
-    # dynamics defect between nodes k and k+1 (trapezoidal or Hermite-Simpson, compressed form)
-    fk, fk1 = model.f(xi, ui), model.f(xk1, uk1)
-    if o.collocation == "hermite_simpson":
-        xm = 0.5 * (xi + xk1) + h / 8 * (fk - fk1)
-        defect = xk1 - xi - h / 6 * (fk + 4 * model.f(xm, um) + fk1)
-    else:
-        defect = xk1 - xi - h / 2 * (fk + fk1)
-    dyn = ca.Function("dyn", [xi, ui, xk1, uk1, um, h], [defect])
-
-    # model limits and world bounds (only the coordinates that depend on the state)
-    r = model.body_radius
-    path_rows: list[cons.Row] = []
-    g = model.path_constraints(xi, ui)
-    path_rows += [("limits", g[d], -ca.inf, 0.0) for d in range(g.shape[0])]
-    pos = model.position(xi)
-    for d in range(3):
-        if ca.depends_on(pos[d], xi):
-            path_rows.append(("bounds", pos[d], problem.bounds_lo[d] + r, problem.bounds_hi[d] - r))
-    path, path_meta = _rows_function("path", [xi, ui], path_rows)
-
-    c, M = family.ellipsoid(xi)
-    R_cam, o_cam = model.camera_pose(xj)
-    vis, _ = _rows_function(
-        "vis", [xi, xj], cons.frustum_rows(c, M, R_cam, o_cam, problem.frustum, o.margin)
-    )
-    start, _ = _rows_function("start", [xi, lo, hi], cons.start_region_rows(c, M, lo, hi, o.margin))
-
-    view_rows, start_rows, base_rows = [], [], []
-    for s_ in range(S):
-        box, lam = boxes[6 * s_ : 6 * s_ + 6], lams[6 * s_ : 6 * s_ + 6]
-        dual = cons.dual_norm_row(lam)
-        clear = cons.ellipsoid_clearance_row(c, M, box, lam, o.margin)
-        view_rows += [dual, clear]
-        if o.occlusion:
-            view_rows.append(cons.point_clearance_row("occlusion", o_cam, 0.0, box, lam, o.margin))
-        start_rows += [dual, clear]
-        # The same separating plane for this node and the next keeps the straight segment between
-        # them clear too (the plane's side is an affine function of the position).
-        base_rows += [
-            dual,
-            cons.point_clearance_row("obstacle", pos, r, box, lam, o.margin),
-            cons.point_clearance_row("obstacle", model.position(xk1), r, box, lam, o.margin),
-        ]
-    obs_view, view_meta = _rows_function("obs_view", [xi, xj, boxes, lams], view_rows)
-    obs_start, start_meta = _rows_function("obs_start", [xi, boxes, lams], start_rows)
-    obs_base, base_meta = _rows_function("obs_base", [xi, xk1, boxes, lams], base_rows)
-    return NodeKernels(
-        dyn,
-        path,
-        path_meta,
-        vis,
-        start,
-        obs_view,
-        obs_start,
-        obs_base,
-        view_meta,
-        start_meta,
-        base_meta,
-    )
 
 
 def build_nlp(
@@ -391,17 +289,9 @@ def _path_rows(rows: _NLPRows, kern: NodeKernels, v: _Symbols) -> None:
 
 def _terminal_rows(rows: _NLPRows, problem: PlanningProblem, v: _Symbols) -> None:
     """At rest at the goal (x(0) is fixed through the variable bounds)."""
-    model, K, X, w, goal, add = problem.model, v.lay.K, v.X, v.w, v.goal, rows.add
     # ---- boundary conditions: x(0) fixed through variable bounds; at rest at the goal -------------
-    x_end = X[:, K - 1]
-    pos_end = model.position(x_end)
-    for d in range(3):
-        if ca.depends_on(pos_end[d], w):
-            add(pos_end[d] - goal[d], [("terminal", 0.0, 0.0)], 1)
-    for row in cons.rest_rows(model, x_end):
-        add(row, [("terminal", 0.0, 0.0)], 1)
-    for extra in model_terminal_rows(model, x_end):
-        add(extra, [("terminal", 0.0, 0.0)], 1)
+    for row in terminal_rows(problem.model, v.X[:, v.lay.K - 1], v.goal, v.w):
+        rows.add(row, [("terminal", 0.0, 0.0)], 1)
 
 
 def _obstacle_and_visibility_rows(
@@ -414,85 +304,114 @@ def _obstacle_and_visibility_rows(
 ) -> None:
     """The baseline's obstacle rows, or the secure planner's visibility and obstacle rows (eq. NLP)
     for a look-back assignment that is structure, or passed as parameters (viewing states)."""
-    o, lay, K, nx, add = problem.options, v.lay, v.lay.K, v.lay.nx, rows.add
-    secure, parametric = planner == Planner.SECURE, v.lay.viewing
-    X, w, p, Boxes, Lam, start_lo, start_hi = v.X, v.w, v.p, v.Boxes, v.Lam, v.start_lo, v.start_hi
-    n_boxes, n_sides, n_sel = v.n_boxes, v.n_sides, v.n_sel
     # ---- obstacles and visibility (eq. NLP: S_r(x_i) inside S_s(x_j), clear of Ĉ_obst) ----------
-    nodes = list(range(1, K))
-    if not secure:
-        X_next = ca.horzcat(X[:, 2:], X[:, K - 1])
-        add(
-            KernelCall(kern.obs_base, [X[:, 1:], X_next, Boxes[:, 1:], Lam[:, 1:]], K - 1),
-            kern.obs_base_rows,
-            K - 1,
-        )
-    elif not parametric:
-        view = [k for k in nodes if assignment[k] >= 0]
-        start = [k for k in nodes if assignment[k] < 0]
-        if view:
-            Xi, Xj = X[:, view], X[:, [assignment[k] for k in view]]
-            add(
-                KernelCall(kern.vis, [Xi, Xj], len(view)),
-                [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
-                len(view),
-            )
-            add(
-                KernelCall(kern.obs_view, [Xi, Xj, Boxes[:, view], Lam[:, view]], len(view)),
-                kern.obs_view_rows,
-                len(view),
-            )
-        if start:
-            Xs = X[:, start]
-            n_s = len(start)
-            add(
-                KernelCall(
-                    kern.start, [Xs, ca.repmat(start_lo, 1, n_s), ca.repmat(start_hi, 1, n_s)], n_s
-                ),
-                [("start_region", o.margin, ca.inf)] * 6,
-                n_s,
-            )
-            add(
-                KernelCall(kern.obs_start, [Xs, Boxes[:, start], Lam[:, start]], n_s),
-                kern.obs_start_rows,
-                n_s,
-            )
-        if o.interval_rows:
-            structure_interval_rows(add, kern, problem, X, Boxes, Lam, assignment)
+    if planner != Planner.SECURE:
+        _baseline_obstacle_rows(rows, kern, v)
+    elif not v.lay.viewing:
+        _structure_visibility_rows(rows, problem, kern, v, assignment)
     else:
-        # Viewing states: y_i = sum_j S_ij x_j over earlier nodes j (S a one-hot parameter row, or
-        # zero for a node in the start region). Linear coupling rows keep the nonlinear frustum
-        # rows local to (x_i, y_i), so the Hessian stays block-sparse for every assignment.
-        dims = list(lay.view_dims)
-        Yv = ca.reshape(w[int(lay.i_Y[0, 0]) : int(lay.i_Y[-1, -1]) + 1], len(dims), K)
-        Sel = ca.reshape(p[9 + n_boxes + n_sides : 9 + n_boxes + n_sides + n_sel], K, K)
-        link = ca.horzcat(*[Yv[:, i] - ca.mtimes(X[dims, :i], Sel[i, :i].T) for i in nodes])
-        add(link, [("viewing_state", 0.0, 0.0)] * len(dims), len(nodes), nodes)
-        # the full viewing state, zero in the coordinates the camera pose does not depend on
-        Y = SYM.zeros(nx, K)
-        for r_, d in enumerate(dims):
-            Y[d, :] = Yv[r_, :]
-        Xi, Yi, Bi, Li = X[:, 1:], Y[:, 1:], Boxes[:, 1:], Lam[:, 1:]
+        _parametric_visibility_rows(rows, problem, kern, v)
+
+
+def _baseline_obstacle_rows(rows: _NLPRows, kern: NodeKernels, v: _Symbols) -> None:
+    """The baseline's rows: the segment from each node to the next clear of its obstacle slots."""
+    K, X = v.lay.K, v.X
+    X_next = ca.horzcat(X[:, 2:], X[:, K - 1])
+    rows.add(
+        KernelCall(kern.obs_base, [X[:, 1:], X_next, v.Boxes[:, 1:], v.Lam[:, 1:]], K - 1),
+        kern.obs_base_rows,
+        K - 1,
+    )
+
+
+def _structure_visibility_rows(
+    rows: _NLPRows,
+    problem: PlanningProblem,
+    kern: NodeKernels,
+    v: _Symbols,
+    assignment: tuple[int, ...],
+) -> None:
+    """The secure planner's rows for an assignment compiled as structure: node i's frustum rows
+    read x_j directly (or the start region's rows for j = -1)."""
+    o, K, add = problem.options, v.lay.K, rows.add
+    X, Boxes, Lam = v.X, v.Boxes, v.Lam
+    nodes = list(range(1, K))
+    view = [k for k in nodes if assignment[k] >= 0]
+    start = [k for k in nodes if assignment[k] < 0]
+    if view:
+        Xi, Xj = X[:, view], X[:, [assignment[k] for k in view]]
         add(
-            KernelCall(kern.vis, [Xi, Yi], K - 1),
+            KernelCall(kern.vis, [Xi, Xj], len(view)),
             [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
-            K - 1,
-            nodes,
+            len(view),
         )
+        add(
+            KernelCall(kern.obs_view, [Xi, Xj, Boxes[:, view], Lam[:, view]], len(view)),
+            kern.obs_view_rows,
+            len(view),
+        )
+    if start:
+        Xs = X[:, start]
+        n_s = len(start)
         add(
             KernelCall(
-                kern.start,
-                [Xi, ca.repmat(start_lo, 1, K - 1), ca.repmat(start_hi, 1, K - 1)],
-                K - 1,
+                kern.start, [Xs, ca.repmat(v.start_lo, 1, n_s), ca.repmat(v.start_hi, 1, n_s)], n_s
             ),
             [("start_region", o.margin, ca.inf)] * 6,
-            K - 1,
-            nodes,
+            n_s,
         )
-        # [dual, clear, occlusion] per slot; occlusion rows are switched off for start nodes
-        add(KernelCall(kern.obs_view, [Xi, Yi, Bi, Li], K - 1), kern.obs_view_rows, K - 1, nodes)
-        if o.interval_rows and K > 2:
-            parametric_interval_rows(add, kern, problem, X, Y, Boxes, Lam, nodes)
+        add(
+            KernelCall(kern.obs_start, [Xs, Boxes[:, start], Lam[:, start]], n_s),
+            kern.obs_start_rows,
+            n_s,
+        )
+    if o.interval_rows:
+        structure_interval_rows(add, kern, problem, X, Boxes, Lam, assignment)
+
+
+def _parametric_visibility_rows(
+    rows: _NLPRows, problem: PlanningProblem, kern: NodeKernels, v: _Symbols
+) -> None:
+    """The secure planner's rows for a look-back assignment passed as parameters.
+
+    Viewing states: y_i = sum_j S_ij x_j over earlier nodes j (S a one-hot parameter row, or zero
+    for a node in the start region). Linear coupling rows keep the nonlinear frustum rows local to
+    (x_i, y_i), so the Hessian stays block-sparse for every assignment.
+    """
+    o, lay, K, nx, add = problem.options, v.lay, v.lay.K, v.lay.nx, rows.add
+    X, w, p, Boxes, Lam = v.X, v.w, v.p, v.Boxes, v.Lam
+    n_boxes, n_sides, n_sel = v.n_boxes, v.n_sides, v.n_sel
+    nodes = list(range(1, K))
+    dims = list(lay.view_dims)
+    Yv = ca.reshape(w[int(lay.i_Y[0, 0]) : int(lay.i_Y[-1, -1]) + 1], len(dims), K)
+    Sel = ca.reshape(p[9 + n_boxes + n_sides : 9 + n_boxes + n_sides + n_sel], K, K)
+    link = ca.horzcat(*[Yv[:, i] - ca.mtimes(X[dims, :i], Sel[i, :i].T) for i in nodes])
+    add(link, [("viewing_state", 0.0, 0.0)] * len(dims), len(nodes), nodes)
+    # the full viewing state, zero in the coordinates the camera pose does not depend on
+    Y = SYM.zeros(nx, K)
+    for r_, d in enumerate(dims):
+        Y[d, :] = Yv[r_, :]
+    Xi, Yi, Bi, Li = X[:, 1:], Y[:, 1:], Boxes[:, 1:], Lam[:, 1:]
+    add(
+        KernelCall(kern.vis, [Xi, Yi], K - 1),
+        [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
+        K - 1,
+        nodes,
+    )
+    add(
+        KernelCall(
+            kern.start,
+            [Xi, ca.repmat(v.start_lo, 1, K - 1), ca.repmat(v.start_hi, 1, K - 1)],
+            K - 1,
+        ),
+        [("start_region", o.margin, ca.inf)] * 6,
+        K - 1,
+        nodes,
+    )
+    # [dual, clear, occlusion] per slot; occlusion rows are switched off for start nodes
+    add(KernelCall(kern.obs_view, [Xi, Yi, Bi, Li], K - 1), kern.obs_view_rows, K - 1, nodes)
+    if o.interval_rows and K > 2:
+        parametric_interval_rows(add, kern, problem, X, Y, Boxes, Lam, nodes)
 
 
 def _transcribed(
@@ -547,19 +466,6 @@ def _transcribed(
         row_node=np.array(row_node, dtype=int),
         stop_callback=stop,
     )
-
-
-def camera_dims(model: object) -> tuple[int, ...]:
-    """State coordinates the camera pose (rotation and origin) depends on."""
-    x = ca.SX.sym("x", model.nx)
-    R, o = model.camera_pose(x)
-    pose = ca.vertcat(ca.vec(R), o)
-    return tuple(d for d in range(model.nx) if ca.depends_on(pose, x[d]))
-
-
-def model_terminal_rows(model: object, x_end: ca.SX) -> list[ca.SX]:
-    """Extra terminal equalities so the robot is really at rest (angular rates of planar models)."""
-    return list(model.rest_residuals(x_end))
 
 
 register_transcription("ipopt", build_nlp, node_kernels)

@@ -43,7 +43,7 @@ only by the collocation error of the latter. The register shifts, ``r_{k+1} = (c
 c(x) is found from the kernels' sparsity, not assumed; carrying the whole state instead would cost
 D * nx states per stage, and fatrop's Riccati recursion grows with the cube of the stage size.
 
-The constraint rows are the same :class:`~secure3d.planning.collocation.NodeKernels` as IPOPT's
+The constraint rows are the same :class:`~secure3d.planning.kernels.NodeKernels` as IPOPT's
 (limits, bounds, frustum, start region, obstacle duals), so both solvers enforce the same
 guarantees at the nodes. Differences from :func:`~secure3d.planning.collocation.build_nlp`:
 
@@ -70,8 +70,13 @@ import casadi as ca
 import numpy as np
 
 from secure3d.errors import ConfigError
-from secure3d.planning.collocation import NodeKernels, model_terminal_rows, node_kernels
-from secure3d.planning.constraints import rest_rows
+from secure3d.planning.kernels import (
+    NodeKernels,
+    camera_state_indices,
+    node_kernels,
+    read_indices,
+    terminal_rows,
+)
 from secure3d.planning.nlp_cache import nlp_key, register_transcription
 from secure3d.planning.problem import Planner, PlanningProblem
 from secure3d.planning.result import PlanStatus
@@ -199,27 +204,6 @@ class StageLayout:
         copy (the objective's)."""
         w = np.asarray(w, dtype=float).ravel()
         return float(w[self.i_Ts[-1]]), w[self.i_X], w[self.i_U], w[self.i_L]
-
-
-def read_indices(fun: ca.Function, arg: int, nx: int) -> np.ndarray:
-    """Entries of input ``arg`` (a state, length nx) that ``fun``'s outputs depend on.
-
-    Returns
-    -------
-    (nc,) int, sorted.
-    """
-    args = [ca.SX.sym(f"a{i}", fun.sparsity_in(i)) for i in range(fun.n_in())]
-    if args[arg].numel() != nx:
-        raise ConfigError(f"read_indices: input {arg} of {fun.name()} is not a state of size {nx}")
-    expr = ca.vertcat(*[ca.vec(out) for out in fun.call(args)])
-    return np.array([d for d in range(nx) if ca.depends_on(expr, args[arg][d])], dtype=int)
-
-
-def camera_state_indices(kernels: NodeKernels, nx: int) -> np.ndarray:
-    """State entries of x_j that the visibility and occlusion kernels read (the camera pose's
-    arguments): (nc,) int, sorted."""
-    both = np.union1d(read_indices(kernels.vis, 1, nx), read_indices(kernels.obs_view, 1, nx))
-    return both.astype(int)
 
 
 def rk4_foh(
@@ -508,12 +492,8 @@ def _path_rows(rows: _Rows, kern: NodeKernels, v: _StageVariables) -> None:
 
 def _terminal_rows(rows: _Rows, problem: PlanningProblem, v: _StageVariables) -> None:
     """Boundary conditions: at rest at the goal (last stage)."""
-    model, K = problem.model, v.lay.K
-    x_end = v.X[:, K - 1]
-    pos_end = model.position(x_end)
-    terminal = [pos_end[d] - v.goal[d] for d in range(3) if ca.depends_on(pos_end[d], v.w)]
-    terminal += rest_rows(model, x_end)
-    terminal += list(model_terminal_rows(model, x_end))
+    K = v.lay.K
+    terminal = terminal_rows(problem.model, v.X[:, K - 1], v.goal, v.w)
     rows.add(ca.vertcat(*terminal), [("terminal", 0.0, 0.0)] * len(terminal), [K - 1])
 
 

@@ -4,7 +4,7 @@ For every interval [t_i, t_i+1] (i in 1..K-2), node i+1's reactive set must also
 view, with a clear sight and clear of node i's obstacle slots through node i's separating planes.
 Both ends of the interval then satisfy one condition convex in the set's (centre, shape), so each
 ellipsoid interpolated between them does too. The rows reuse the node kernels of
-:func:`secure3d.planning.collocation.node_kernels` with shifted arguments; ``add`` is the
+:func:`secure3d.planning.kernels.node_kernels` with shifted arguments; ``add`` is the
 transcription's row collector ``add(out, rows, n_cols, nodes=None)``.
 """
 
@@ -18,7 +18,7 @@ import casadi as ca
 from secure3d.planning.assembled_derivatives import KernelCall
 
 if TYPE_CHECKING:  # pragma: no cover
-    from secure3d.planning.collocation import NodeKernels
+    from secure3d.planning.kernels import NodeKernels
     from secure3d.planning.problem import PlanningProblem
 
 __all__ = ["parametric_interval_rows", "structure_interval_rows"]

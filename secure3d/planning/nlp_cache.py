@@ -25,7 +25,7 @@ from secure3d.errors import ConfigError
 from secure3d.planning.problem import Planner, Solver
 
 if TYPE_CHECKING:  # pragma: no cover
-    from secure3d.planning.collocation import NodeKernels
+    from secure3d.planning.kernels import NodeKernels
     from secure3d.planning.problem import PlanningProblem
     from secure3d.planning.transcribed import TranscribedNLP
 

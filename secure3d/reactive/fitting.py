@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -188,6 +189,84 @@ def _volumes(fam: FittedFamily, model: VehicleModel, latency: float, X: np.ndarr
     }
 
 
+def _fit_sample(
+    controller: Any,
+    name: str,
+    n_samples: int,
+    rng: np.random.Generator,
+    dt: float,
+    margin: float,
+    points_per_manoeuvre: int,
+    step: Callable[[str], None],
+) -> tuple[FittedFamily, np.ndarray]:
+    """Fit the family on ``n_samples`` manoeuvres drawn from ``rng``: their minimum-volume
+    ellipsoids, the centre and shape coefficients, then the inflation that covers every point.
+
+    Returns
+    -------
+    The family without inflation (``eta`` zero) and the inflation coefficients ``eta`` (J,).
+    """
+    model = controller.model
+    r = model.body_radius
+    X = sample_states(model, n_samples, rng)
+    pts, off = _simulate(controller, X, rng, dt)
+    step("simulate")
+    clouds = _ball_clouds(pts, off, r, points_per_manoeuvre)
+    c_t, M_t = mvee(clouds)
+    step("ellipsoids")
+
+    cen, scal, dirs = _feature_arrays(name, model, X)
+    p = model.position(X)
+    a, *_ = np.linalg.lstsq(
+        cen.transpose(0, 2, 1).reshape(-1, cen.shape[1]), (c_t - p).reshape(-1), rcond=None
+    )
+    beta, gamma = _fit_shape(scal, dirs, M_t, beta_min=0.5 * r)
+    step("shapes")
+
+    zeros = np.zeros(scal.shape[1])
+    base = FittedFamily(model, controller.name, controller.latency, name, a, beta, gamma, zeros)
+    eta = _inflation(base, X, scal, pts, off, margin, floor=-beta[0] + 0.25 * r)
+    step("inflation")
+    return base, eta
+
+
+@dataclass(frozen=True)
+class _Validation:
+    """A fit checked on fresh manoeuvres: the validation ``states`` (n, nx), the largest
+    ``shortfall`` (m) of the fitted inflation below the one they need, the ``extra`` inflation
+    (m) added for it, and the inflation coefficients ``eta`` with it."""
+
+    states: np.ndarray
+    shortfall: float
+    extra: float
+    eta: np.ndarray
+
+
+def _validate(
+    base: FittedFamily,
+    controller: Any,
+    eta: np.ndarray,
+    n_val: int,
+    rng: np.random.Generator,
+    dt: float,
+) -> _Validation:
+    """Check the fitted inflation ``eta`` of ``base`` on ``n_val`` fresh manoeuvres (drawn from
+    ``rng``) and raise it where they need more."""
+    model = base.model
+    Xv = sample_states(model, n_val, rng)
+    pv, ov = _simulate(controller, Xv, rng, dt)
+    _, scal_v, _ = _feature_arrays(base.feature_map, model, Xv)
+    Cv, Mv = base.ellipsoid_batch(Xv)
+    need_v = _clearance.required_inflation(pv, ov, Cv, Mv, model.body_radius)
+    shortfall = float((need_v - scal_v @ eta).max())
+    extra = 0.0
+    if shortfall > 0:
+        # psi_0 = 1, so raising e_0 raises eta everywhere: by twice what the validation lacked.
+        extra = 2.0 * shortfall
+        eta = eta + np.r_[extra, np.zeros(len(eta) - 1)]
+    return _Validation(Xv, shortfall, extra, eta)
+
+
 def fit_family(
     model: VehicleModel,
     controller: Any,
@@ -230,41 +309,12 @@ def fit_family(
     step = progress if progress is not None else (lambda stage: None)
     t0 = time.perf_counter()
     name = feature_map or model.feature_map
-    r = model.body_radius
-
-    X = sample_states(model, n_samples, rng)
-    pts, off = _simulate(controller, X, rng, dt)
-    step("simulate")
-    clouds = _ball_clouds(pts, off, r, points_per_manoeuvre)
-    c_t, M_t = mvee(clouds)
-    step("ellipsoids")
-
-    cen, scal, dirs = _feature_arrays(name, model, X)
-    p = model.position(X)
-    a, *_ = np.linalg.lstsq(
-        cen.transpose(0, 2, 1).reshape(-1, cen.shape[1]), (c_t - p).reshape(-1), rcond=None
+    base, eta = _fit_sample(
+        controller, name, n_samples, rng, dt, margin, points_per_manoeuvre, step
     )
-    beta, gamma = _fit_shape(scal, dirs, M_t, beta_min=0.5 * r)
-    step("shapes")
-
-    zeros = np.zeros(scal.shape[1])
-    base = FittedFamily(model, controller.name, controller.latency, name, a, beta, gamma, zeros)
-    eta = _inflation(base, X, scal, pts, off, margin, floor=-beta[0] + 0.25 * r)
-    step("inflation")
-
     n_val = n_samples if n_validation is None else int(n_validation)
-    Xv = sample_states(model, n_val, rng)
-    pv, ov = _simulate(controller, Xv, rng, dt)
-    _, scal_v, _ = _feature_arrays(name, model, Xv)
-    Cv, Mv = base.ellipsoid_batch(Xv)
-    need_v = _clearance.required_inflation(pv, ov, Cv, Mv, r)
-    shortfall = float((need_v - scal_v @ eta).max())
+    val = _validate(base, controller, eta, n_val, rng, dt)
     step("validation")
-    extra = 0.0
-    if shortfall > 0:
-        # psi_0 = 1, so raising e_0 raises eta everywhere: by twice what the validation lacked.
-        extra = 2.0 * shortfall
-        eta = eta + np.r_[extra, np.zeros(len(eta) - 1)]
 
     meta = {
         "n_samples": int(n_samples),
@@ -272,14 +322,24 @@ def fit_family(
         "seed": seed,
         "dt": float(dt),
         "margin": float(margin),
-        "validation_shortfall": shortfall,
-        "validation_extra_margin": extra,
+        "validation_shortfall": val.shortfall,
+        "validation_extra_margin": val.extra,
         "points_per_manoeuvre": int(points_per_manoeuvre),
         "controller": repr(controller),
         "controller_config": controller.config(),
         "fit_seconds": round(time.perf_counter() - t0, 2),
     }
-    fam = FittedFamily(model, controller.name, controller.latency, name, a, beta, gamma, eta, meta)
-    fam.meta.update(_volumes(fam, model, controller.latency, Xv))
+    fam = FittedFamily(
+        model,
+        controller.name,
+        controller.latency,
+        name,
+        base.centre_coef,
+        base.beta_coef,
+        base.gamma_coef,
+        val.eta,
+        meta,
+    )
+    fam.meta.update(_volumes(fam, model, controller.latency, val.states))
     step("volumes")
     return fam

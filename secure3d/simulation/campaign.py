@@ -125,31 +125,17 @@ def run_campaign(
     seed : seeds the variants: variant ``i`` is a pure function of (base, seed, i)
         (:func:`~secure3d.world.families.variant_rng`) and is simulated with seed ``seed + i`` by
         every planner, so the planners are compared on the same world and the same camera noise.
-    workers : workers (default: the CPUs, or the Ray cluster's; at most one per run). With the
-        process backend, 1 worker and no ``run_timeout`` fly in this process. Each worker keeps
-        one NLP cache for all its runs.
+    workers, progress, backend, address, resume, run_timeout, retries, on_start, fly : how the
+        runs are flown: the fields of :class:`~secure3d.simulation.campaign_run.Execution`.
     out_dir : folder for ``runs.csv``, ``campaign.csv``, ``summary.md`` and ``failures/``.
-    progress : show a tqdm progress bar on stderr (runs/s, collisions so far, ETA).
     kind, count : placement and number of hidden obstacles per variant (``auto``, ``corner``,
         ``forest``: :func:`~secure3d.world.attacks.hidden_obstacle_family`), or the name of a
         family in :data:`~secure3d.world.family_registry.FAMILIES` (``count`` must then be 1).
     flush_every : kept for compatibility; every run is now appended to ``runs.csv`` as it ends.
     replan_defer : :func:`~secure3d.simulation.closed_loop.simulate`'s ``replan_defer`` for every
         run (s; None: its default, 0.5 s; 0: replan at once).
-    backend : ``"process"`` (worker processes on this machine) or ``"ray"`` (Ray actors; a local
-        Ray, or the cluster at ``address``).
-    resume : continue the campaign in ``out_dir``: fly exactly the (variant, planner) runs missing
-        from its ``runs.csv`` (refused if its parameters differ). Without it, an existing
-        ``runs.csv`` is refused.
     shard : ``"k/N"``: fly only variants ``i`` with ``i % N == k - 1`` (combine the shards'
         folders with :func:`~secure3d.simulation.campaign_store.merge_campaigns`).
-    run_timeout : wall seconds a run may take (set-up included) before its worker is killed and
-        the run becomes an error row.
-    retries : times a run whose worker died is flown again before it becomes an error row.
-    on_start : called with (job, worker pid) as each run starts.
-    fly : flies one job into its row (default :func:`~secure3d.simulation.campaign_pool.fly_job`,
-        the closed loop); a module-level function, since worker processes receive it by name.
-        Tests pass a stand-in to check the bookkeeping without flying.
     **options : planner options for every run (:class:`~secure3d.planning.problem.PlannerOptions`
         fields, ``reactive_family``, ``controller``).
 

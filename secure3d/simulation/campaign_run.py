@@ -201,7 +201,28 @@ class _Tally:
 
 @dataclass(frozen=True)
 class Execution:
-    """How to run a plan: the backend, its workers and the fault limits."""
+    """How to run a plan: the backend, its workers and the fault limits.
+
+    Attributes
+    ----------
+    backend : ``"process"`` (worker processes on this machine) or ``"ray"`` (Ray actors; a local
+        Ray, or the cluster at ``address``).
+    workers : workers (default: the CPUs, or the Ray cluster's; at most one per run). With the
+        process backend, 1 worker and no ``run_timeout`` fly in this process. Each worker keeps
+        one NLP cache for all its runs.
+    address : the Ray cluster's address (backend ``"ray"`` only).
+    run_timeout : wall seconds a run may take (set-up included) before its worker is killed and
+        the run becomes an error row.
+    retries : times a run whose worker died is flown again before it becomes an error row.
+    resume : continue the campaign in ``out_dir``: fly exactly the (variant, planner) runs missing
+        from its ``runs.csv`` (refused if its parameters differ). Without it, an existing
+        ``runs.csv`` is refused.
+    progress : show a tqdm progress bar on stderr (runs/s, collisions so far, ETA).
+    on_start : called with (job, worker pid) as each run starts.
+    fly : flies one job into its row (default :func:`~secure3d.simulation.campaign_pool.fly_job`,
+        the closed loop); a module-level function, since worker processes receive it by name.
+        Tests pass a stand-in to check the bookkeeping without flying.
+    """
 
     backend: str = "process"
     workers: int | None = None
@@ -211,7 +232,6 @@ class Execution:
     resume: bool = False
     progress: bool = True
     on_start: Callable[[_Job, int], object] | None = None
-    #: Flies one job (tests pass a stand-in; worker processes receive it by name).
     fly: Callable[[_Job], RunRecord] = fly_job
 
 

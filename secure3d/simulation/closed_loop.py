@@ -41,9 +41,6 @@ from secure3d.simulation.loop import (
     observed_box,
     scan_headings,
 )
-from secure3d.simulation.loop import Loop as _Loop  # noqa: F401  (older name, kept for tests)
-from secure3d.simulation.loop import new_obstacle_voxels as _new_obstacle_voxels  # noqa: F401
-from secure3d.simulation.loop import scan_control as _scan_control  # noqa: F401
 from secure3d.simulation.modes import (
     ARRIVAL_SPEED,
     CONTACT_SAMPLES,
@@ -153,23 +150,14 @@ def simulate(
         figure of ``png=`` from the result: the simulator itself writes no files.
     cache : an :class:`~secure3d.planning.collocation.NLPCache` for the compiled NLPs (default: the
         planner's module-wide cache, so runs in one process build each NLP shape once).
-    max_replans : give up (robot holds still) after this many failed or successful replans. It
-        also gives up after ``2 * STUCK_RETRIES`` failed replans in a row at rest, having looked
-        around once after ``STUCK_RETRIES`` of them (the same problem fails the same way).
-    replan_in_flight : when new evidence breaks the rest of the plan, first try to replan from the
-        moving state (the solve takes no simulated time); brake only if that fails.
-    replan_latency : simulated seconds a replan in flight takes (default 0: instantaneous). With
-        latency L the robot plans from where its current plan puts it L seconds later, keeps
-        following that plan meanwhile, and switches at t + L; if the current plan's first
-        uncertified manoeuvre comes before the switch, it brakes instead (take-over).
-    replan_defer : seconds (default None: :data:`DEFAULT_REPLAN_DEFER`, 0.5 s, or 0 when
-        ``replan_latency`` is set; 0: replan at once). When new evidence breaks the plan but its
-        first failing manoeuvre is more than this far ahead, keep following the plan (certified up
-        to that manoeuvre) and replan this long before it, or sooner if later frames bring it
-        closer. A hidden obstacle revealed a few voxels per frame then costs one replan, made with
-        more of it seen, instead of one per frame. Not combined with ``replan_latency``.
-    look_around : after a take-over (and after every failed replan), turn the camera half a field
-        of view to either side at rest before replanning (see :func:`scan_headings`).
+    max_replans : give up (robot holds still) after this many failed or successful replans, or
+        after ``2 * STUCK_RETRIES`` failed ones in a row at rest.
+    replan_in_flight, replan_latency, replan_defer : when new evidence breaks the rest of the plan:
+        replan from the moving state before braking; the simulated seconds a replan takes
+        (default 0); how long before the plan's first failing manoeuvre to replan (s; default
+        None: :data:`DEFAULT_REPLAN_DEFER`, 0.5, or 0 with a ``replan_latency``; 0: at once).
+        These and the next are described in full at :class:`~secure3d.simulation.modes.RunSettings`.
+    look_around : turn the camera at rest before replanning after a take-over or a failed replan.
     frame_log_every, belief_log_every : decimation of camera frames and belief voxels in the recording.
     tracking_guard : secure planner only: check that the real state stays in the certified tube
         and brake at once when it leaves it (:mod:`secure3d.simulation.guard`).
@@ -183,21 +171,15 @@ def simulate(
         ``x``) or a tracker or actuator fault (change ``u``), for robustness studies and tests.
     **options : planner options (see :class:`~secure3d.planning.problem.PlannerOptions`).
     """
-    if isinstance(scenario, (str, Path)):
-        from secure3d.world.scenario import load_scenario
-
-        scenario = load_scenario(scenario)
+    scenario = _as_scenario(scenario)
     if planner not in tuple(Planner):
         raise SimulationError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
     replan_latency = check_replan_seconds("replan_latency", replan_latency)
     replan_defer = replan_defer_for(replan_defer, replan_latency)
     wall0 = time.perf_counter()
     loop = Loop(scenario, planner, seed, dict(options), cache)
-    settings = RunSettings(
-        dt=scenario.simulation.dt,
-        frame_period=1.0 / scenario.camera.rate_hz,
-        goal=np.asarray(scenario.goal.position, dtype=float),
-        time_limit=scenario.simulation.time_limit,
+    settings = _run_settings(
+        scenario,
         max_replans=max_replans,
         look_around=look_around,
         replan_in_flight=replan_in_flight,
@@ -210,15 +192,43 @@ def simulate(
         disturbance=disturbance,
         explore=explore,
     )
-
-    recorder = NULL_RECORDER if recorder is None else recorder
     setup_time = time.perf_counter() - wall0  # take-off: the NLP compiled
+    guarded = tracking_guard and planner == Planner.SECURE
+    result = _fly(loop, NULL_RECORDER if recorder is None else recorder, settings, tracker, guarded)
+    return dataclasses.replace(result, setup_time=setup_time)
+
+
+def _as_scenario(scenario: Scenario | str | Path) -> Scenario:
+    """``scenario``, loaded if it is the path of a scenario YAML file."""
+    if isinstance(scenario, (str, Path)):
+        from secure3d.world.scenario import load_scenario
+
+        return load_scenario(scenario)
+    return scenario
+
+
+def _run_settings(scenario: Scenario, **flags: object) -> RunSettings:
+    """:func:`simulate`'s settings: the scenario's step, frame period, goal and time limit, and
+    the run's ``flags`` (the other fields of :class:`RunSettings`)."""
+    return RunSettings(
+        dt=scenario.simulation.dt,
+        frame_period=1.0 / scenario.camera.rate_hz,
+        goal=np.asarray(scenario.goal.position, dtype=float),
+        time_limit=scenario.simulation.time_limit,
+        **flags,
+    )
+
+
+def _fly(
+    loop: Loop, recorder: Recorder, settings: RunSettings, tracker: object | None, guarded: bool
+) -> SimResult:
+    """Fly the loop (with ``tracker`` instead of the vehicle's, and the tracking guard if
+    ``guarded``); the recording is aborted if the flight raises."""
     try:
         if tracker is not None:
             loop.tracker = tracker
-        guard = TrackingGuard(loop) if tracking_guard and planner == Planner.SECURE else None
-        result = Flight(loop, recorder, settings, guard).run()
+        guard = TrackingGuard(loop) if guarded else None
+        return Flight(loop, recorder, settings, guard).run()
     except BaseException:
         recorder.abort()
         raise
-    return dataclasses.replace(result, setup_time=setup_time)

@@ -62,7 +62,7 @@ from secure3d.simulation.modes import (
 )
 from secure3d.simulation.recheck import plan_unsafe
 from secure3d.simulation.recording import Recorder
-from secure3d.simulation.results import SimEvent, SimResult
+from secure3d.simulation.results import SimEvent, SimResult, flight_result
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.result import PlanResult
@@ -593,32 +593,4 @@ class Flight:
         )
 
     def result(self) -> SimResult:
-        model = self.model
-        states = np.array(self.X_log)
-        positions = np.asarray(model.position(states), dtype=float)
-        speeds = np.linalg.norm(np.asarray(model.velocity(states), dtype=float), axis=1)
-        return SimResult(
-            scenario=self.loop.scenario.name,
-            planner=self.loop.planner,
-            seed=self.s.seed,
-            collided=self.collided,
-            collision_time=self.collision_time,
-            collision_obstacles=tuple(self.collision_names),
-            reached_goal=self.reached,
-            time_to_goal=self.time_to_goal,
-            min_clearance=self.min_clear,
-            times=np.array(self.T_log),
-            states=states,
-            positions=positions,
-            speeds=speeds,
-            events=tuple(self.events),
-            plans=tuple(self.plans),
-            detection_time=self.detection_time,
-            detection_point=self.detection_point,
-            frames=self.frame_no + 1,
-            takeovers=self.takeovers,
-            replans=self.replans,
-            solve_times=tuple(self.solve_times),
-            certify_log=tuple(self.certify_log),
-            wall_time=time.perf_counter() - self.s.wall0,
-        )
+        return flight_result(self)

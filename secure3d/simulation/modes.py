@@ -98,7 +98,36 @@ MAX_EXPLORATIONS = 3
 
 @dataclass(frozen=True)
 class RunSettings:
-    """How one closed-loop run is flown (see :func:`secure3d.simulation.closed_loop.simulate`)."""
+    """How one closed-loop run is flown (see :func:`secure3d.simulation.closed_loop.simulate`).
+
+    Attributes
+    ----------
+    dt, frame_period, time_limit : simulation step, camera frame period and run length (s).
+    goal : (3,) float, where the run ends (m).
+    max_replans : give up (robot holds still) after this many failed or successful replans. It
+        also gives up after ``2 * STUCK_RETRIES`` failed replans in a row at rest, having looked
+        around once after ``STUCK_RETRIES`` of them (the same problem fails the same way).
+    look_around : after a take-over (and after every failed replan), turn the camera half a field
+        of view to either side at rest before replanning (see
+        :func:`~secure3d.simulation.closed_loop.scan_headings`).
+    replan_in_flight : when new evidence breaks the rest of the plan, first try to replan from the
+        moving state (the solve takes no simulated time); brake only if that fails.
+    replan_latency : simulated seconds a replan in flight takes (0: instantaneous). With latency L
+        the robot plans from where its current plan puts it L seconds later, keeps following that
+        plan meanwhile, and switches at t + L; if the current plan's first uncertified manoeuvre
+        comes before the switch, it brakes instead (take-over).
+    replan_defer : seconds (0: replan at once). When new evidence breaks the plan but its first
+        failing manoeuvre is more than this far ahead, keep following the plan (certified up to
+        that manoeuvre) and replan this long before it, or sooner if later frames bring it closer.
+        A hidden obstacle revealed a few voxels per frame then costs one replan, made with more of
+        it seen, instead of one per frame. Not combined with ``replan_latency``.
+    frame_log_every, belief_log_every : decimation of camera frames and belief voxels in the
+        recording.
+    seed : the run's seed (camera noise and dropout). wall0 : wall clock at the run's start (s).
+    disturbance : ``(t, x, u) -> (x, u)`` applied before every integration step, or None.
+    explore : fly certified plans to look at the claim that blocks the shortest route when the
+        map shows no route because of claims the camera has not checked.
+    """
 
     dt: float
     frame_period: float

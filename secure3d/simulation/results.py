@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -12,8 +13,9 @@ from secure3d.planning.result import finite_or_none
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.result import PlanResult
+    from secure3d.simulation.flight import Flight
 
-__all__ = ["SimEvent", "SimResult"]
+__all__ = ["SimEvent", "SimResult", "flight_result"]
 
 
 @dataclass(frozen=True)
@@ -150,3 +152,37 @@ class SimResult:
             + f"\n  simulated {self.sim_time:.2f} s in {self.flight_time:.2f} s of flight"
             + f" ({self.real_time_factor:.1f}x real time), after {self.setup_time:.2f} s of set-up"
         )
+
+
+def flight_result(flight: Flight) -> SimResult:
+    """The record of a finished (or stopped) :class:`~secure3d.simulation.flight.Flight`: its
+    logs, counts and outcome, and the wall time since the run started."""
+    model = flight.model
+    states = np.array(flight.X_log)
+    positions = np.asarray(model.position(states), dtype=float)
+    speeds = np.linalg.norm(np.asarray(model.velocity(states), dtype=float), axis=1)
+    return SimResult(
+        scenario=flight.loop.scenario.name,
+        planner=flight.loop.planner,
+        seed=flight.s.seed,
+        collided=flight.collided,
+        collision_time=flight.collision_time,
+        collision_obstacles=tuple(flight.collision_names),
+        reached_goal=flight.reached,
+        time_to_goal=flight.time_to_goal,
+        min_clearance=flight.min_clear,
+        times=np.array(flight.T_log),
+        states=states,
+        positions=positions,
+        speeds=speeds,
+        events=tuple(flight.events),
+        plans=tuple(flight.plans),
+        detection_time=flight.detection_time,
+        detection_point=flight.detection_point,
+        frames=flight.frame_no + 1,
+        takeovers=flight.takeovers,
+        replans=flight.replans,
+        solve_times=tuple(flight.solve_times),
+        certify_log=tuple(flight.certify_log),
+        wall_time=time.perf_counter() - flight.s.wall0,
+    )

@@ -204,14 +204,17 @@ class Tracker(ABC):
     ----------
     model : VehicleModel
     gains : TrackerGains
+    kind : the feedback law, a key of :data:`TRACKERS`: the tracker follows the models whose
+        ``tracker_kind`` names it.
     """
 
-    model_name: str
+    kind: str
 
     def __init__(self, model: VehicleModel, gains: TrackerGains | None = None) -> None:
-        if model.name != self.model_name:
+        if getattr(model, "tracker_kind", None) != self.kind:
             raise ConfigError(
-                f"{type(self).__name__}: tracks a {self.model_name} model, got {model.name!r}"
+                f"{type(self).__name__}: tracks models of tracker kind {self.kind!r}, got"
+                f" {getattr(model, 'name', model)!r}"
             )
         gains = TrackerGains() if gains is None else gains
         if not isinstance(gains, TrackerGains):
@@ -255,7 +258,7 @@ def _limit_speed(accel: np.ndarray, v: np.ndarray, max_speed: float, gain: float
 class PointMassTracker(Tracker):
     """PD + feed-forward on the acceleration, P + feed-forward on the yaw rate."""
 
-    model_name = "point_mass"
+    kind = "acceleration_pd"
 
     def _control(self, x: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> np.ndarray:
         g, lim = self.gains, self.model.limits
@@ -274,7 +277,7 @@ class PointMassTracker(Tracker):
 class QuadrotorTracker(Tracker):
     """Desired acceleration (PD + feed-forward) -> thrust and attitude -> body rates (SO(3) P)."""
 
-    model_name = "quadrotor"
+    kind = "geometric_attitude"
 
     def _control(self, x: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> np.ndarray:
         g, m = self.gains, self.model
@@ -326,7 +329,7 @@ class DiffDriveTracker(Tracker):
     give the same command at ``v_r = 0``, so the control is continuous at a cusp.
     """
 
-    model_name = "diff_drive"
+    kind = "kanayama"
 
     def _control(self, x: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> np.ndarray:
         g, lim = self.gains, self.model.limits
@@ -347,15 +350,17 @@ class DiffDriveTracker(Tracker):
         return np.array([a, alpha])
 
 
+#: Feedback law (a vehicle model's ``tracker_kind``) -> its tracker.
 TRACKERS: dict[str, type[Tracker]] = {
-    cls.model_name: cls for cls in (PointMassTracker, QuadrotorTracker, DiffDriveTracker)
+    cls.kind: cls for cls in (PointMassTracker, QuadrotorTracker, DiffDriveTracker)
 }
 
 
 def make_tracker(model: VehicleModel, gains: TrackerGains | None = None) -> Tracker:
-    """The tracker for ``model`` (by ``model.name``), with default or given gains."""
+    """The tracker for ``model`` (the law its ``tracker_kind`` names), with default or given
+    gains."""
     try:
-        cls = TRACKERS[model.name]
+        cls = TRACKERS[model.tracker_kind]
     except (KeyError, AttributeError):
         raise ConfigError(f"model: no tracker for {getattr(model, 'name', model)!r}") from None
     return cls(model, gains)

@@ -267,15 +267,10 @@ def draw_top_down(
     if not is_int_in(ellipse_every, 1):
         raise ConfigError(f"ellipse_every: must be a positive integer, got {ellipse_every!r}")
     hidden = set(hidden_names)
-    truth = [*true_boxes, *true_meshes]
-    if claimed_boxes is None and not claimed_meshes:
-        claimed = [o for o in truth if o.name not in hidden]
-    else:
-        claimed = [*(claimed_boxes or ()), *claimed_meshes]
-    true_by_name = {o.name: o for o in truth}
     z = _slice_height(z_slice, bounds, start, plans, realised_paths)
-    truth = [o for o in truth if o.lo[2] <= z <= o.hi[2]]
-    claimed = [o for o in claimed if o.lo[2] <= z <= o.hi[2]]
+    truth, claimed, true_by_name = _sliced_obstacles(
+        [*true_boxes, *true_meshes], claimed_boxes, claimed_meshes, hidden, z
+    )
     # Layers in drawing order (their legend entries in the same order).
     handles: list[Any] = []
     handles += _draw_frusta(ax, frusta)
@@ -287,6 +282,25 @@ def draw_top_down(
     handles += _draw_paths(ax, realised_paths)
     handles += _draw_markers(ax, detection_points, collision_points, start, goal)
     _frame(ax, bounds, title, handles)
+
+
+def _sliced_obstacles(
+    truth: list[Any],
+    claimed_boxes: Sequence[Box] | None,
+    claimed_meshes: Sequence[MeshObstacle],
+    hidden: set[str],
+    z: float,
+) -> tuple[list[Any], list[Any], dict[str, Any]]:
+    """The true and the claimed obstacles cut by the slice at height ``z`` (the claim defaults to
+    the truth minus the ``hidden`` ones), and every true obstacle by name."""
+    if claimed_boxes is None and not claimed_meshes:
+        claimed = [o for o in truth if o.name not in hidden]
+    else:
+        claimed = [*(claimed_boxes or ()), *claimed_meshes]
+    true_by_name = {o.name: o for o in truth}
+    truth = [o for o in truth if o.lo[2] <= z <= o.hi[2]]
+    claimed = [o for o in claimed if o.lo[2] <= z <= o.hi[2]]
+    return truth, claimed, true_by_name
 
 
 def _draw_frusta(ax: Axes, frusta: Sequence[tuple[Any, Any, Any]]) -> list[Any]:

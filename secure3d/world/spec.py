@@ -24,6 +24,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
+from secure3d.dynamics import DEFAULT_MODEL
 from secure3d.errors import ScenarioError
 from secure3d.world.spec_fields import (  # noqa: F401  (re-exported)
     ATTACK_KINDS,
@@ -64,7 +65,7 @@ class VehicleSpec:
     values; it is validated by the dynamics module when the model is built.
     """
 
-    model: str = "point_mass"
+    model: str = DEFAULT_MODEL
     body_radius: float = 0.2
     limits: Mapping[str, float] = field(default_factory=dict)
 

@@ -12,6 +12,7 @@ from numbers import Real
 
 import numpy as np
 
+from secure3d.dynamics import MODELS
 from secure3d.errors import ScenarioError
 from secure3d.validation import is_int_in, is_real
 
@@ -28,7 +29,8 @@ MAX_MAP_VOXELS = 1e9
 #: OctoMap keys are 16 bit, centred on the origin: |coordinate| / resolution must stay below 2^15.
 OCTOMAP_KEY_HALF_RANGE = 32768
 
-VEHICLE_MODELS = ("point_mass", "quadrotor", "diff_drive")
+#: The vehicle models a scenario may name: the dynamics registry's.
+VEHICLE_MODELS = tuple(MODELS)
 ATTACK_KINDS = ("hide", "phantom", "shift", "stale")
 
 

@@ -9,8 +9,6 @@ import pytest
 from secure3d.errors import GeometryError
 from secure3d.mapping.keys import (
     KEY_LIMIT,
-    _clipped_ends,
-    _scan_chunked_kernel,
     codes_to_coords,
     coords_to_keys,
     keys_to_coords,
@@ -20,6 +18,8 @@ from secure3d.mapping.keys import (
     scan_update,
 )
 from secure3d.mapping.octomap_io import read_scan_dat
+from secure3d.mapping.raycast import _clipped_ends
+from secure3d.mapping.scan import _scan_chunked_kernel
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from secure3d.dynamics import DiffDrive, PointMass, Quadrotor
-from secure3d.planning.collocation import model_terminal_rows, node_fractions
+from secure3d.planning.collocation import node_fractions
+from secure3d.planning.kernels import model_terminal_rows
 
 
 def test_only_a_wheeled_robot_needs_an_extra_rest_row_its_turn_rate():

@@ -16,11 +16,10 @@ from secure3d.planning.collocation import NLPCache, parameter_vector
 from secure3d.planning.fatrop_transcription import (
     StageLayout,
     build_fatrop_nlp,
-    camera_state_indices,
     fatrop_status,
-    read_indices,
     rk4_foh,
 )
+from secure3d.planning.kernels import camera_state_indices, read_indices
 
 LOOKBACK = 4
 
@@ -143,7 +142,7 @@ def test_rk4_foh_is_exact_for_the_point_mass_and_fourth_order_for_the_quadrotor(
 
 
 def test_register_carries_exactly_what_later_rows_read(problem):
-    from secure3d.planning.collocation import node_kernels
+    from secure3d.planning.kernels import node_kernels
 
     kern, nx = node_kernels(problem), problem.model.nx
     # the point mass's camera pose is its position and yaw (secure3d.dynamics.point_mass) ...

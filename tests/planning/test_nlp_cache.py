@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import ast
+from pathlib import Path
+
 import pytest
 
 import secure3d
 from secure3d.errors import ConfigError
 from secure3d.planning import NLPCache, Planner, Solver, problem_from_scenario
-from secure3d.planning.collocation import build_nlp, node_kernels
+from secure3d.planning.collocation import build_nlp
 from secure3d.planning.fatrop_transcription import build_fatrop_nlp
+from secure3d.planning.kernels import node_kernels
 from secure3d.planning.nlp_cache import TRANSCRIPTIONS, nlp_key, transcription
 
 
@@ -22,6 +26,19 @@ def test_every_solver_has_a_registered_transcription_sharing_the_node_kernels():
     assert transcription(Solver.IPOPT).build is build_nlp
     assert transcription("fatrop").build is build_fatrop_nlp
     assert all(t.kernels is node_kernels for t in TRANSCRIPTIONS.values())
+
+
+def test_the_transcriptions_import_the_kernels_and_never_each_other():
+    modules = {"collocation", "fatrop_transcription"}
+    for name in modules:
+        path = Path(secure3d.__file__).parent / "planning" / f"{name}.py"
+        imported = {
+            node.module.rpartition(".")[2]
+            for node in ast.walk(ast.parse(path.read_text()))
+            if isinstance(node, ast.ImportFrom) and node.module
+        }
+        assert "kernels" in imported, name
+        assert not imported & (modules - {name}), f"{name} imports {imported & modules}"
 
 
 def test_an_unknown_solver_has_no_transcription_and_the_error_lists_the_known_ones():

@@ -166,7 +166,7 @@ def test_an_nlp_is_compiled_ahead_when_the_assignment_is_not_structure(corner_pr
 
 
 def test_camera_pose_depends_on_position_and_yaw_of_a_point_mass(corner_problem):
-    from secure3d.planning.collocation import camera_dims
+    from secure3d.planning.kernels import camera_dims
 
     assert camera_dims(corner_problem.model) == (0, 1, 2, 6)
 

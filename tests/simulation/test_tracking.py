@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from secure3d.dynamics import make_model
+from secure3d.dynamics import MODELS, PointMass, make_model
 from secure3d.dynamics.integrate import rollout
 from secure3d.errors import ConfigError, GeometryError
 from secure3d.simulation.tracking import (
+    TRACKERS,
     Reference,
     TrackerGains,
     make_tracker,
@@ -163,6 +164,19 @@ def test_bad_input_is_rejected():
         Reference([0.0, 0.0], np.zeros((2, 7)), np.zeros((2, 4)))
     with pytest.raises(GeometryError, match="point_mass"):
         Reference([0.0, 1.0], np.zeros((2, 5)), np.zeros((2, 2)), pm)
+
+
+def test_a_vehicle_gets_the_tracker_its_model_names_not_one_chosen_by_its_name():
+    class Glider(PointMass):
+        """A new vehicle: one class naming an existing feedback law."""
+
+        name = "glider"
+
+    tracker = make_tracker(Glider())
+    assert isinstance(tracker, TRACKERS[PointMass.tracker_kind])
+    assert tracker.model.name == "glider"
+    for model in MODELS.values():
+        assert make_tracker(model()).kind == model.tracker_kind
 
 
 def dd_reversing_controls(t):

@@ -1,0 +1,216 @@
+"""OctoMap's voxel keys and their Morton codes: coordinates <-> keys <-> codes (key arithmetic).
+
+A coordinate is first rounded to ``float32`` (OctoMap's ``point3d``), then
+``key = floor(c * (1/res)) + 32768`` in double precision; keys live in ``[0, 65536)`` (16 levels).
+Voxels are identified by a 48-bit *Morton code* (bits of x, y, z interleaved, x lowest), stored as
+``int64``. In Morton order the 8 children of an octree node are consecutive and a node at depth
+``d`` is the code shifted right by ``3 * (16 - d)``, so sorted codes are the octree's depth-first
+order: this is what makes ``.bt`` reading, writing and pruning vectorisable. (Overview of the
+OctoMap-exact mapping: :mod:`secure3d.mapping.keys`.)
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
+from secure3d.errors import GeometryError
+
+__all__ = [
+    "KEY_LIMIT",
+    "TREE_DEPTH",
+    "TREE_MAX_VAL",
+    "box_codes",
+    "codes_to_coords",
+    "coords_to_codes",
+    "coords_to_keys",
+    "keys_to_coords",
+    "morton_decode",
+    "morton_encode",
+    "unique_sorted",
+]
+
+#: OctoMap's tree depth and key offset (``tree_max_val``): keys are in ``[0, 2 * TREE_MAX_VAL)``.
+TREE_DEPTH = 16
+TREE_MAX_VAL = 32768
+KEY_LIMIT = 2 * TREE_MAX_VAL
+
+#: The code of no voxel (an invalid row of :func:`coords_to_codes`, an empty hash-table slot).
+EMPTY = -1
+
+
+# --------------------------------------------------------------------------- Morton codes
+
+
+@numba.njit(cache=True, inline="always")
+def _spread16(v: int) -> int:
+    """Insert two zero bits between each of the low 16 bits of ``v`` (numba and numpy ints)."""
+    v = v & 0xFFFF
+    v = (v | (v << 16)) & 0x0000FF0000FF
+    v = (v | (v << 8)) & 0x00F00F00F00F
+    v = (v | (v << 4)) & 0x0C30C30C30C3
+    v = (v | (v << 2)) & 0x249249249249
+    return v
+
+
+@numba.njit(cache=True, inline="always")
+def _compact16(v: int) -> int:
+    """Inverse of :func:`_spread16`: gather every third bit of ``v`` into 16 bits."""
+    v = v & 0x249249249249
+    v = (v | (v >> 2)) & 0x0C30C30C30C3
+    v = (v | (v >> 4)) & 0x00F00F00F00F
+    v = (v | (v >> 8)) & 0x0000FF0000FF
+    v = (v | (v >> 16)) & 0xFFFF
+    return v
+
+
+@numba.njit(cache=True, inline="always")
+def _morton3(kx: int, ky: int, kz: int) -> int:
+    return _spread16(kx) | (_spread16(ky) << 1) | (_spread16(kz) << 2)
+
+
+def morton_encode(keys: ArrayLike) -> NDArray[np.int64]:
+    """Morton codes of OctoMap keys.
+
+    Parameters
+    ----------
+    keys : (n, 3) int
+        Keys in ``[0, 65536)``.
+
+    Returns
+    -------
+    (n,) int64
+        Codes with x in bit 0, y in bit 1, z in bit 2 of every 3-bit group, so the octree child
+        index at tree level ``l`` (root = 0) is ``(code >> 3 * (15 - l)) & 7 = x + 2y + 4z``,
+        OctoMap's ``computeChildIdx``.
+    """
+    k = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+    return _spread16(k[:, 0]) | (_spread16(k[:, 1]) << 1) | (_spread16(k[:, 2]) << 2)
+
+
+def morton_decode(codes: ArrayLike) -> NDArray[np.int64]:
+    """Keys of Morton codes: the inverse of :func:`morton_encode`.
+
+    Parameters
+    ----------
+    codes : (n,) int64
+
+    Returns
+    -------
+    (n, 3) int64
+    """
+    c = np.asarray(codes, dtype=np.int64).ravel()
+    return np.stack([_compact16(c), _compact16(c >> 1), _compact16(c >> 2)], axis=1)
+
+
+# --------------------------------------------------------------------------- coordinates <-> keys
+
+
+def coords_to_keys(
+    points: ArrayLike, resolution: float
+) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """OctoMap keys of points (``coordToKeyChecked`` on ``float32`` coordinates).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    resolution : float
+        Voxel edge length (m).
+
+    Returns
+    -------
+    keys : (n, 3) int64
+        Keys; rows that are not valid hold 0.
+    valid : (n,) bool
+        False where a coordinate is not finite or falls outside the key range.
+    """
+    p32 = np.asarray(points, dtype=np.float64).reshape(-1, 3).astype(np.float32)
+    with np.errstate(invalid="ignore", over="ignore"):
+        scaled = np.floor(p32.astype(np.float64) * (1.0 / resolution))
+        valid = np.all((scaled >= -TREE_MAX_VAL) & (scaled < TREE_MAX_VAL), axis=1)
+    keys = np.zeros(scaled.shape, dtype=np.int64)
+    keys[valid] = scaled[valid].astype(np.int64) + TREE_MAX_VAL
+    return keys, valid
+
+
+@numba.njit(cache=True)
+def _box_codes_kernel(keys_lo: np.ndarray, keys_hi: np.ndarray, total: int) -> np.ndarray:
+    out = np.empty(total, np.int64)
+    n = 0
+    for b in range(keys_lo.shape[0]):
+        for kz in range(keys_lo[b, 2], keys_hi[b, 2] + 1):
+            mz = _spread16(kz) << 2
+            for ky in range(keys_lo[b, 1], keys_hi[b, 1] + 1):
+                myz = mz | (_spread16(ky) << 1)
+                for kx in range(keys_lo[b, 0], keys_hi[b, 0] + 1):
+                    out[n] = myz | _spread16(kx)
+                    n += 1
+    return out
+
+
+def box_codes(keys_lo: ArrayLike, keys_hi: ArrayLike) -> NDArray[np.int64]:
+    """Morton codes of every cell of inclusive key boxes (x fastest within a box, boxes in order;
+    a cell in two boxes appears twice, an empty box adds nothing): ``morton_encode`` of all their
+    cells without listing the keys first.
+
+    Parameters
+    ----------
+    keys_lo, keys_hi : (n, 3) int
+        Inclusive key bounds, inside ``[0, KEY_LIMIT)`` (``hi < lo`` on an axis: empty box).
+    """
+    lo = np.ascontiguousarray(np.asarray(keys_lo, dtype=np.int64).reshape(-1, 3))
+    hi = np.ascontiguousarray(np.asarray(keys_hi, dtype=np.int64).reshape(-1, 3))
+    if lo.shape != hi.shape:
+        raise GeometryError(f"box_codes: lo and hi shapes differ, {lo.shape} vs {hi.shape}")
+    ext = np.maximum(hi - lo + 1, 0)
+    nonempty = np.all(ext > 0, axis=1)
+    if np.any(lo[nonempty] < 0) or np.any(hi[nonempty] >= KEY_LIMIT):
+        raise GeometryError(f"box_codes: keys must lie in [0, {KEY_LIMIT})")
+    total = int(np.prod(ext, axis=1).sum())
+    return _box_codes_kernel(lo[nonempty], hi[nonempty], total)
+
+
+def unique_sorted(values: ArrayLike) -> NDArray[np.int64]:
+    """Sorted distinct values of a 1-D integer array, as ``np.unique`` but by sorting: numpy's
+    hash-based ``unique`` takes ~15x as long on hundreds of thousands of Morton codes."""
+    v = np.sort(np.asarray(values, dtype=np.int64).ravel())
+    if v.size < 2:
+        return v
+    keep = np.empty(v.size, bool)
+    keep[0] = True
+    np.not_equal(v[1:], v[:-1], out=keep[1:])
+    return v[keep]
+
+
+def coords_to_codes(
+    points: ArrayLike, resolution: float
+) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """Morton codes of points; see :func:`coords_to_keys`. Invalid rows hold ``-1``."""
+    keys, valid = coords_to_keys(points, resolution)
+    codes = morton_encode(keys)
+    codes[~valid] = EMPTY
+    return codes, valid
+
+
+def keys_to_coords(keys: ArrayLike, resolution: float) -> NDArray[np.float64]:
+    """Voxel centres of keys (OctoMap's ``keyToCoord`` at full depth).
+
+    Parameters
+    ----------
+    keys : (n, 3) int
+    resolution : float
+
+    Returns
+    -------
+    (n, 3) float64
+        ``(key - 32768 + 0.5) * resolution``.
+    """
+    k = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+    return ((k - TREE_MAX_VAL).astype(np.float64) + 0.5) * resolution
+
+
+def codes_to_coords(codes: ArrayLike, resolution: float) -> NDArray[np.float64]:
+    """Voxel centres of Morton codes, ``(n, 3) float64``."""
+    return keys_to_coords(morton_decode(codes), resolution)

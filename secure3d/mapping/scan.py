@@ -1,0 +1,590 @@
+"""The voxel updates of a whole scan, OctoMap's ``computeUpdate``, batched over all rays.
+
+A scan marks every ray voxel free and every endpoint occupied, each voxel once per scan, occupied
+winning over free; ``clear_range`` may shorten how far a beam longer than ``max_range`` clears, for
+sensors whose range limit is not a sphere. The kernel is a numba function over all rays at once
+(each ray stepped as :mod:`secure3d.mapping.raycast` does). Per-scan de-duplication uses two dense
+bitmaps (free, occupied) over the key box of the scan, a DDA step being one addition to a voxel's
+index in it. Scans whose key box is too big for dense bitmaps use a chunked bitmap instead
+(8x8x8-voxel chunks found through a small hash directory). ``discretize`` reproduces OctoMap's
+``computeDiscreteUpdate``: one ray per distinct end voxel.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
+from secure3d.errors import GeometryError
+from secure3d.mapping.morton import EMPTY, KEY_LIMIT, TREE_MAX_VAL, _morton3, _spread16
+from secure3d.mapping.raycast import _clipped_ends, _dda_setup, _key_of, check_origin, check_points
+
+__all__ = ["ScanUpdate", "scan_update"]
+
+# Fibonacci hashing constant (2**64 / golden ratio): spreads clustered Morton codes over the table.
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+@numba.njit(cache=True, inline="always")
+def _fib_slot(key: int, shift: int) -> int:
+    return np.int64((np.uint64(key) * _GOLDEN) >> np.uint64(shift))
+
+
+@numba.njit(cache=True)
+def _dir_rehash(keys: np.ndarray, vals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Double an open-addressing table (linear probing, Fibonacci hashing), keeping its entries."""
+    cap = keys.shape[0] * 2
+    shift = 64 - int(np.log2(cap))
+    nk = np.full(cap, EMPTY, np.int64)
+    nv = np.empty(cap, np.int64)
+    for i in range(keys.shape[0]):
+        k = keys[i]
+        if k != EMPTY:
+            h = _fib_slot(k, shift)
+            while nk[h] != EMPTY:
+                h = (h + 1) & (cap - 1)
+            nk[h] = k
+            nv[h] = vals[i]
+    return nk, nv
+
+
+@numba.njit(cache=True)
+def _grow_to(a: np.ndarray, need: int) -> np.ndarray:
+    """A zero-padded copy of ``a`` with at least ``need`` rows (at least doubled)."""
+    out = np.zeros((max(2 * a.shape[0], need),) + a.shape[1:], a.dtype)
+    # element by element (both C-contiguous): an array slice assignment makes numba compile its
+    # shape-mismatch message formatting (~3 s of first-run compilation)
+    flat_out, flat_a = out.reshape(-1), a.reshape(-1)
+    for i in range(flat_a.size):
+        flat_out[i] = flat_a[i]
+    return out
+
+
+#: Largest key box (voxels) the dense kernel handles: two bitmaps of 2**27 bits = 32 MB of virtual
+#: memory, of which only the touched pages are ever used. Bigger scans use the chunked kernel.
+_DENSE_VOXEL_LIMIT = 1 << 27
+#: Margin (voxels) around the box of a scan's end keys: DDA rounding may step one voxel beside the
+#: segment's own box before it notices it has passed the end.
+_BOX_PAD = 2
+
+
+@numba.njit(cache=True)
+def _idx_to_codes(idx: np.ndarray, lo: np.ndarray, dims: np.ndarray) -> np.ndarray:
+    out = np.empty(idx.shape[0], np.int64)
+    for j in range(idx.shape[0]):
+        v = idx[j]
+        kx = lo[0] + v % dims[0]
+        v //= dims[0]
+        out[j] = _morton3(kx, lo[1] + v % dims[1], lo[2] + v // dims[1])
+    return out
+
+
+@numba.njit(cache=True)
+def _discretize_kernel(points: np.ndarray, resolution: float) -> tuple[np.ndarray, int, int]:
+    """OctoMap's ``computeDiscreteUpdate`` front end: the centre of every distinct end voxel.
+
+    Each point is rounded to float32 and keyed (``coordToKey``); the first point of each voxel adds
+    the voxel's centre (``keyToCoord``, stored as float32, OctoMap's ``point3d``), in the order of
+    first appearance. Returns (centres (m, 3) float64, non-finite points, points whose key is out of
+    range). OctoMap does not check the key range here; such points are dropped instead.
+    """
+    n = points.shape[0]
+    res_factor = 1.0 / resolution
+    cap = 16
+    while cap < 2 * n:
+        cap *= 2
+    shift = 64 - int(np.log2(cap))
+    table = np.full(cap, EMPTY, np.int64)
+    centres = np.empty((n, 3), np.float64)
+    m = 0
+    nonfinite = 0
+    outside = 0
+    for i in range(n):
+        if not (
+            np.isfinite(points[i, 0]) and np.isfinite(points[i, 1]) and np.isfinite(points[i, 2])
+        ):
+            nonfinite += 1
+            continue
+        kx = _key_of(np.float64(np.float32(points[i, 0])), res_factor)
+        ky = _key_of(np.float64(np.float32(points[i, 1])), res_factor)
+        kz = _key_of(np.float64(np.float32(points[i, 2])), res_factor)
+        if kx < 0 or ky < 0 or kz < 0:
+            outside += 1
+            continue
+        packed = kx | (ky << 16) | (kz << 32)
+        h = _fib_slot(packed, shift)
+        while table[h] != EMPTY and table[h] != packed:
+            h = (h + 1) & (cap - 1)
+        if table[h] == packed:
+            continue
+        table[h] = packed
+        centres[m, 0] = np.float32((np.float64(kx - TREE_MAX_VAL) + 0.5) * resolution)
+        centres[m, 1] = np.float32((np.float64(ky - TREE_MAX_VAL) + 0.5) * resolution)
+        centres[m, 2] = np.float32((np.float64(kz - TREE_MAX_VAL) + 0.5) * resolution)
+        m += 1
+    return centres[:m], nonfinite, outside
+
+
+@numba.njit(cache=True)
+def _dense_trace(
+    ends: np.ndarray,
+    end_keys: np.ndarray,
+    status: np.ndarray,
+    origin: np.ndarray,
+    resolution: float,
+    lo: np.ndarray,
+    dims: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """OctoMap's ``computeUpdate`` over all rays into dense bitmaps of the key box.
+
+    Voxel ``k`` of the box ``lo``/``dims`` has linear index
+    ``(kx - lo_x) + dims_x ((ky - lo_y) + dims_y (kz - lo_z))``; a DDA step is one addition to it.
+    Returns (linear indices of the occupied voxels, each once in order of first appearance, the
+    free bitmap, the occupied bitmap).
+    """
+    res_factor = 1.0 / resolution
+    ox = origin[0]
+    oy = origin[1]
+    oz = origin[2]
+    kox = _key_of(np.float64(ox), res_factor)
+    koy = _key_of(np.float64(oy), res_factor)
+    koz = _key_of(np.float64(oz), res_factor)
+    nx = dims[0]
+    nxy = dims[0] * dims[1]
+    total = nxy * dims[2]
+    free_bits = np.zeros((total + 63) >> 6, np.uint64)
+    occ_bits = np.zeros((total + 63) >> 6, np.uint64)
+    occ_idx = np.empty(min(total, ends.shape[0]), np.int64)
+    nocc = 0
+    origin_idx = (kox - lo[0]) + nx * (koy - lo[1]) + nxy * (koz - lo[2])
+    one = np.uint64(1)
+    utotal = np.uint64(total)
+
+    for i in range(ends.shape[0]):
+        ray_status = status[i]
+        if ray_status >= 2:
+            continue
+        ekx = end_keys[i, 0]
+        eky = end_keys[i, 1]
+        ekz = end_keys[i, 2]
+        end_idx = (ekx - lo[0]) + nx * (eky - lo[1]) + nxy * (ekz - lo[2])
+        if end_idx != origin_idx:
+            # Every DDA step changes one key by one: a bound on this ray's steps.
+            bound = abs(ekx - kox) + abs(eky - koy) + abs(ekz - koz) + 2
+            length, sx, sy, sz, tmx, tmy, tmz, tdx, tdy, tdz = _dda_setup(
+                ox, oy, oz, ends[i, 0], ends[i, 1], ends[i, 2], kox, koy, koz, resolution
+            )
+            stx = sx
+            sty = sy * nx
+            stz = sz * nxy
+            idx = origin_idx
+            free_bits[idx >> 6] |= one << np.uint64(idx & 63)
+            for _ in range(bound):
+                if tmx < tmy:
+                    if tmx < tmz:
+                        idx += stx
+                        tmx += tdx
+                    else:
+                        idx += stz
+                        tmz += tdz
+                elif tmy < tmz:
+                    idx += sty
+                    tmy += tdy
+                else:
+                    idx += stz
+                    tmz += tdz
+                # Accumulated rounding can pass the end voxel without hitting it: stop there.
+                if idx == end_idx or min(tmx, min(tmy, tmz)) > length:
+                    break
+                if np.uint64(idx) >= utotal:
+                    break  # impossible inside the padded box; never write outside it
+                free_bits[idx >> 6] |= one << np.uint64(idx & 63)
+        if ray_status == 0:
+            w = end_idx >> 6
+            m = one << np.uint64(end_idx & 63)
+            if (occ_bits[w] & m) == 0:
+                occ_bits[w] |= m
+                occ_idx[nocc] = end_idx
+                nocc += 1
+    return occ_idx[:nocc], free_bits, occ_bits
+
+
+#: Bit position of a 64-bit word with one bit set, by de Bruijn multiplication.
+_DEBRUIJN = np.uint64(0x03F79D71B4CB0A89)
+_DEBRUIJN_BIT = np.zeros(64, np.int64)
+for _b in range(64):
+    _DEBRUIJN_BIT[((1 << _b) * 0x03F79D71B4CB0A89 & 0xFFFFFFFFFFFFFFFF) >> 58] = _b
+del _b
+
+
+@numba.njit(cache=True)
+def _dense_codes(
+    free_bits: np.ndarray,
+    occ_idx: np.ndarray,
+    occ_bits: np.ndarray,
+    lo: np.ndarray,
+    dims: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(free codes, occupied codes) of a dense scan; occupied wins over free within a scan.
+
+    The free voxels are read off the bitmaps row by row (x fastest): their codes come out in the
+    box's index order, one Morton spread of y and z per row, one of x per voxel. The occupied ones
+    keep their order of first appearance.
+    """
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    one = np.uint64(1)
+    n = 0
+    for w in range(free_bits.shape[0]):
+        v = free_bits[w] & ~occ_bits[w]
+        while v:
+            v &= v - one
+            n += 1
+    out = np.empty(n, np.int64)
+    j = 0
+    for z in range(nz):
+        mz = _spread16(lo[2] + z) << 2
+        for y in range(ny):
+            myz = mz | (_spread16(lo[1] + y) << 1)
+            base = nx * (y + ny * z)
+            x = 0
+            while x < nx:
+                i = base + x
+                w = i >> 6
+                shift = i & 63
+                span = min(64 - shift, nx - x)  # bits of this word inside the row
+                v = (free_bits[w] & ~occ_bits[w]) >> np.uint64(shift)
+                if span < 64:
+                    v &= (one << np.uint64(span)) - one
+                while v:
+                    low = v & (~v + one)
+                    b = _DEBRUIJN_BIT[(low * _DEBRUIJN) >> np.uint64(58)]
+                    out[j] = myz | _spread16(lo[0] + x + b)
+                    j += 1
+                    v ^= low
+                x += span
+    return out, _idx_to_codes(occ_idx, lo, dims)
+
+
+def _scan_dense(
+    ends: np.ndarray,
+    end_keys: np.ndarray,
+    status: np.ndarray,
+    origin: np.ndarray,
+    resolution: float,
+    lo: np.ndarray,
+    dims: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(free codes, occupied codes) of a scan whose key box fits dense bitmaps."""
+    occ, free_bits, occ_bits = _dense_trace(ends, end_keys, status, origin, resolution, lo, dims)
+    return _dense_codes(free_bits, occ, occ_bits, lo, dims)
+
+
+@numba.njit(cache=True)
+def _chunked_batch(
+    first: int,
+    ends: np.ndarray,
+    end_keys: np.ndarray,
+    status: np.ndarray,
+    origin_keys: np.ndarray,
+    origin: np.ndarray,
+    resolution: float,
+    bits: np.ndarray,
+    hkeys: np.ndarray,
+    hvals: np.ndarray,
+    free_keys: np.ndarray,
+    free_chunk: np.ndarray,
+    occ_keys: np.ndarray,
+    state: np.ndarray,
+) -> int:
+    """Process rays from ``first`` while the arrays surely have room; return the next ray.
+
+    ``state`` = [free count, occupied count, chunks, directory entries, log2 directory size]. No
+    array is reallocated here (that would slow the loop down twofold); the caller grows them.
+    """
+    ox = origin[0]
+    oy = origin[1]
+    oz = origin[2]
+    kox = origin_keys[0]
+    koy = origin_keys[1]
+    koz = origin_keys[2]
+    nfree = state[0]
+    nocc = state[1]
+    nchunks = state[2]
+    hcount = state[3]
+    hshift = 64 - state[4]
+    hmask = hkeys.shape[0] - 1
+    last_cid = -1
+    ci = 0
+    i = first
+    while i < ends.shape[0]:
+        ray_status = status[i]
+        if ray_status >= 2:
+            i += 1
+            continue
+        ekx = end_keys[i, 0]
+        eky = end_keys[i, 1]
+        ekz = end_keys[i, 2]
+        bound = abs(ekx - kox) + abs(eky - koy) + abs(ekz - koz) + 2
+        if (
+            nfree + bound > free_keys.shape[0]
+            or nocc >= occ_keys.shape[0]
+            or nchunks + bound + 1 > bits.shape[0]
+            or 2 * (hcount + bound + 1) > hkeys.shape[0]
+        ):
+            break
+        same_voxel = ekx == kox and eky == koy and ekz == koz
+        if not same_voxel:
+            length, sx, sy, sz, tmx, tmy, tmz, tdx, tdy, tdz = _dda_setup(
+                ox, oy, oz, ends[i, 0], ends[i, 1], ends[i, 2], kox, koy, koz, resolution
+            )
+        kx = kox
+        ky = koy
+        kz = koz
+        # One pass per voxel: the origin voxel, the DDA steps (free), then the end point
+        # (occupied, only for a real hit). The end voxel itself is never marked free.
+        for s in range(bound + 1):
+            layer = 0
+            if same_voxel or s == bound:
+                layer = 1
+            elif s > 0:
+                if tmx < tmy:
+                    if tmx < tmz:
+                        kx += sx
+                        tmx += tdx
+                    else:
+                        kz += sz
+                        tmz += tdz
+                elif tmy < tmz:
+                    ky += sy
+                    tmy += tdy
+                else:
+                    kz += sz
+                    tmz += tdz
+                if (kx == ekx and ky == eky and kz == ekz) or min(tmx, min(tmy, tmz)) > length:
+                    layer = 1
+            if layer == 1:
+                if ray_status != 0:
+                    break
+                kx = ekx
+                ky = eky
+                kz = ekz
+            if kx < 0 or ky < 0 or kz < 0 or kx >= KEY_LIMIT or ky >= KEY_LIMIT or kz >= KEY_LIMIT:
+                break  # impossible (rays stay between valid keys); never pack a bad key
+            cid = (kx >> 3) | ((ky >> 3) << 13) | ((kz >> 3) << 26)
+            if cid != last_cid:
+                last_cid = cid
+                h = _fib_slot(cid, hshift)
+                while True:
+                    kk = hkeys[h]
+                    if kk == cid:
+                        ci = hvals[h]
+                        break
+                    if kk == EMPTY:
+                        hkeys[h] = cid
+                        hvals[h] = nchunks
+                        ci = nchunks
+                        nchunks += 1
+                        hcount += 1
+                        break
+                    h = (h + 1) & hmask
+            m = np.uint64(1) << np.uint64((kx & 7) | ((ky & 7) << 3))
+            w = 8 * layer + (kz & 7)
+            if (bits[ci, w] & m) == 0:
+                bits[ci, w] |= m
+                packed = kx | (ky << 16) | (kz << 32)
+                if layer == 0:
+                    free_keys[nfree] = packed
+                    free_chunk[nfree] = ci
+                    nfree += 1
+                else:
+                    occ_keys[nocc] = packed
+                    nocc += 1
+            if layer == 1:
+                break
+        i += 1
+    state[0] = nfree
+    state[1] = nocc
+    state[2] = nchunks
+    state[3] = hcount
+    return i
+
+
+@numba.njit(cache=True)
+def _scan_chunked_kernel(
+    ends: np.ndarray,
+    end_keys: np.ndarray,
+    status: np.ndarray,
+    origin: np.ndarray,
+    resolution: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_dense_trace` for scans of any extent, with sparse storage.
+
+    Voxels are de-duplicated with bits in 8x8x8 chunks (8 words free, 8 words occupied), found
+    through an open-addressing hash directory of chunk ids. Rays are processed in batches between
+    which the arrays grow.
+    """
+    res_factor = 1.0 / resolution
+    origin_keys = np.empty(3, np.int64)
+    for a in range(3):
+        origin_keys[a] = _key_of(np.float64(origin[a]), res_factor)
+    bits = np.zeros((1 << 12, 16), np.uint64)
+    hkeys = np.full(1 << 12, EMPTY, np.int64)
+    hvals = np.empty(hkeys.shape[0], np.int64)
+    free_keys = np.empty(1 << 16, np.int64)
+    free_chunk = np.empty(1 << 16, np.int64)
+    occ_keys = np.empty(1 << 14, np.int64)
+    state = np.array([0, 0, 0, 0, 12], np.int64)
+    i = 0
+    while i < ends.shape[0]:
+        i = _chunked_batch(
+            i,
+            ends,
+            end_keys,
+            status,
+            origin_keys,
+            origin,
+            resolution,
+            bits,
+            hkeys,
+            hvals,
+            free_keys,
+            free_chunk,
+            occ_keys,
+            state,
+        )
+        if i < ends.shape[0]:
+            # Room for at least the ray that did not fit (arrays at least double).
+            need = 3
+            for a in range(3):
+                need += abs(end_keys[i, a] - origin_keys[a])
+            if state[0] + need > free_keys.shape[0]:
+                free_keys = _grow_to(free_keys, state[0] + need)
+                free_chunk = _grow_to(free_chunk, state[0] + need)
+            if state[1] + 1 > occ_keys.shape[0]:
+                occ_keys = _grow_to(occ_keys, state[1] + 1)
+            if state[2] + need + 1 > bits.shape[0]:
+                bits = _grow_to(bits, state[2] + need + 1)
+            while 2 * (state[3] + need + 1) > hkeys.shape[0]:
+                hkeys, hvals = _dir_rehash(hkeys, hvals)
+                state[4] += 1
+
+    # Occupied wins: drop free keys whose occupied bit is set; convert to Morton codes.
+    nfree = state[0]
+    free_out = np.empty(nfree, np.int64)
+    nf = 0
+    for j in range(nfree):
+        key = free_keys[j]
+        kx = key & 0xFFFF
+        ky = (key >> 16) & 0xFFFF
+        kz = key >> 32
+        m = np.uint64(1) << np.uint64((kx & 7) | ((ky & 7) << 3))
+        if (bits[free_chunk[j], 8 + (kz & 7)] & m) == 0:
+            free_out[nf] = _morton3(kx, ky, kz)
+            nf += 1
+    occ_out = np.empty(state[1], np.int64)
+    for j in range(state[1]):
+        key = occ_keys[j]
+        occ_out[j] = _morton3(key & 0xFFFF, (key >> 16) & 0xFFFF, key >> 32)
+    return free_out[:nf], occ_out
+
+
+class ScanUpdate(NamedTuple):
+    """The voxel updates of one scan (OctoMap's ``computeUpdate``), each voxel listed once.
+
+    Attributes
+    ----------
+    free : (m,) int64
+        Morton codes of voxels to mark free (disjoint from ``occupied``).
+    occupied : (k,) int64
+        Morton codes of voxels to mark occupied.
+    points_used : int
+        Points whose ray was cast (including beams clipped at the maximum range).
+    skipped_nonfinite : int
+        Points with a NaN or infinite coordinate.
+    skipped_out_of_range : int
+        Points whose (clipped) end lies outside the key range; OctoMap drops these whole.
+    clipped : int
+        Beams longer than the maximum range (they only clear space).
+    rays : int
+        Rays cast: ``points_used``, or the distinct end voxels of a discretised scan.
+    """
+
+    free: NDArray[np.int64]
+    occupied: NDArray[np.int64]
+    points_used: int
+    skipped_nonfinite: int
+    skipped_out_of_range: int
+    clipped: int
+    rays: int
+
+
+def scan_update(
+    points: ArrayLike,
+    origin: ArrayLike,
+    resolution: float,
+    max_range: float | None = None,
+    discretize: bool = False,
+    clear_range: float | None = None,
+) -> ScanUpdate:
+    """Voxel updates of one scan, exactly as OctoMap's ``insertPointCloud`` computes them.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Measured end points in the world frame (m). Rows with NaN/inf are skipped and counted.
+    origin : (3,) float
+        Sensor position (m); must be finite and inside the key range.
+    resolution : float
+        Voxel edge length (m).
+    max_range : float or None
+        Beams longer than this (Euclidean, m) only clear space up to it; None or negative: no limit.
+    discretize : bool
+        OctoMap's ``insertPointCloud(..., discretize=true)`` (``computeDiscreteUpdate``): one ray
+        per distinct end voxel, cast to the voxel's centre (see :func:`_discretize_kernel`). A depth
+        camera puts several pixels in most voxels, so this casts several times fewer rays. The
+        occupied voxels are those of the exact update except where a centre and its points fall on
+        different sides of ``max_range``; free voxels differ where a ray to the centre crosses other
+        voxels than the rays to the points. ``points_used`` then counts points in a cast voxel,
+        ``clipped`` the clipped rays, ``rays`` the rays cast.
+    clear_range : float or None
+        How far a beam longer than ``max_range`` clears space (m); None: ``max_range``, as OctoMap.
+        A sensor whose range limit is not a sphere (a z-depth limit) records every hit inside its
+        limit with ``max_range`` beyond its farthest hit and clears no-return beams only as far as
+        it surely saw, ``clear_range`` (see :meth:`OccupancyMap.insert_depth_image`).
+
+    Returns
+    -------
+    ScanUpdate
+    """
+    p = np.ascontiguousarray(check_points(points))
+    o = check_origin(origin, resolution)
+    mr = -1.0 if max_range is None or not np.isfinite(max_range) else float(max_range)
+    cr = mr if clear_range is None else float(clear_range)
+    if mr >= 0.0 and not 0.0 <= cr <= mr:
+        raise GeometryError(f"clear_range: must be in [0, max_range = {mr}], got {clear_range!r}")
+    if discretize:
+        centres, nonfinite, outside = _discretize_kernel(p, float(resolution))
+        upd = scan_update(centres, o.astype(np.float64), resolution, max_range, False, clear_range)
+        return ScanUpdate(
+            upd.free,
+            upd.occupied,
+            p.shape[0] - nonfinite - outside,
+            nonfinite,
+            outside,
+            upd.clipped,
+            upd.rays,
+        )
+    ends, keys, status, lo, hi = _clipped_ends(p, o, float(resolution), mr, cr)
+    lo = lo - _BOX_PAD
+    dims = hi + _BOX_PAD - lo + 1
+    if float(np.prod(dims.astype(np.float64))) <= _DENSE_VOXEL_LIMIT:
+        free, occ = _scan_dense(ends, keys, status, o, float(resolution), lo, dims)
+    else:
+        free, occ = _scan_chunked_kernel(ends, keys, status, o, float(resolution))
+    counts = np.bincount(status, minlength=4)
+    used = int(counts[0] + counts[1])
+    return ScanUpdate(free, occ, used, int(counts[2]), int(counts[3]), int(counts[1]), used)
