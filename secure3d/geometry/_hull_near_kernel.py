@@ -20,7 +20,7 @@ import numpy as np
 import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
 from secure3d.geometry._box_index_kernels import _STACK
 
-__all__ = ["hull_near"]
+__all__ = ["hull_near", "hull_nearest"]
 
 
 @numba.njit(cache=True, inline="always")
@@ -90,3 +90,77 @@ def hull_near(
             js[first + r] = js_k[r]
             vs[first + r] = vs_k[r]
     return ks[:n], js[:n], vs[:n]
+
+
+@numba.njit(cache=True)
+def hull_nearest(
+    points, reach, limit, n, lo, hi, perm, nlo, nhi, child, start, count
+):  # pragma: no cover
+    """Per node k, ``n`` entries of row k of ``hull_screen(points, reach, lo, hi)`` that are the
+    smallest and at most ``limit``: (k (r,), j (r,), value (r,)), by k, then value (then j)
+    ascending; at most n per row. Their *values* are the row's n smallest within the limit
+    whatever the ties; which of several boxes with equal entries is returned is not defined.
+    Branch and bound, nearer child first: a tree node is skipped when its entry (a lower bound
+    for every box below) exceeds the limit or is at least the largest of n entries kept."""
+    K = points.shape[0]
+    ks = np.empty(K * n, np.int64)
+    js = np.empty(K * n, np.int64)
+    vs = np.empty(K * n)
+    r = 0
+    stack = np.empty(_STACK, np.int64)
+    bound = np.empty(_STACK)
+    best_v = np.empty(n)
+    best_j = np.empty(n, np.int64)
+    if lo.shape[0] == 0 or n == 0:
+        return ks[:0], js[:0], vs[:0]
+    for k in range(K):
+        kept = 0
+        worst = 0  # position of the largest kept entry (when kept == n)
+        stack[0] = 0
+        bound[0] = _entry(points, k, nlo[0], nhi[0], reach[k])
+        top = 1
+        while top > 0:
+            top -= 1
+            node = stack[top]
+            b = bound[top]
+            if b > limit or (kept == n and b >= best_v[worst]):
+                continue
+            c = child[node]
+            if c >= 0:
+                da = _entry(points, k, nlo[c], nhi[c], reach[k])
+                db = _entry(points, k, nlo[c + 1], nhi[c + 1], reach[k])
+                if da <= db:  # push the nearer last: it is visited first
+                    stack[top], bound[top], stack[top + 1], bound[top + 1] = c + 1, db, c, da
+                else:
+                    stack[top], bound[top], stack[top + 1], bound[top + 1] = c, da, c + 1, db
+                top += 2
+                continue
+            for q in range(start[node], start[node] + count[node]):
+                j = perm[q]
+                v = _entry(points, k, lo[j], hi[j], reach[k])
+                if v > limit:
+                    continue
+                if kept < n:
+                    best_v[kept], best_j[kept] = v, j
+                    kept += 1
+                elif v < best_v[worst]:
+                    best_v[worst], best_j[worst] = v, j
+                else:
+                    continue
+                if kept == n:
+                    worst = 0
+                    for t in range(1, n):
+                        if best_v[t] > best_v[worst]:
+                            worst = t
+        # this row's entries, by value then box
+        for t in range(1, kept):
+            v, j = best_v[t], best_j[t]
+            u = t - 1
+            while u >= 0 and (best_v[u] > v or (best_v[u] == v and best_j[u] > j)):
+                best_v[u + 1], best_j[u + 1] = best_v[u], best_j[u]
+                u -= 1
+            best_v[u + 1], best_j[u + 1] = v, j
+        for t in range(kept):
+            ks[r], js[r], vs[r] = k, best_j[t], best_v[t]
+            r += 1
+    return ks[:r], js[:r], vs[:r]

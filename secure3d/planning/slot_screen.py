@@ -5,16 +5,18 @@ index, with the full screens' answers bit for bit.
 :func:`~secure3d.planning.lookback.slots_missing` screen every (node, box) pair: a (K, m) matrix of
 distances from samples of what node k constrains to box j (``hull_screen``), argsorted row by row.
 Over a scanned building (19,000 merged boxes, K = 40) that is ~0.1 s of each plan call, although
-only the pairs within the slot radius (or the margin) are ever used. Here the box index's tree
-yields exactly those pairs, with the same entries (:func:`~secure3d.geometry._hull_near_kernel.
-hull_near`), and the rows are ranked on them alone:
+only a row's nearest few boxes (within the slot radius) or its pairs below the margin are ever used.
+Here the box index's tree yields just those, with the matrix's entries bit for bit
+(:mod:`~secure3d.geometry._hull_near_kernel`):
 
-- the pairs below a limit are the matrix's, in its row-major order (``np.argwhere``);
-- the S nearest boxes of a row are the full argsort's first S whenever their values are distinct:
-  a sort of the full row can only order *equal* values differently (its tie order depends on the
-  sort algorithm and on every other entry). Where a tie could matter (among the first S + 1
-  values within the radius, or at the boundary of the 2S screened ones the secure planner refines),
-  :func:`indexed_slot_boxes` returns None and the caller ranks the full matrix as before.
+- the pairs below a limit (``hull_near``) are the matrix's, in its row-major order
+  (``np.argwhere``), so :func:`screened_below` answers for ``slots_missing`` exactly;
+- the S nearest boxes of a row (``hull_nearest``: its S + 1 smallest entries, or 2S + 1 where the
+  secure planner refines 2S of them) are the full argsort's first S whenever their values are
+  distinct: a sort of the full row can only order *equal* values differently (its tie order
+  depends on the sort algorithm and on every other entry). A row where a tie could matter (among
+  the first S + 1 values within the radius, or at the boundary of the 2S refined ones) is ranked
+  in full, as before: numpy sorts each row of a matrix as it sorts that row alone.
 """
 
 from __future__ import annotations
@@ -40,6 +42,19 @@ def screened_pairs(
     pts = np.ascontiguousarray(pts, dtype=float)
     reach = np.ascontiguousarray(reach, dtype=float)
     return hull_near(pts, reach, float(limit), index.lo, index.hi, *index.tree)
+
+
+def _nearest(
+    problem: PlanningProblem, pts: np.ndarray, reach: np.ndarray, limit: float, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(k, j, value): per row of ``hull_screen(pts, reach, boxes)`` its ``n`` smallest entries at
+    most ``limit`` (the values exact; among equal ones, which boxes is not defined), by value."""
+    from secure3d.geometry._hull_near_kernel import hull_nearest
+
+    index = problem.box_index
+    pts = np.ascontiguousarray(pts, dtype=float)
+    reach = np.ascontiguousarray(reach, dtype=float)
+    return hull_nearest(pts, reach, float(limit), int(n), index.lo, index.hi, *index.tree)
 
 
 def screened_below(
@@ -141,7 +156,8 @@ def indexed_slot_boxes(
     o = problem.options
     K, S, R = len(states), o.obstacle_slots, o.obstacle_radius
     pts, reach = lb._hull_samples(problem, planner, states, assignment)
-    ks, js, vs = screened_pairs(problem, pts, reach, R)
+    # per row the n + 1 smallest entries within the radius: the ranking and a tie at its end
+    ks, js, vs = _nearest(problem, pts, reach, R, (2 * S if planner == Planner.SECURE else S) + 1)
     bounds = np.searchsorted(ks, np.arange(K + 1))
     rows = [np.arange(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
     secure = planner == Planner.SECURE
