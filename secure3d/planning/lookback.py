@@ -14,7 +14,7 @@ import numpy as np
 from secure3d.geometry.frustum import frustum_halfspaces
 from secure3d.geometry.polytope import box_pair_distances
 from secure3d.planning.problem import Planner, PlanningProblem
-from secure3d.planning.slot_screen import indexed_slot_boxes, screened_below
+from secure3d.planning.slot_screen import INDEXED_MIN_BOXES, indexed_slot_boxes, screened_pairs
 
 #: Penalty (m) on a candidate camera whose line of sight to the reactive set crosses a known obstacle.
 OCCLUSION_PENALTY = 5.0
@@ -238,6 +238,26 @@ def _refine_distances(
     return out
 
 
+def _screened_below(
+    problem: PlanningProblem,
+    planner: str,
+    states: np.ndarray,
+    assignment: tuple[int, ...],
+    limit: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(np.argwhere(d < limit), d[those])`` for the screen ``d`` of
+    :func:`_hull_box_distances`: (f, 2) pairs and (f,) values (over many boxes, through the box
+    index: the same pairs and values)."""
+    if len(problem.boxes_lo) < INDEXED_MIN_BOXES:
+        d = _hull_box_distances(problem, planner, states, assignment)
+        flagged = np.argwhere(d < limit)
+        return flagged, d[flagged[:, 0], flagged[:, 1]]
+    pts, reach = _hull_samples(problem, planner, states, assignment)
+    ks, js, vs = screened_pairs(problem, pts, reach, limit)
+    below = vs < limit
+    return np.stack([ks[below], js[below]], axis=1), vs[below]
+
+
 #: Pairs whose exact distance :func:`slots_missing` computes per batch before checking for a miss.
 _EXACT_CHUNK = 256
 #: Slack (m) over the exact kernel's solve tolerance (measured <= 1.2e-9 below a face gap on 20,000
@@ -260,7 +280,7 @@ def slots_missing(
         return False
     limit = problem.options.margin + slack
     # the (node, box) pairs screened below the limit, in row-major order, and their screens
-    flagged, screened = screened_below(problem, planner, states, assignment, limit)
+    flagged, screened = _screened_below(problem, planner, states, assignment, limit)
     # boxes already in the node's slots do not count (compared only where flagged)
     boxes = np.concatenate([problem.boxes_lo, problem.boxes_hi], axis=1)[flagged[:, 1]]  # (f, 6)
     slotted = np.isclose(slots[flagged[:, 0]], boxes[:, None, :]).all(axis=-1).any(axis=1)
@@ -303,9 +323,15 @@ def select_slots(
     n = len(problem.boxes_lo)
     if n == 0:
         return slots
-    # over many boxes, the nearest through the box index (None: a tie the full sort would break)
-    chosen = indexed_slot_boxes(problem, planner, states, assignment)
-    if chosen is None:
+    if n >= INDEXED_MIN_BOXES:  # the nearest through the box index: the same choice
+        pts, reach = _hull_samples(problem, planner, states, assignment)
+
+        def exact(k_idx: np.ndarray, b_idx: np.ndarray) -> np.ndarray:
+            sets = _constrained_sets(problem, "secure", states, assignment)
+            return _exact_distances(problem, sets, k_idx, b_idx)
+
+        chosen = indexed_slot_boxes(problem, planner, pts, reach, exact)
+    else:
         d = _hull_box_distances(problem, planner, states, assignment)
         if planner == Planner.SECURE:
             d = _refine_distances(problem, states, assignment, d, 2 * S)

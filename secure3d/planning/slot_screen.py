@@ -10,7 +10,7 @@ Here the box index's tree yields just those, with the matrix's entries bit for b
 (:mod:`~secure3d.geometry._hull_near_kernel`):
 
 - the pairs below a limit (``hull_near``) are the matrix's, in its row-major order
-  (``np.argwhere``), so :func:`screened_below` answers for ``slots_missing`` exactly;
+  (``np.argwhere``), so ``slots_missing`` gets the same pairs;
 - the S nearest boxes of a row (``hull_nearest``: its S + 1 smallest entries, or 2S + 1 where the
   secure planner refines 2S of them) are the full argsort's first S whenever their values are
   distinct: a sort of the full row can only order *equal* values differently (its tie order
@@ -21,11 +21,13 @@ Here the box index's tree yields just those, with the matrix's entries bit for b
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from secure3d.planning.problem import Planner, PlanningProblem
 
-__all__ = ["INDEXED_MIN_BOXES", "indexed_slot_boxes", "screened_below", "screened_pairs"]
+__all__ = ["INDEXED_MIN_BOXES", "indexed_slot_boxes", "screened_pairs"]
 
 #: Boxes from which the screens go through the index (below, the matrix is as cheap).
 INDEXED_MIN_BOXES = 256
@@ -55,27 +57,6 @@ def _nearest(
     pts = np.ascontiguousarray(pts, dtype=float)
     reach = np.ascontiguousarray(reach, dtype=float)
     return hull_nearest(pts, reach, float(limit), int(n), index.lo, index.hi, *index.tree)
-
-
-def screened_below(
-    problem: PlanningProblem,
-    planner: str,
-    states: np.ndarray,
-    assignment: tuple[int, ...],
-    limit: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """``(np.argwhere(d < limit), d[those])`` for the screen ``d`` of
-    :func:`~secure3d.planning.lookback._hull_box_distances`: (f, 2) pairs and (f,) values."""
-    from secure3d.planning import lookback as lb
-
-    if len(problem.boxes_lo) < INDEXED_MIN_BOXES:
-        d = lb._hull_box_distances(problem, planner, states, assignment)
-        flagged = np.argwhere(d < limit)
-        return flagged, d[flagged[:, 0], flagged[:, 1]]
-    pts, reach = lb._hull_samples(problem, planner, states, assignment)
-    ks, js, vs = screened_pairs(problem, pts, reach, limit)
-    below = vs < limit
-    return np.stack([ks[below], js[below]], axis=1), vs[below]
 
 
 def _smallest(values: np.ndarray, n: int, limit: float, ordered: bool) -> np.ndarray | None:
@@ -113,56 +94,50 @@ def _screen_row(problem: PlanningProblem, pts: np.ndarray, reach: np.ndarray, k:
 
 def _refined(
     problem: PlanningProblem,
-    states: np.ndarray,
-    assignment: tuple[int, ...],
     screened: tuple[np.ndarray, ...],
     rows: list[np.ndarray],
+    exact: Callable[[np.ndarray, np.ndarray], np.ndarray],
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """:func:`~secure3d.planning.lookback._refine_distances` on the screened pairs: each row's 2S
     nearest by the screen (a row with a tie at the 2S-th: by its full screen row), with their exact
-    distances; per node (boxes, exact distances)."""
-    from secure3d.planning import lookback as lb
-
+    distances (``exact(k_idx, b_idx)``); per node (boxes, exact distances)."""
     pts, reach, js, vs = screened
     S, R = problem.options.obstacle_slots, problem.options.obstacle_radius
     picked = []
     for k, row in enumerate(rows):
         keep = _smallest(vs[row], 2 * S, R, ordered=False)
-        boxes = (
-            js[row[keep]]
-            if keep is not None
-            else _first(_screen_row(problem, pts, reach, k), 2 * S, R)
-        )
-        picked.append(boxes)
+        if keep is None:
+            picked.append(_first(_screen_row(problem, pts, reach, k), 2 * S, R))
+        else:
+            picked.append(js[row[keep]])
     k_idx = np.repeat(np.arange(len(rows)), [len(b) for b in picked])
     b_idx = np.concatenate(picked).astype(np.int64)
-    sets = lb._constrained_sets(problem, "secure", states, assignment)
-    exact = lb._exact_distances(problem, sets, k_idx, b_idx) if len(k_idx) else np.zeros(0)
+    distances = exact(k_idx, b_idx) if len(k_idx) else np.zeros(0)
     ends = np.cumsum([len(b) for b in picked])
-    return [(b, exact[e - len(b) : e]) for b, e in zip(picked, ends, strict=True)]
+    return [(b, distances[e - len(b) : e]) for b, e in zip(picked, ends, strict=True)]
 
 
 def indexed_slot_boxes(
-    problem: PlanningProblem, planner: str, states: np.ndarray, assignment: tuple[int, ...]
-) -> np.ndarray | None:
+    problem: PlanningProblem,
+    planner: str,
+    pts: np.ndarray,
+    reach: np.ndarray,
+    exact: Callable[[np.ndarray, np.ndarray], np.ndarray],
+) -> np.ndarray:
     """(K, S) box per node slot (-1: empty) as :func:`~secure3d.planning.lookback.select_slots`
-    picks them from the full screen, found through the box index (a row whose ranking a tie
-    decides is ranked in full); None below :data:`INDEXED_MIN_BOXES` boxes."""
-    from secure3d.planning import lookback as lb
-
+    picks them from the full screen of the samples ``pts`` (K, P, 3) and ``reach`` (K,), found
+    through the box index (a row whose ranking a tie decides is ranked in full); the secure planner
+    ranks its 2S nearest by ``exact(k_idx, b_idx)``, their exact distances."""
     m = len(problem.boxes_lo)
-    if m < INDEXED_MIN_BOXES:
-        return None
     o = problem.options
-    K, S, R = len(states), o.obstacle_slots, o.obstacle_radius
-    pts, reach = lb._hull_samples(problem, planner, states, assignment)
+    K, S, R = len(pts), o.obstacle_slots, o.obstacle_radius
     # per row the n + 1 smallest entries within the radius: the ranking and a tie at its end
     ks, js, vs = _nearest(problem, pts, reach, R, (2 * S if planner == Planner.SECURE else S) + 1)
     bounds = np.searchsorted(ks, np.arange(K + 1))
     rows = [np.arange(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
     secure = planner == Planner.SECURE
     if secure:
-        ranked = _refined(problem, states, assignment, (pts, reach, js, vs), rows)
+        ranked = _refined(problem, (pts, reach, js, vs), rows, exact)
     else:
         ranked = [(js[row], vs[row]) for row in rows]
     chosen = np.full((K, min(S, m)), -1, dtype=np.int64)

@@ -108,7 +108,12 @@ def test_indexed_slots_and_missing_pairs_equal_the_full_screens(maps_dir, planne
     from secure3d.planning import problem_from_scenario
     from secure3d.planning import slot_screen as ss
     from secure3d.planning.guess import initial_guess
-    from secure3d.planning.lookback import _hull_box_distances, adaptive_assignment
+    from secure3d.planning.lookback import (
+        _hull_box_distances,
+        _screened_below,
+        adaptive_assignment,
+        select_slots,
+    )
 
     problem = problem_from_scenario(secure3d.load_scenario(maps_dir / "blind_corner.yaml"))
     rng = np.random.default_rng(5)
@@ -125,11 +130,15 @@ def test_indexed_slots_and_missing_pairs_equal_the_full_screens(maps_dir, planne
     assert len(lo) >= ss.INDEXED_MIN_BOXES
     for states in (guess.states, guess.states + rng.normal(0.0, 0.05, guess.states.shape)):
         assignment, _ = adaptive_assignment(boxes, states)
-        got = ss.indexed_slot_boxes(boxes, planner, states, assignment)
-        assert np.array_equal(got, _full_slot_boxes(boxes, planner, states, assignment))
+        slots = select_slots(boxes, planner, states, assignment)
+        want = _full_slot_boxes(boxes, planner, states, assignment)
+        held = want >= 0
+        np.testing.assert_array_equal(slots[:, : want.shape[1], 0:3][held], lo[want[held]])
+        np.testing.assert_array_equal(slots[:, : want.shape[1], 3:6][held], hi[want[held]])
+        assert np.all(slots[:, : want.shape[1], 0:3][~held] > 100.0)  # empty: far away
         d = _hull_box_distances(boxes, planner, states, assignment)
         for limit in (0.02, 0.3, 1.0):
-            flagged, values = ss.screened_below(boxes, planner, states, assignment, limit)
+            flagged, values = _screened_below(boxes, planner, states, assignment, limit)
             assert np.array_equal(flagged, np.argwhere(d < limit))
             assert np.array_equal(values, d[d < limit])
 
