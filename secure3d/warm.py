@@ -20,7 +20,10 @@ def warm() -> float:
 
     import numpy as np
 
+    from secure3d.geometry._hull_near_kernel import hull_near, hull_nearest
+    from secure3d.geometry.box_index import BoxIndex
     from secure3d.mapping._closing_kernel import sparse_closing
+    from secure3d.mapping._packed_closing import packed_closed_boxes
     from secure3d.mapping.keys import morton_decode, morton_encode
     from secure3d.planning import NLPCache
     from secure3d.planning.solve import plan
@@ -33,6 +36,12 @@ def warm() -> float:
         morton_decode(morton_encode(np.zeros((n, 3), np.int64)))
     # the tiled closing of sparse maps (a plan over a large, mostly empty server map)
     sparse_closing(np.array([[1, 1, 1]]), (3, 3, 3), 1)
+    packed_closed_boxes(np.array([0], np.int64), 1)  # the bit-packed closing and merge
+    # the slot screens through the box index (plans over >= 256 boxes)
+    box = BoxIndex(np.zeros((1, 3)), np.ones((1, 3)))
+    pts, reach = np.zeros((1, 1, 3)), np.zeros(1)
+    hull_near(pts, reach, 1.0, box.lo, box.hi, *box.tree)
+    hull_nearest(pts, reach, 1.0, 2, box.lo, box.hi, *box.tree)
     maps = Path(__file__).resolve().parents[1] / "maps"
     if (maps / "office_bt.yaml").exists():  # a source checkout: its shipped scenarios
         plan(load_scenario(maps / "office_bt.yaml"), "secure", cache=NLPCache())

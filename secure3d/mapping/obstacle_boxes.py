@@ -12,7 +12,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from secure3d.mapping._closing_kernel import TILE, sparse_closing
-from secure3d.mapping.boxes import merge_cells_budget, merge_grid
+from secure3d.mapping._packed_closing import packed_closed_boxes
+from secure3d.mapping.boxes import merge_cells_budget
 from secure3d.mapping.keys import TREE_MAX_VAL, morton_decode
 
 __all__ = ["binary_closing_cube", "bounds_walls", "closed_grid", "obstacle_boxes"]
@@ -47,14 +48,14 @@ def obstacle_boxes(
     lo, hi : (m, 3) float64
         Box corners (m).
     """
-    keys = morton_decode(codes)
-    if close_gaps and len(keys):
-        grid, base = closed_grid(keys, close_gaps)
-        klo, khi = merge_grid(grid, base)
+    if close_gaps and len(codes):
+        # merge_grid(*closed_grid(keys, close_gaps)) on a bit-packed grid: the same boxes
+        klo, khi = packed_closed_boxes(codes, close_gaps)
         if max_boxes is not None and len(klo) > max_boxes:
+            grid, base = closed_grid(morton_decode(codes), close_gaps)
             klo, khi = merge_cells_budget(np.argwhere(grid) + base, max_boxes)
     else:
-        klo, khi = merge_cells_budget(keys, max_boxes)
+        klo, khi = merge_cells_budget(morton_decode(codes), max_boxes)
     lo = (klo - TREE_MAX_VAL).astype(np.float64) * resolution
     hi = (khi + 1 - TREE_MAX_VAL).astype(np.float64) * resolution
     if bounds is not None:

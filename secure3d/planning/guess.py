@@ -443,12 +443,17 @@ def centre_path(
     eps = 1e-3
     steps = np.zeros((dims, 3))
     steps[np.arange(dims), np.arange(dims)] = eps
+    # A point without a deficit never moves again (its push and smoothing are zero), so its
+    # clearances stay what they were: only the points that had a deficit are queried again.
+    active = np.ones(len(pts) - 2, bool)
+    c_all = np.empty((1 + 2 * dims, len(pts) - 2))
     for _ in range(iterations):
         inner = pts[1:-1]
-        m = len(inner)
+        idx = np.flatnonzero(active)
+        q = inner[idx]
         # the clearance and its central differences, in one query
-        probes = [inner] + [inner + sign * steps[d] for d in range(dims) for sign in (1.0, -1.0)]
-        c_all = clearance(np.concatenate(probes)).reshape(1 + 2 * dims, m)
+        probes = [q] + [q + sign * steps[d] for d in range(dims) for sign in (1.0, -1.0)]
+        c_all[:, idx] = clearance(np.concatenate(probes)).reshape(1 + 2 * dims, len(idx))
         c0 = c_all[0]
         grad = np.zeros_like(inner)
         for d in range(dims):
@@ -459,9 +464,10 @@ def centre_path(
         push = grad * np.minimum(deficit, 0.02)[:, None]
         smooth = 0.5 * (pts[:-2] + pts[2:]) - inner
         moved = inner + push + 0.3 * smooth * (deficit > 0)[:, None]
-        ok = clearance(moved) >= np.minimum(
-            c0, r
-        )  # never move a point closer to an obstacle than the body
+        active = deficit > 0.0
+        # never move a point closer to an obstacle than the body (the others stay where they are)
+        ok = np.ones(len(inner), bool)
+        ok[active] = clearance(moved[active]) >= np.minimum(c0[active], r)
         pts[1:-1] = np.where(ok[:, None], moved, inner)
     return pts
 

@@ -14,6 +14,7 @@ import numpy as np
 from secure3d.geometry.frustum import frustum_halfspaces
 from secure3d.geometry.polytope import box_pair_distances
 from secure3d.planning.problem import Planner, PlanningProblem
+from secure3d.planning.slot_screen import INDEXED_MIN_BOXES, indexed_slot_boxes, screened_pairs
 
 #: Penalty (m) on a candidate camera whose line of sight to the reactive set crosses a known obstacle.
 OCCLUSION_PENALTY = 5.0
@@ -120,12 +121,11 @@ def refine_assignment(
     return tuple(out)
 
 
-def _hull_box_distances(
+def _hull_samples(
     problem: PlanningProblem, planner: str, states: np.ndarray, assignment: tuple[int, ...]
-) -> np.ndarray:
-    """(K, n_boxes) screening distance from what node k constrains to every known box: the body
-    (baseline) or samples of the line-of-sight hull from camera j to E_k minus its largest
-    semi-axis (secure)."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """What :func:`_hull_box_distances` screens: per node, sample points (K, P, 3) and the reach
+    (K,) subtracted from their distances."""
     o = problem.options
     K = len(states)
     geo = node_geometry(problem, states)
@@ -142,12 +142,22 @@ def _hull_box_distances(
     else:
         reach = np.full(K, problem.model.body_radius)
         pts = geo["P"][:, None, :]
+    return np.ascontiguousarray(pts, dtype=float), np.asarray(reach, float)
+
+
+def _hull_box_distances(
+    problem: PlanningProblem, planner: str, states: np.ndarray, assignment: tuple[int, ...]
+) -> np.ndarray:
+    """(K, n_boxes) screening distance from what node k constrains to every known box: the body
+    (baseline) or samples of the line-of-sight hull from camera j to E_k minus its largest
+    semi-axis (secure)."""
+    pts, reach = _hull_samples(problem, planner, states, assignment)
     # compiled, bit for bit min_box_distance_all(...).reshape(K, -1, n).min(axis=1) - reach: the
     # full rows, as select_slots' argsort breaks ties by them
     from secure3d.geometry._box_kernels import hull_screen
 
     lo, hi = problem.box_index.lo, problem.box_index.hi
-    return hull_screen(np.ascontiguousarray(pts, dtype=float), np.asarray(reach, float), lo, hi)
+    return hull_screen(pts, reach, lo, hi)
 
 
 def _constrained_sets(
@@ -228,6 +238,26 @@ def _refine_distances(
     return out
 
 
+def _screened_below(
+    problem: PlanningProblem,
+    planner: str,
+    states: np.ndarray,
+    assignment: tuple[int, ...],
+    limit: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(np.argwhere(d < limit), d[those])`` for the screen ``d`` of
+    :func:`_hull_box_distances`: (f, 2) pairs and (f,) values (over many boxes, through the box
+    index: the same pairs and values)."""
+    if len(problem.boxes_lo) < INDEXED_MIN_BOXES:
+        d = _hull_box_distances(problem, planner, states, assignment)
+        flagged = np.argwhere(d < limit)
+        return flagged, d[flagged[:, 0], flagged[:, 1]]
+    pts, reach = _hull_samples(problem, planner, states, assignment)
+    ks, js, vs = screened_pairs(problem, pts, reach, limit)
+    below = vs < limit
+    return np.stack([ks[below], js[below]], axis=1), vs[below]
+
+
 #: Pairs whose exact distance :func:`slots_missing` computes per batch before checking for a miss.
 _EXACT_CHUNK = 256
 #: Slack (m) over the exact kernel's solve tolerance (measured <= 1.2e-9 below a face gap on 20,000
@@ -248,13 +278,13 @@ def slots_missing(
     ``slack`` 0: whether ``states`` violate a row of the NLP with every box."""
     if len(problem.boxes_lo) == 0:
         return False
-    d = _hull_box_distances(problem, planner, states, assignment)
     limit = problem.options.margin + slack
-    flagged = np.argwhere(d < limit)
+    # the (node, box) pairs screened below the limit, in row-major order, and their screens
+    flagged, screened = _screened_below(problem, planner, states, assignment, limit)
     # boxes already in the node's slots do not count (compared only where flagged)
     boxes = np.concatenate([problem.boxes_lo, problem.boxes_hi], axis=1)[flagged[:, 1]]  # (f, 6)
     slotted = np.isclose(slots[flagged[:, 0]], boxes[:, None, :]).all(axis=-1).any(axis=1)
-    flagged = flagged[~slotted]
+    flagged, screened = flagged[~slotted], screened[~slotted]
     if len(flagged) == 0 or planner != Planner.SECURE:
         return bool(len(flagged))
     # the screening bound is loose for elongated reactive sets: confirm with exact distances,
@@ -263,10 +293,9 @@ def slots_missing(
     # a face of the box that separates it from the set by at least the limit settles the pair
     # without the exact solve (a separating plane's gap bounds the distance from below)
     # (the exact kernel solves to ~1e-9: a pair within FACE_GAP_TOL of the limit still goes to it)
-    flagged = flagged[
-        _face_gaps(problem, sets, flagged[:, 0], flagged[:, 1]) < limit + FACE_GAP_TOL
-    ]
-    flagged = flagged[np.argsort(d[flagged[:, 0], flagged[:, 1]], kind="stable")]
+    gapped = _face_gaps(problem, sets, flagged[:, 0], flagged[:, 1]) < limit + FACE_GAP_TOL
+    flagged, screened = flagged[gapped], screened[gapped]
+    flagged = flagged[np.argsort(screened, kind="stable")]
     for start in range(0, len(flagged), _EXACT_CHUNK):
         part = flagged[start : start + _EXACT_CHUNK]
         if np.any(_exact_distances(problem, sets, part[:, 0], part[:, 1]) < limit):
@@ -294,13 +323,23 @@ def select_slots(
     n = len(problem.boxes_lo)
     if n == 0:
         return slots
-    d = _hull_box_distances(problem, planner, states, assignment)
-    if planner == Planner.SECURE:
-        d = _refine_distances(problem, states, assignment, d, 2 * S)
-    order = np.argsort(d, axis=1)[:, :S]
+    if n >= INDEXED_MIN_BOXES:  # the nearest through the box index: the same choice
+        pts, reach = _hull_samples(problem, planner, states, assignment)
+
+        def exact(k_idx: np.ndarray, b_idx: np.ndarray) -> np.ndarray:
+            sets = _constrained_sets(problem, "secure", states, assignment)
+            return _exact_distances(problem, sets, k_idx, b_idx)
+
+        chosen = indexed_slot_boxes(problem, planner, pts, reach, exact)
+    else:
+        d = _hull_box_distances(problem, planner, states, assignment)
+        if planner == Planner.SECURE:
+            d = _refine_distances(problem, states, assignment, d, 2 * S)
+        order = np.argsort(d, axis=1)[:, :S]
+        chosen = np.where(np.take_along_axis(d, order, axis=1) <= o.obstacle_radius, order, -1)
     for k in range(K):
-        for s, idx in enumerate(order[k]):
-            if d[k, idx] <= o.obstacle_radius:
+        for s, idx in enumerate(chosen[k]):
+            if idx >= 0:
                 slots[k, s, 0:3] = problem.boxes_lo[idx]
                 slots[k, s, 3:6] = problem.boxes_hi[idx]
     return slots

@@ -116,3 +116,49 @@ def test_hull_screen_is_the_numpy_screen_bit_for_bit(rng):
         reach = rng.uniform(0.0, 1.0, 30)
         want = min_box_distance_all(pts.reshape(-1, 3), lo, hi).reshape(30, P, -1).min(axis=1)
         assert np.array_equal(hull_screen(pts, reach, lo, hi), want - reach[:, None])
+
+
+@pytest.mark.parametrize("extend", [False, True])
+def test_hull_near_returns_the_screen_entries_within_the_limit(rng, extend):
+    """The index's walk yields exactly the hull_screen entries at most the limit, with their bits,
+    row-major (also on an extended tree, and on box corners where distances tie)."""
+    from secure3d.geometry._box_kernels import hull_screen
+    from secure3d.geometry._hull_near_kernel import hull_near
+
+    lo, hi = _voxel_boxes(rng, 1500)
+    index = BoxIndex(lo[:1000], hi[:1000]).extended(lo[1000:], hi[1000:]) if extend else None
+    index = index or BoxIndex(lo, hi)
+    for P in (1, 6):
+        pts = rng.uniform(-1.0, 7.0, size=(40, P, 3))
+        pts[:8] = lo[:8, None, :] + 0.05  # on box faces and corners
+        reach = rng.uniform(0.0, 1.0, 40)
+        full = hull_screen(pts, reach, index.lo, index.hi)
+        for limit in (-0.5, 0.0, 0.02, 0.4, 1.5):
+            ks, js, vs = hull_near(pts, reach, limit, index.lo, index.hi, *index.tree)
+            want = np.argwhere(full <= limit)
+            assert np.array_equal(np.stack([ks, js], axis=1), want)
+            assert np.array_equal(vs, full[want[:, 0], want[:, 1]])
+    empty = BoxIndex(np.zeros((0, 3)), np.zeros((0, 3)))
+    assert len(hull_near(pts, reach, 1.0, empty.lo, empty.hi, *empty.tree)[0]) == 0
+
+
+def test_hull_nearest_returns_each_rows_smallest_entries(rng):
+    """Per row, the n smallest hull_screen entries within the limit: their values exactly (boxes
+    at equal entries may be any of them), each returned box holding the value given for it."""
+    from secure3d.geometry._box_kernels import hull_screen
+    from secure3d.geometry._hull_near_kernel import hull_nearest
+
+    lo, hi = _voxel_boxes(rng, 1500)
+    index = BoxIndex(lo, hi)
+    pts = rng.uniform(-1.0, 7.0, size=(40, 6, 3))
+    pts[:8] = lo[:8, None, :] + 0.05
+    reach = rng.uniform(0.0, 1.0, 40)
+    full = hull_screen(pts, reach, lo, hi)
+    for n, limit in ((1, 0.3), (9, 0.3), (17, 1.5), (40, 0.05), (3, -2.0)):
+        ks, js, vs = hull_nearest(pts, reach, limit, n, lo, hi, *index.tree)
+        for k in range(40):
+            row = full[k]
+            want = np.sort(row[row <= limit])[:n]
+            assert np.array_equal(vs[ks == k], want)
+            assert np.array_equal(row[js[ks == k]], want)
+            assert len(set(js[ks == k])) == len(want)

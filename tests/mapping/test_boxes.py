@@ -125,3 +125,26 @@ def test_merge_grid_equals_merge_cells_across_blocks(rng):
         np.testing.assert_array_equal(hi, ref_hi)
     with pytest.raises(GeometryError, match="origin"):
         merge_grid(np.ones((2, 2, 2), bool), [0.5, 0, 0])
+
+
+def test_packed_closed_boxes_equal_the_dense_closing_and_merge(rng):
+    """The bit-packed closing and merge give merge_grid(closed_grid(...))'s boxes in its order:
+    radii 1-3, sparse to dense sets, rows of several 64-cell words, grids straddling the merge's
+    block boundaries, and the sparse closing's fill too."""
+    from secure3d.mapping._packed_closing import packed_closed_boxes
+    from secure3d.mapping.boxes import BLOCK_EDGE, merge_grid
+    from secure3d.mapping.keys import morton_encode
+    from secure3d.mapping.obstacle_boxes import closed_grid
+
+    for trial in range(60):
+        high = 150 if trial % 4 == 0 else 40
+        shape = tuple(int(v) for v in rng.integers(1, high, 3))
+        grid = rng.random(shape) < rng.choice([0.002, 0.01, 0.05, 0.3, 0.7, 0.95])
+        grid[tuple(rng.integers(0, shape))] = True
+        origin = rng.integers(BLOCK_EDGE - 80, BLOCK_EDGE + 5, 3) + (trial % 2) * 127 * BLOCK_EDGE
+        keys = np.argwhere(grid) + origin
+        for radius in (1, 2, 3):
+            ref_lo, ref_hi = merge_grid(*closed_grid(keys, radius))
+            lo, hi = packed_closed_boxes(morton_encode(keys), radius)
+            np.testing.assert_array_equal(lo, ref_lo)
+            np.testing.assert_array_equal(hi, ref_hi)

@@ -31,3 +31,49 @@ def test_a_robot_that_heads_where_it_goes_faces_the_path_tangent():
     yaw = look_ahead_yaw(points, arc, 0.0, 0.0)
     np.testing.assert_allclose(yaw[:15], 0.0, atol=1e-12)
     np.testing.assert_allclose(yaw[25:], np.pi / 4, atol=1e-12)
+
+
+def _centre_path_every_point(problem, path, pad=0.3, iterations=40):
+    """centre_path as it was: every point's clearance queried on every iteration (reference)."""
+    from secure3d.planning.guess import _densify
+
+    pts, _ = _densify(path, 0.05)
+    dims = 2 if problem.model.planar else 3
+    r = problem.model.body_radius
+
+    def clearance(q):
+        c = np.minimum(q - problem.bounds_lo, problem.bounds_hi - q)[:, :dims].min(axis=1)
+        return problem.box_index.min_distance(q, c) if len(problem.boxes_lo) else c
+
+    steps = 1e-3 * np.eye(3)[:dims]
+    for _ in range(iterations):
+        inner = pts[1:-1]
+        probes = [inner] + [inner + s * steps[d] for d in range(dims) for s in (1.0, -1.0)]
+        c_all = clearance(np.concatenate(probes)).reshape(1 + 2 * dims, len(inner))
+        grad = np.zeros_like(inner)
+        for d in range(dims):
+            grad[:, d] = (c_all[1 + 2 * d] - c_all[2 + 2 * d]) / 2e-3
+        deficit = np.clip(r + pad - c_all[0], 0.0, None)
+        if not np.any(deficit > 0.0):
+            break
+        push = grad * np.minimum(deficit, 0.02)[:, None]
+        smooth = 0.5 * (pts[:-2] + pts[2:]) - inner
+        moved = inner + push + 0.3 * smooth * (deficit > 0)[:, None]
+        ok = clearance(moved) >= np.minimum(c_all[0], r)
+        pts[1:-1] = np.where(ok[:, None], moved, inner)
+    return pts
+
+
+@pytest.mark.parametrize(
+    "name", ["blind_corner.yaml", "planar_blind_corner.yaml", "narrow_passage_20cm.yaml"]
+)
+def test_centring_queries_only_the_points_that_move_and_gives_the_same_path(maps_dir, name):
+    """centre_path re-queries only points that had a deficit (the others are frozen): the same
+    path, bit for bit, as querying every point every iteration."""
+    from secure3d.planning.guess import centre_path, graph_path
+
+    problem = problem_from_scenario(secure3d.load_scenario(maps_dir / name))
+    path = graph_path(problem)
+    for pad in (0.3, 0.6):
+        want = _centre_path_every_point(problem, path.copy(), pad)
+        np.testing.assert_array_equal(centre_path(problem, path.copy(), pad), want)

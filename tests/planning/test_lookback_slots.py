@@ -86,3 +86,77 @@ def test_face_gaps_bound_the_exact_distance_from_below():
     one = SimpleNamespace(boxes_lo=np.zeros((1, 3)), boxes_hi=np.ones((1, 3)))
     g = _face_gaps(one, (*ball, np.zeros(1, bool)), np.zeros(1, int), np.zeros(1, int))
     assert g[0] == pytest.approx(1.5)
+
+
+def _full_slot_boxes(problem, planner, states, assignment):
+    """select_slots' choice from the full screen (the matrix, row-wise argsort), as before."""
+    from secure3d.planning import lookback as lb
+
+    o = problem.options
+    d = lb._hull_box_distances(problem, planner, states, assignment)
+    if planner == "secure":
+        d = lb._refine_distances(problem, states, assignment, d, 2 * o.obstacle_slots)
+    order = np.argsort(d, axis=1)[:, : o.obstacle_slots]
+    return np.where(np.take_along_axis(d, order, axis=1) <= o.obstacle_radius, order, -1)
+
+
+@pytest.mark.parametrize("planner", ["secure", "baseline"])
+def test_indexed_slots_and_missing_pairs_equal_the_full_screens(maps_dir, planner):
+    """Through the box index, the slots (ties included: a symmetric corridor of voxel boxes puts
+    boxes at equal distances from the path) and the pairs below the margin are the full screens'."""
+    import secure3d
+    from secure3d.planning import problem_from_scenario
+    from secure3d.planning import slot_screen as ss
+    from secure3d.planning.guess import initial_guess
+    from secure3d.planning.lookback import (
+        _hull_box_distances,
+        _screened_below,
+        adaptive_assignment,
+        select_slots,
+    )
+
+    problem = problem_from_scenario(secure3d.load_scenario(maps_dir / "blind_corner.yaml"))
+    rng = np.random.default_rng(5)
+    guess = initial_guess(problem, secure=True)
+    path = np.asarray(problem.model.position(guess.states))
+    # voxel boxes (0.1 m) mirrored about the path's points: equal distances on either side
+    centre = path[rng.integers(0, len(path), 400)]
+    offset = rng.integers(3, 12, (400, 3)) * 0.1
+    offset[:, 2] = rng.integers(-5, 5, 400) * 0.1
+    lo = np.round(np.concatenate([centre + offset, centre - offset - 0.1]) * 10) / 10
+    lo = np.concatenate([lo, rng.integers(-20, 60, (300, 3)) * 0.1])
+    hi = lo + rng.integers(1, 4, (len(lo), 3)) * 0.1
+    boxes = dataclasses.replace(problem, boxes_lo=lo, boxes_hi=hi)
+    assert len(lo) >= ss.INDEXED_MIN_BOXES
+    for states in (guess.states, guess.states + rng.normal(0.0, 0.05, guess.states.shape)):
+        assignment, _ = adaptive_assignment(boxes, states)
+        slots = select_slots(boxes, planner, states, assignment)
+        want = _full_slot_boxes(boxes, planner, states, assignment)
+        held = want >= 0
+        np.testing.assert_array_equal(slots[:, : want.shape[1], 0:3][held], lo[want[held]])
+        np.testing.assert_array_equal(slots[:, : want.shape[1], 3:6][held], hi[want[held]])
+        assert np.all(slots[:, : want.shape[1], 0:3][~held] > 100.0)  # empty: far away
+        d = _hull_box_distances(boxes, planner, states, assignment)
+        for limit in (0.02, 0.3, 1.0):
+            flagged, values = _screened_below(boxes, planner, states, assignment, limit)
+            assert np.array_equal(flagged, np.argwhere(d < limit))
+            assert np.array_equal(values, d[d < limit])
+
+
+def test_a_row_ranks_as_in_the_matrix_and_ties_are_detected():
+    """The fallback for tied rows relies on numpy sorting a matrix row as it sorts the row alone;
+    the tie check flags exactly the rankings a sort may break either way."""
+    from secure3d.planning.slot_screen import _first, _smallest
+
+    rng = np.random.default_rng(2)
+    d = rng.integers(0, 30, (50, 3000)).astype(float) / 10  # heavy ties
+    d[:, ::7] = np.inf
+    order = np.argsort(d, axis=1)
+    for k in range(len(d)):
+        assert np.array_equal(np.argsort(d[k]), order[k])
+        assert np.array_equal(_first(d[k], 8, 1.5), order[k, :8][d[k, order[k, :8]] <= 1.5])
+    assert _smallest(np.array([0.3, 0.1, 0.2]), 2, 1.5, ordered=True).tolist() == [1, 2]
+    assert _smallest(np.array([0.3, 0.1, 0.1]), 2, 1.5, ordered=True) is None
+    assert _smallest(np.array([0.3, 0.1, 0.1]), 2, 1.5, ordered=False) is not None
+    assert _smallest(np.array([0.3, 0.1, 0.3]), 2, 1.5, ordered=False) is None
+    assert _smallest(np.array([2.0, 0.1, 2.0]), 2, 1.5, ordered=False).tolist() == [1]

@@ -1,0 +1,155 @@
+"""The obstacle-slot screens of :mod:`~secure3d.planning.lookback` over many boxes, through the box
+index, with the full screens' answers bit for bit.
+
+:func:`~secure3d.planning.lookback.select_slots` and
+:func:`~secure3d.planning.lookback.slots_missing` screen every (node, box) pair: a (K, m) matrix of
+distances from samples of what node k constrains to box j (``hull_screen``), argsorted row by row.
+Over a scanned building (19,000 merged boxes, K = 40) that is ~0.1 s of each plan call, although
+only a row's nearest few boxes (within the slot radius) or its pairs below the margin are ever used.
+Here the box index's tree yields just those, with the matrix's entries bit for bit
+(:mod:`~secure3d.geometry._hull_near_kernel`):
+
+- the pairs below a limit (``hull_near``) are the matrix's, in its row-major order
+  (``np.argwhere``), so ``slots_missing`` gets the same pairs;
+- the S nearest boxes of a row (``hull_nearest``: its S + 1 smallest entries, or 2S + 1 where the
+  secure planner refines 2S of them) are the full argsort's first S whenever their values are
+  distinct: a sort of the full row can only order *equal* values differently (its tie order
+  depends on the sort algorithm and on every other entry). A row where a tie could matter (among
+  the first S + 1 values within the radius, or at the boundary of the 2S refined ones) is ranked
+  in full, as before: numpy sorts each row of a matrix as it sorts that row alone.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from secure3d.planning.problem import Planner, PlanningProblem
+
+__all__ = ["INDEXED_MIN_BOXES", "indexed_slot_boxes", "screened_pairs"]
+
+#: Boxes from which the screens go through the index (below, the matrix is as cheap).
+INDEXED_MIN_BOXES = 256
+
+
+def screened_pairs(
+    problem: PlanningProblem, pts: np.ndarray, reach: np.ndarray, limit: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(k, j, value) of the entries of ``hull_screen(pts, reach, boxes)`` at most ``limit``, by k
+    then j ascending."""
+    from secure3d.geometry._hull_near_kernel import hull_near
+
+    index = problem.box_index
+    pts = np.ascontiguousarray(pts, dtype=float)
+    reach = np.ascontiguousarray(reach, dtype=float)
+    return hull_near(pts, reach, float(limit), index.lo, index.hi, *index.tree)
+
+
+def _nearest(
+    problem: PlanningProblem, pts: np.ndarray, reach: np.ndarray, limit: float, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(k, j, value): per row of ``hull_screen(pts, reach, boxes)`` its ``n`` smallest entries at
+    most ``limit`` (the values exact; among equal ones, which boxes is not defined), by value."""
+    from secure3d.geometry._hull_near_kernel import hull_nearest
+
+    index = problem.box_index
+    pts = np.ascontiguousarray(pts, dtype=float)
+    reach = np.ascontiguousarray(reach, dtype=float)
+    return hull_nearest(pts, reach, float(limit), int(n), index.lo, index.hi, *index.tree)
+
+
+def _smallest(values: np.ndarray, n: int, limit: float, ordered: bool) -> np.ndarray | None:
+    """Positions of the ``n`` smallest ``values`` at most ``limit``, ascending, as any argsort of a
+    row holding them (and only larger values besides) ranks them; None if a tie (or a NaN) makes
+    that depend on the sort: among the first n + 1 values (``ordered``), or only between the n-th
+    and the next (the set, not its order, counts)."""
+    order = np.argsort(values, kind="stable")
+    v = values[order]
+    if np.isnan(v).any():
+        return None
+    head = v[: n + 1]
+    ties = (head[1:] == head[:-1]) & (head[:-1] <= limit)
+    tie = ties.any() if ordered else bool(len(head) > n and ties[n - 1])
+    if tie:
+        return None
+    keep = order[:n]
+    return keep[v[:n] <= limit]
+
+
+def _first(row: np.ndarray, n: int, limit: float) -> np.ndarray:
+    """``argsort(row)[:n]``, those at most ``limit``: a full row's ranking, ties as the matrix's
+    row-wise argsort breaks them (numpy sorts each row of a matrix as it sorts that row alone)."""
+    order = np.argsort(row)[:n]
+    return order[row[order] <= limit]
+
+
+def _screen_row(problem: PlanningProblem, pts: np.ndarray, reach: np.ndarray, k: int) -> np.ndarray:
+    """Row k of the full screen (``hull_screen``'s entries over every box)."""
+    from secure3d.geometry._box_kernels import hull_screen
+
+    index = problem.box_index
+    return hull_screen(pts[k : k + 1], reach[k : k + 1], index.lo, index.hi)[0]
+
+
+def _refined(
+    problem: PlanningProblem,
+    screened: tuple[np.ndarray, ...],
+    rows: list[np.ndarray],
+    exact: Callable[[np.ndarray, np.ndarray], np.ndarray],
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`~secure3d.planning.lookback._refine_distances` on the screened pairs: each row's 2S
+    nearest by the screen (a row with a tie at the 2S-th: by its full screen row), with their exact
+    distances (``exact(k_idx, b_idx)``); per node (boxes, exact distances)."""
+    pts, reach, js, vs = screened
+    S, R = problem.options.obstacle_slots, problem.options.obstacle_radius
+    picked = []
+    for k, row in enumerate(rows):
+        keep = _smallest(vs[row], 2 * S, R, ordered=False)
+        if keep is None:
+            picked.append(_first(_screen_row(problem, pts, reach, k), 2 * S, R))
+        else:
+            picked.append(js[row[keep]])
+    k_idx = np.repeat(np.arange(len(rows)), [len(b) for b in picked])
+    b_idx = np.concatenate(picked).astype(np.int64)
+    distances = exact(k_idx, b_idx) if len(k_idx) else np.zeros(0)
+    ends = np.cumsum([len(b) for b in picked])
+    return [(b, distances[e - len(b) : e]) for b, e in zip(picked, ends, strict=True)]
+
+
+def indexed_slot_boxes(
+    problem: PlanningProblem,
+    planner: str,
+    pts: np.ndarray,
+    reach: np.ndarray,
+    exact: Callable[[np.ndarray, np.ndarray], np.ndarray],
+) -> np.ndarray:
+    """(K, S) box per node slot (-1: empty) as :func:`~secure3d.planning.lookback.select_slots`
+    picks them from the full screen of the samples ``pts`` (K, P, 3) and ``reach`` (K,), found
+    through the box index (a row whose ranking a tie decides is ranked in full); the secure planner
+    ranks its 2S nearest by ``exact(k_idx, b_idx)``, their exact distances."""
+    m = len(problem.boxes_lo)
+    o = problem.options
+    K, S, R = len(pts), o.obstacle_slots, o.obstacle_radius
+    # per row the n + 1 smallest entries within the radius: the ranking and a tie at its end
+    ks, js, vs = _nearest(problem, pts, reach, R, (2 * S if planner == Planner.SECURE else S) + 1)
+    bounds = np.searchsorted(ks, np.arange(K + 1))
+    rows = [np.arange(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    secure = planner == Planner.SECURE
+    if secure:
+        ranked = _refined(problem, (pts, reach, js, vs), rows, exact)
+    else:
+        ranked = [(js[row], vs[row]) for row in rows]
+    chosen = np.full((K, min(S, m)), -1, dtype=np.int64)
+    for k, (boxes, values) in enumerate(ranked):
+        keep = _smallest(values, S, R, ordered=True)
+        if keep is not None:
+            sel = boxes[keep]
+        elif secure:  # the refined row as _refine_distances writes it: inf but its 2S boxes
+            full = np.full(m, np.inf)
+            full[boxes] = values
+            sel = _first(full, S, R)
+        else:
+            sel = _first(_screen_row(problem, pts, reach, k), S, R)
+        chosen[k, : len(sel)] = sel
+    return chosen
