@@ -2,7 +2,9 @@
 
 It imports the command line inside a ``try``, so a Ctrl-C that arrives while the modules are
 still loading ends in the same one line and exit status 130 as one that arrives later
-(:func:`secure3d.cli.main` handles the rest).
+(:func:`secure3d.cli.main` handles the rest). The Ctrl-C is also recorded, so that a library
+whose import swallows the KeyboardInterrupt (a bare ``except``) cannot make the command ignore it:
+under load, a Ctrl-C 0.15 s after start was lost so and the whole flight ran.
 """
 
 from __future__ import annotations
@@ -12,9 +14,22 @@ import sys
 
 def run() -> int:
     """Import and run :func:`secure3d.cli.main` on ``sys.argv[1:]``; return its exit status."""
+    import signal
+
+    seen: list[int] = []
+
+    def on_sigint(signum: int, frame: object) -> None:
+        seen.append(signum)  # kept even if a library's import swallows the KeyboardInterrupt
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
     try:
         from secure3d.cli import main
     except KeyboardInterrupt:
+        seen.append(signal.SIGINT)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if seen:
         sys.stderr.write("secure3d: error: interrupted\n")
         return 130
     return main()
