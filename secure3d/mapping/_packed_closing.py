@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
 from secure3d.mapping.boxes import BLOCK_EDGE
+from secure3d.mapping.morton import _compact16
 
 __all__ = ["packed_closed_boxes"]
 
@@ -53,17 +54,6 @@ def _ctz(w: np.uint64) -> int:
     """Index of the lowest set bit of ``w`` (nonzero)."""
     low = w & (~w + _ONE)
     return _CTZ[(low * _DEBRUIJN) >> _DEBRUIJN_SHIFT]
-
-
-@numba.njit(cache=True, inline="always")
-def _compact16(v: int) -> int:
-    """Every third bit of ``v`` gathered into 16 bits (a Morton code's key along one axis)."""
-    v = v & 0x249249249249
-    v = (v | (v >> 2)) & 0x0C30C30C30C3
-    v = (v | (v >> 4)) & 0x00F00F00F00F
-    v = (v | (v >> 8)) & 0x0000FF0000FF
-    v = (v | (v >> 16)) & 0xFFFF
-    return v
 
 
 @numba.njit(cache=True)
