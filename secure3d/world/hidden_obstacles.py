@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 from secure3d.errors import ScenarioError
-from secure3d.validation import is_int_in
+from secure3d.validation import is_int_in, is_real
 from secure3d.world.spec import Attack, Box, Scenario, World, box_distance
 from secure3d.world.truth import TrueObstacles, true_obstacles
 
@@ -398,11 +398,7 @@ def hidden_obstacle_family(
         raise ScenarioError(f"kind: must be one of corner, forest, auto (got {kind!r})")
     if not is_int_in(count, 1):
         raise ScenarioError(f"count: must be a positive integer (got {count!r})")
-    if footprint is not None and not (
-        isinstance(footprint, (int, float))
-        and not isinstance(footprint, bool)
-        and 0.0 < footprint < 5.0
-    ):
+    if footprint is not None and not (is_real(footprint, numpy=True) and 0.0 < footprint < 5.0):
         raise ScenarioError(f"footprint: must be a number of metres in (0, 5) (got {footprint!r})")
     return Family(
         name=kind,

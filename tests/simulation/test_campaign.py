@@ -424,3 +424,12 @@ def test_the_rest_footprint_is_the_reactive_set_at_rest_plus_the_margin() -> Non
     assert abs(rest_footprint(base, margin=0.1) - (want + 0.1 - problem.options.margin)) < 1e-12
     with pytest.raises(ConfigError, match="margin"):
         rest_footprint(base, margin=-1.0)
+
+
+@pytest.mark.parametrize("footprint", [0.0, -0.3, 7.0, True, "0.3", float("nan")])
+def test_a_bad_footprint_is_refused_naming_the_value(footprint) -> None:
+    from secure3d.errors import ScenarioError
+    from secure3d.world.attacks import hidden_obstacle_family
+
+    with pytest.raises(ScenarioError, match=r"footprint: .*got"):
+        hidden_obstacle_family("auto", 1, footprint)
