@@ -303,6 +303,98 @@ def slots_missing(
     return False
 
 
+#: A solution is re-solved with re-selected slots (:func:`slots_stale`) only when a box left out
+#: of them comes within this fraction of the planner's margin of what a node constrains. A box
+#: between that and the margin leaves the node less of its buffer against tracking error, never
+#: below the certificate's own bound of 0, and the certificate judges every box. Measured
+#: (``benchmarks/bench_map_scale.py --plan-by-size``, geb079 at 8 cm and refined to 4 cm): the
+#: re-solves this spares found left-out boxes 15-19 mm away against a 20 mm margin and cost 25-30
+#: cold iterations, a quarter of the call, for a final time equal to 4 digits.
+SLOT_TOLERANCE = 0.5
+
+
+def slots_stale(
+    problem: PlanningProblem,
+    planner: str,
+    states: np.ndarray,
+    assignment: tuple[int, ...],
+    slots: np.ndarray,
+) -> bool:
+    """Whether a solution ``states`` must be re-solved with re-selected slots: a box left out of
+    ``slots`` comes within ``(1 - SLOT_TOLERANCE) * margin`` of what a node constrains."""
+    slack = -SLOT_TOLERANCE * problem.options.margin
+    return slots_missing(problem, planner, states, assignment, slots, slack=slack)
+
+
+def left_out_boxes(
+    problem: PlanningProblem,
+    states: np.ndarray,
+    assignment: tuple[int, ...],
+    slots: np.ndarray,
+    limit: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every (node, box) pair (f, 2) of the secure planner whose box is not in the node's
+    ``slots`` (K, S, 6) and comes within ``limit`` of what the node constrains on ``states``, with
+    the exact distances (f,) (what :func:`slots_missing` stops at the first of)."""
+    none = np.zeros((0, 2), np.int64), np.zeros(0)
+    if len(problem.boxes_lo) == 0:
+        return none
+    flagged, _ = _screened_below(problem, Planner.SECURE, states, assignment, limit)
+    boxes = np.concatenate([problem.boxes_lo, problem.boxes_hi], axis=1)[flagged[:, 1]]
+    slotted = np.isclose(slots[flagged[:, 0]], boxes[:, None, :]).all(axis=-1).any(axis=1)
+    flagged = flagged[~slotted]
+    if len(flagged) == 0:
+        return none
+    sets = _constrained_sets(problem, Planner.SECURE, states, assignment)
+    flagged = flagged[
+        _face_gaps(problem, sets, flagged[:, 0], flagged[:, 1]) < limit + FACE_GAP_TOL
+    ]
+    d = _exact_distances(problem, sets, flagged[:, 0], flagged[:, 1])
+    below = d < limit
+    return flagged[below], d[below]
+
+
+def with_left_out_boxes(
+    problem: PlanningProblem,
+    states: np.ndarray,
+    assignment: tuple[int, ...],
+    slots: np.ndarray,
+    limit: float,
+) -> np.ndarray:
+    """``slots`` (K, S, 6) of the secure planner with each box :func:`left_out_boxes` finds put in
+    its node's slot whose box is farthest from what the node constrains, nearest boxes first, while
+    that slot's box is farther than it.
+
+    :func:`select_slots` ranks a node's candidates by a screen that is loose beside long reactive
+    sets, and only its 2S nearest by exact distance; a box the solution came close to can stay
+    outside them at every re-selection, so that re-solves repeat the same solution (measured on
+    ``geb079_hidden_crate``: three re-solves of 41, 23 and 20 iterations, each leaving a box 6.6 mm
+    away against a 20 mm margin). Putting the boxes in by their exact distance ends that."""
+    pairs, d = left_out_boxes(problem, states, assignment, slots, limit)
+    if len(pairs) == 0:
+        return slots
+    origins, centres, shapes, los = _constrained_sets(problem, Planner.SECURE, states, assignment)
+    out = slots.copy()
+    S = slots.shape[1]
+    far = np.all(np.isclose(slots[:, :, 0:3], _empty_slot_lo(problem)), axis=-1)  # (K, S)
+    for k in np.unique(pairs[:, 0]):
+        mine = np.flatnonzero(pairs[:, 0] == k)
+        mine = mine[np.argsort(d[mine], kind="stable")]
+        kk = np.full(S, k)
+        held = box_pair_distances(
+            origins[kk], centres[kk], shapes[kk], out[k, :, 0:3], out[k, :, 3:6], los[kk]
+        )
+        held = np.where(far[k], np.inf, held)
+        for i in mine:
+            s = int(np.argmax(held))
+            if held[s] <= d[i]:
+                break
+            j = pairs[i, 1]
+            out[k, s, 0:3], out[k, s, 3:6] = problem.boxes_lo[j], problem.boxes_hi[j]
+            held[s] = d[i]
+    return out
+
+
 def _empty_slot_lo(problem: PlanningProblem) -> np.ndarray:
     """Lower corner of the small box an empty slot holds, far outside the world (inactive rows)."""
     return np.asarray(problem.bounds_hi, dtype=float) + 1e3
@@ -444,9 +536,13 @@ __all__ = [
     "frustum_margins",
     "initial_duals",
     "keep_slot_positions",
+    "left_out_boxes",
     "node_geometry",
     "occluded",
     "select_slots",
     "slot_sides",
+    "slots_missing",
+    "slots_stale",
     "start_margins",
+    "with_left_out_boxes",
 ]

@@ -18,7 +18,7 @@ from secure3d.planning import lookback as lb
 from secure3d.planning.fatrop_transcription import fatrop_status
 from secure3d.planning.interrupt import budget_spent, interruptible, stopped_for_budget
 from secure3d.planning.nlp_cache import NLPCache
-from secure3d.planning.problem import PlanningProblem, Solver
+from secure3d.planning.problem import Planner, PlanningProblem, Solver
 from secure3d.planning.result import PlanStatus
 from secure3d.planning.transcribed import T_MAX, T_MIN, TranscribedNLP
 
@@ -132,14 +132,28 @@ def _solve_once(
     prev_slots: np.ndarray | None = None,
     extra_margin: float = 0.0,
     grid: np.ndarray | None = None,
+    left_out_limit: float | None = None,
 ) -> _Solve:
     """One NLP solve from the guess (T, X, U) on node time fractions ``grid`` (None: evenly
-    spaced; only NLPs with a time-grid parameter take others)."""
+    spaced; only NLPs with a time-grid parameter take others). With ``left_out_limit`` the secure
+    planner's slots also take every box within it of what a node constrains on X
+    (:func:`~secure3d.planning.lookback.with_left_out_boxes`)."""
     nlp, cached = cache.get(problem, planner, assignment)
     if not getattr(nlp.layout, "grid", False):
         grid = None
     start = _start_point(
-        problem, planner, nlp, assignment, T, X, U, L, prev_slots, extra_margin, grid
+        problem,
+        planner,
+        nlp,
+        assignment,
+        T,
+        X,
+        U,
+        L,
+        prev_slots,
+        extra_margin,
+        grid,
+        left_out_limit,
     )
     solver = nlp.solver
     warm_build = 0.0
@@ -214,6 +228,7 @@ def _start_point(
     prev_slots: np.ndarray | None,
     extra_margin: float,
     grid: np.ndarray | None,
+    left_out_limit: float | None = None,
 ) -> _StartPoint:
     """Slots and duals near the guess, the packed initial point, parameters and bounds."""
     lay = nlp.layout
@@ -221,6 +236,8 @@ def _start_point(
     X[0] = problem.x0
     U = np.clip(U, problem.model.u_lo, problem.model.u_hi)
     slots = lb.keep_slot_positions(prev_slots, lb.select_slots(problem, planner, X, assignment))
+    if left_out_limit is not None and planner == Planner.SECURE:
+        slots = lb.with_left_out_boxes(problem, X, assignment, slots, left_out_limit)
     fresh = lb.initial_duals(problem, planner, X, slots, assignment)
     if L is None or prev_slots is None or L.shape != fresh.shape:
         L = fresh

@@ -62,6 +62,7 @@ CERTIFY_RESERVE_MAX = 1.5
 #: Re-selections of the obstacle slots on a solution before it is accepted.
 SLOT_REFRESHES = 3
 
+
 #: A secure solution the certificate rejects (it samples between the nodes and rolls out the real
 #: manoeuvres; the NLP sees ellipsoids at the nodes) is re-solved warm with every clearance and
 #: visibility row tightened by this much more (m), up to this many times.
@@ -219,7 +220,8 @@ def _resolve_from(
     extra_margin: float,
 ) -> _Solve:
     """Solve again from solution ``s`` (its assignment, primal point, duals, slots and grid), with
-    the margin rows tightened by ``extra_margin``, warm from ``multipliers`` if given."""
+    the margin rows tightened by ``extra_margin``, warm from ``multipliers`` if given; the slots
+    re-selected on ``s`` also take every box that comes within the tightened margin of it."""
     return _solve_once(
         problem,
         planner,
@@ -233,6 +235,7 @@ def _resolve_from(
         prev_slots=s.slots,
         extra_margin=extra_margin,
         grid=s.grid,
+        left_out_limit=problem.options.margin + extra_margin,
     )
 
 
@@ -244,14 +247,16 @@ def _refresh_slots(
     extra_margin: float = 0.0,
 ) -> tuple[_Solve, SolveCost]:
     """Re-select the obstacle slots on solution ``s`` and re-solve warm, up to SLOT_REFRESHES
-    times, while a box left out of the slots breaks a row. Returns the last solve, and what the
-    re-solves cost.
+    times, while :func:`~secure3d.planning.lookback.slots_stale` (a box left out of them comes
+    closer than part of the margin). Returns the last solve, and what the re-solves cost.
 
     Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may have come
     closer. With the slots the NLP is a relaxation of the NLP with every box, so a solution no
-    left-out box comes within the margin of is feasible, hence (locally) optimal, for it too. (A
-    slack of 0.05 m cost a second solve on blind_corner: cold 0.47 s / 51 iterations -> 0.31 s / 33
-    without; 8 hidden-obstacle flights: 0.63x -> 0.68x real time, same outcomes.) The certificate's
+    left-out box comes within the margin of is feasible, hence (locally) optimal, for it too; and
+    one no left-out box comes within ``(1 - lookback.SLOT_TOLERANCE)`` of the margin of is so for
+    the NLP whose rows for those boxes keep that part of the margin (the certificate judges every
+    box either way). (A slack of 0.05 m cost a second solve on blind_corner: cold 0.47 s / 51
+    iterations -> 0.31 s / 33 without; 8 hidden-obstacle flights: 0.63x -> 0.68x real time, same outcomes.) The certificate's
     tightened re-solves (``extra_margin``) go through here too: without it a tightened solution
     moved onto boxes outside its slots (issue 16: obstacle margins down to -0.8 m).
     """
@@ -260,7 +265,7 @@ def _refresh_slots(
         if (
             not s.status.ok
             or budget_spent()
-            or not lb.slots_missing(problem, planner, s.X, s.assignment, s.slots)
+            or not lb.slots_stale(problem, planner, s.X, s.assignment, s.slots)
         ):
             break
         s = _resolve_from(problem, planner, s, cache, None, extra_margin)

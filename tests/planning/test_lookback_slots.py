@@ -160,3 +160,89 @@ def test_a_row_ranks_as_in_the_matrix_and_ties_are_detected():
     assert _smallest(np.array([0.3, 0.1, 0.1]), 2, 1.5, ordered=False) is not None
     assert _smallest(np.array([0.3, 0.1, 0.3]), 2, 1.5, ordered=False) is None
     assert _smallest(np.array([2.0, 0.1, 2.0]), 2, 1.5, ordered=False).tolist() == [1]
+
+
+def _left_out_distance(problem, states, assignment, empty) -> float:
+    """The smallest distance (to 0.1 mm) from a box to what a node constrains, by bisection on
+    ``slots_missing``'s slack with every box left out."""
+    from secure3d.planning.lookback import slots_missing
+
+    lo, hi = -problem.options.margin, 1.0
+    while hi - lo > 1e-4:
+        mid = 0.5 * (lo + hi)
+        if slots_missing(problem, "secure", states, assignment, empty, slack=mid):
+            hi = mid
+        else:
+            lo = mid
+    return problem.options.margin + 0.5 * (lo + hi)
+
+
+def test_a_left_out_box_costs_a_re_solve_only_within_part_of_the_margin(maps_dir):
+    """slots_stale: a left-out box closer than the margin but farther than (1 - SLOT_TOLERANCE)
+    of it keeps the solution; a closer one sends it back to the solver."""
+    import secure3d
+    from secure3d.planning import plan_problem, problem_from_scenario
+    from secure3d.planning.lookback import (
+        SLOT_TOLERANCE,
+        select_slots,
+        slots_missing,
+        slots_stale,
+    )
+
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    problem = problem_from_scenario(scenario)
+    secure = plan_problem(problem, "secure")
+    assert secure.ok, secure.message
+    X, assignment = secure.states, tuple(int(j) for j in secure.lookback)
+    no_boxes = dataclasses.replace(problem, boxes_lo=np.empty((0, 3)), boxes_hi=np.empty((0, 3)))
+    empty = select_slots(no_boxes, "secure", X, assignment)
+    d = _left_out_distance(problem, X, assignment, empty)
+    assert 0.0 < d < 1.0
+
+    def with_margin(m):
+        return dataclasses.replace(problem, options=dataclasses.replace(problem.options, margin=m))
+
+    # a margin just above d: the box is within it, but not within the tolerated part of it
+    between = with_margin(d / (1.0 - 0.5 * SLOT_TOLERANCE))
+    assert slots_missing(between, "secure", X, assignment, empty)
+    assert not slots_stale(between, "secure", X, assignment, empty)
+    # a margin so large that even its reduced part reaches past d: re-solve
+    beyond = with_margin(2.0 * d / (1.0 - SLOT_TOLERANCE))
+    assert slots_stale(beyond, "secure", X, assignment, empty)
+    # slots holding every nearby box: nothing is left out, whatever the margin
+    full = select_slots(beyond, "secure", X, assignment)
+    assert not slots_stale(with_margin(d), "secure", X, assignment, full)
+
+
+def test_left_out_boxes_take_the_farthest_slots_nearest_first(maps_dir):
+    """with_left_out_boxes: after it, a node leaves a box within the limit out only if every slot
+    holds a nearer one, and the boxes it puts in are exactly the nearest left-out ones."""
+    import secure3d
+    from secure3d.planning import plan_problem, problem_from_scenario
+    from secure3d.planning.lookback import left_out_boxes, select_slots, with_left_out_boxes
+
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    problem = problem_from_scenario(scenario)
+    secure = plan_problem(problem, "secure")
+    assert secure.ok, secure.message
+    X, assignment = secure.states, tuple(int(j) for j in secure.lookback)
+    no_boxes = dataclasses.replace(problem, boxes_lo=np.empty((0, 3)), boxes_hi=np.empty((0, 3)))
+    empty = select_slots(no_boxes, "secure", X, assignment)
+    limit = 1.5
+    pairs, d = left_out_boxes(problem, X, assignment, empty, limit)
+    assert len(pairs) > 0 and np.all(d < limit)
+    S = empty.shape[1]
+    filled = with_left_out_boxes(problem, X, assignment, empty, limit)
+    boxes = np.concatenate([problem.boxes_lo, problem.boxes_hi], axis=1)
+    for k in np.unique(pairs[:, 0]):
+        mine = pairs[:, 0] == k
+        nearest = pairs[mine][np.argsort(d[mine], kind="stable")][:S, 1]
+        held = {tuple(b) for b in filled[k]}
+        assert {tuple(boxes[j]) for j in nearest} <= held
+    # what is still left out is no nearer than anything a full node holds
+    rest, rest_d = left_out_boxes(problem, X, assignment, filled, limit)
+    for k in np.unique(rest[:, 0]) if len(rest) else []:
+        nearest_held = d[pairs[:, 0] == k]
+        assert rest_d[rest[:, 0] == k].min() >= np.sort(nearest_held)[S - 1] - 1e-12
+    # nothing within the limit left out: the slots come back unchanged
+    assert with_left_out_boxes(problem, X, assignment, filled, 1e-3) is filled
