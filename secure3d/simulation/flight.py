@@ -35,6 +35,7 @@ from secure3d.simulation.explore import viewpoint_for_denial
 from secure3d.simulation.loop import (
     CERT_STEP,
     SCAN_TOLERANCE,
+    escape_heading,
     heading_error,
     new_obstacle_voxels,
     observed_box,
@@ -447,13 +448,43 @@ class Flight:
             return u
         self.event("stopped", "reactive manoeuvre complete")
         self.last_attempt = -np.inf
-        if not self.s.look_around:
+        away = self.face_away()
+        if not self.s.look_around and away is None:
             self.go(Trigger.STOPPED)
             return self.act_hold()
         self.go(Trigger.STOPPED_LOOK)
-        self.headings = scan_headings(float(self.model.yaw(self.x)), self.hfov)
-        self.event("look around", f"turning {np.degrees(0.5 * self.hfov):.0f} deg either way")
+        self.headings = []
+        if self.s.look_around:
+            self.headings = scan_headings(float(self.model.yaw(self.x)), self.hfov)
+            self.event("look around", f"turning {np.degrees(0.5 * self.hfov):.0f} deg either way")
+        if away is not None:
+            self.headings.append(away)
         return self.act_scan(u)
+
+    def face_away(self) -> float | None:
+        """At rest after braking: the heading to turn to before replanning, if the vehicle's
+        heading is its direction of motion and it rests within the planner's margin of a known
+        obstacle (:func:`~secure3d.simulation.loop.escape_heading`), else None."""
+        if not self.model.heading_follows_path:
+            return None
+        loop = self.loop
+        loop.refresh_obstacles()
+        p = np.asarray(self.model.position(self.x), dtype=float).ravel()
+        heading = escape_heading(
+            p,
+            self.model.body_radius,
+            loop.problem.boxes_lo,
+            loop.problem.boxes_hi,
+            loop.problem.options.margin,
+            self.model.planar,
+        )
+        if heading is not None:
+            self.event(
+                "face away",
+                f"at rest within {1e3 * loop.problem.options.margin:.0f} mm of a known obstacle:"
+                f" turning to {np.degrees(heading):.0f} deg before replanning",
+            )
+        return heading
 
     def act_scan(self, u: np.ndarray | None = None) -> np.ndarray:
         """Turn through the look-around headings at rest, then HOLD."""

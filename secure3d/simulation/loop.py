@@ -276,3 +276,41 @@ def scan_control(
     err = heading_error(target, float(model.yaw(x)))
     model.turn_in_place_control(u, x, err, SCAN_RATE_FRACTION, dt)
     return u
+
+
+def escape_heading(
+    position: np.ndarray,
+    radius: float,
+    boxes_lo: np.ndarray,
+    boxes_hi: np.ndarray,
+    margin: float,
+    planar: bool,
+) -> float | None:
+    """The heading (rad) pointing away from the known obstacles the body at ``position`` (3,)
+    rests within ``margin`` of, or None if it rests farther from all of them (or they surround it).
+
+    Boxes are ``boxes_lo``, ``boxes_hi`` (n, 3). The direction is the sum of the unit vectors from
+    the nearest point of each such box to the body's centre (in the plane for a ``planar`` body),
+    the way out of a corner as well as off a wall.
+
+    A robot whose heading is its direction of motion (a differential drive) that brakes to rest
+    with its side against a wall can only leave it by turning first. A replan from there is a
+    min-time plan that sets off along the wall at zero margin, and a few millimetres of tracking
+    error hand it back to the brakes, each stop a little closer, until the start touches the wall
+    (``planar_dead_end``: 1.6 mm, then 0.01 mm, then inside). Turning in place on the spot is the
+    look-around's motion: the body does not move."""
+    p = np.asarray(position, dtype=float).ravel()
+    lo, hi = np.asarray(boxes_lo, dtype=float), np.asarray(boxes_hi, dtype=float)
+    if len(lo) == 0:
+        return None
+    away = p[None, :] - np.clip(p[None, :], lo, hi)  # (n, 3) from each box's nearest point
+    if planar:
+        away[:, 2] = 0.0
+    dist = np.linalg.norm(away, axis=1)
+    near = (dist < radius + margin) & (dist > 0.0)
+    if not near.any():
+        return None
+    out = (away[near] / dist[near, None]).sum(axis=0)
+    if np.linalg.norm(out[:2]) < 1e-6:
+        return None
+    return float(np.arctan2(out[1], out[0]))

@@ -127,3 +127,50 @@ def test_a_replan_that_detours_too_far_is_refused():
     assert "path 200.0 m for 5.0 m" in detour_reason(zigzag, 20.0, p0, goal, 2.0)
     assert detour_reason(straight, 42.8, p0, goal, 2.0) is None  # secure plans may crawl
     assert "120.0 s for 5.0 m" in detour_reason(straight, 120.0, p0, goal, 2.0)
+
+
+def test_escape_heading_points_off_the_walls_the_body_rests_against():
+    from secure3d.simulation.loop import escape_heading
+
+    wall_lo, wall_hi = np.array([[0.0, 0.0, 0.0]]), np.array([[4.0, 1.0, 1.0]])  # y <= 1
+    p = np.array([2.0, 1.205, 0.5])  # 5 mm clear with radius 0.2
+    assert escape_heading(p, 0.2, wall_lo, wall_hi, 0.02, True) == pytest.approx(np.pi / 2)
+    # farther than the margin: nothing to do
+    assert escape_heading(p + [0, 0.1, 0], 0.2, wall_lo, wall_hi, 0.02, True) is None
+    # a corner: out along the diagonal
+    lo = np.vstack([wall_lo, [[4.0, 0.0, 0.0]]])
+    hi = np.vstack([wall_hi, [[5.0, 3.0, 1.0]]])
+    corner = np.array([3.795, 1.205, 0.5])
+    assert escape_heading(corner, 0.2, lo, hi, 0.02, True) == pytest.approx(3 * np.pi / 4)
+    # walls on both sides within the margin: no way out by turning
+    lo2 = np.vstack([wall_lo, [[0.0, 1.41, 0.0]]])
+    hi2 = np.vstack([wall_hi, [[4.0, 2.0, 1.0]]])
+    assert escape_heading(p, 0.2, lo2, hi2, 0.02, True) is None
+    # a planar body ignores the height of a box edge; no boxes, or a centre inside one: None
+    low = np.array([[0.0, 0.0, 0.0]]), np.array([[4.0, 1.0, 0.49]])
+    assert escape_heading(p, 0.2, *low, 0.02, True) == pytest.approx(np.pi / 2)
+    assert escape_heading(p, 0.2, np.empty((0, 3)), np.empty((0, 3)), 0.02, True) is None
+    assert escape_heading([2.0, 0.5, 0.5], 0.2, wall_lo, wall_hi, 0.02, True) is None
+
+
+@pytest.mark.slow
+def test_a_diff_drive_braked_against_a_wall_turns_away_and_goes_on(maps_dir):
+    """planar_dead_end: the turn-round replan is lost to tracking error beside a wall; the robot
+    brakes to rest 1.6 mm from the wall's voxels, turns on the spot to face away from it and
+    replans from there, instead of creeping closer with every replan until it holds touching it."""
+    scenario = secure3d.load_scenario(maps_dir / "planar_dead_end.yaml")
+    run = simulate(scenario, "secure", seed=0, plan_budget=10.0, replan_defer=0.5)
+    assert not run.collided, run.summary()
+    kinds = [e.kind for e in run.events]
+    assert "face away" in kinds, kinds
+    i = kinds.index("face away")
+    # it turned on the spot: between the stop and the next plan the body moved no more than the
+    # braking law's last stretch from below the stop speed (v^2 / 2a)
+    from secure3d.simulation.modes import STOP_SPEED
+
+    t_face = run.events[i].time
+    t_plan = next(e.time for e in run.events[i:] if e.kind == "plan")
+    span = (run.times >= t_face) & (run.times <= t_plan)
+    creep = STOP_SPEED**2 / (2.0 * scenario.vehicle.limits["max_accel"])
+    assert np.ptp(run.positions[span], axis=0).max() <= creep + 1e-9
+    assert run.reached_goal, run.summary()
