@@ -168,25 +168,8 @@ def _solve_once(
         with interruptible():
             sol = solver(**start.args)
     except RuntimeError as exc:  # CasADi raises on evaluation errors (NaN in a function, ...)
-        return _Solve(
-            status=PlanStatus.SOLVER_ERROR,
-            message=f"solver error: {exc}".splitlines()[0],
-            T=T,
-            X=start.X,
-            U=start.U,
-            L=start.L,
-            w=start.args["x0"],
-            lam_x=np.zeros(nlp.layout.n_w),
-            lam_g=np.zeros(len(nlp.lbg)),
-            nlp=nlp,
-            assignment=assignment,
-            slots=start.slots,
-            violations={},
-            solve_time=time.perf_counter() - t0,
-            iterations=0,
-            cached=cached,
-            warm_build=warm_build,
-            grid=grid,
+        return _solver_error(
+            exc, nlp, start, T, assignment, time.perf_counter() - t0, cached, warm_build, grid
         )
     solve_time = time.perf_counter() - t0
     return _read_solution(
@@ -196,6 +179,40 @@ def _solve_once(
         solver.stats(),
         assignment=assignment,
         solve_time=solve_time,
+        cached=cached,
+        warm_build=warm_build,
+        grid=grid,
+    )
+
+
+def _solver_error(
+    exc: Exception,
+    nlp: TranscribedNLP,
+    start: _StartPoint,
+    T: float,
+    assignment: tuple[int, ...],
+    solve_time: float,
+    cached: bool,
+    warm_build: float,
+    grid: np.ndarray | None,
+) -> _Solve:
+    """The solve that CasADi stopped with ``exc``: the start point, status SOLVER_ERROR."""
+    return _Solve(
+        status=PlanStatus.SOLVER_ERROR,
+        message=f"solver error: {exc}".splitlines()[0],
+        T=T,
+        X=start.X,
+        U=start.U,
+        L=start.L,
+        w=start.args["x0"],
+        lam_x=np.zeros(nlp.layout.n_w),
+        lam_g=np.zeros(len(nlp.lbg)),
+        nlp=nlp,
+        assignment=assignment,
+        slots=start.slots,
+        violations={},
+        solve_time=solve_time,
+        iterations=0,
         cached=cached,
         warm_build=warm_build,
         grid=grid,

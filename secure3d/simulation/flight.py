@@ -35,7 +35,6 @@ from secure3d.simulation.explore import viewpoint_for_denial
 from secure3d.simulation.loop import (
     CERT_STEP,
     SCAN_TOLERANCE,
-    escape_heading,
     heading_error,
     new_obstacle_voxels,
     observed_box,
@@ -63,7 +62,7 @@ from secure3d.simulation.modes import (
 )
 from secure3d.simulation.recheck import plan_unsafe
 from secure3d.simulation.recording import Recorder
-from secure3d.simulation.results import SimEvent, SimResult, flight_result
+from secure3d.simulation.results import SimEvent, SimResult, flight_result, log_heartbeat
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.result import PlanResult
@@ -349,9 +348,7 @@ class Flight:
         loop, model = self.loop, self.model
         loop.refresh_obstacles()
         if self.t == 0.0:
-            problem = (
-                loop.problem
-            )  # the paper's premise: the start region was observed before take-off
+            problem = loop.problem  # premise: the start region was observed before take-off
         else:
             # In flight only what the camera has actually seen counts as observed around the robot.
             p = np.asarray(model.position(x), dtype=float).ravel()
@@ -453,36 +450,20 @@ class Flight:
             self.go(Trigger.STOPPED)
             return self.act_hold()
         self.go(Trigger.STOPPED_LOOK)
-        self.headings = []
+        self.headings = [] if away is None else [away]  # look around first, then face away
         if self.s.look_around:
-            self.headings = scan_headings(float(self.model.yaw(self.x)), self.hfov)
+            self.headings[:0] = scan_headings(float(self.model.yaw(self.x)), self.hfov)
             self.event("look around", f"turning {np.degrees(0.5 * self.hfov):.0f} deg either way")
-        if away is not None:
-            self.headings.append(away)
         return self.act_scan(u)
 
     def face_away(self) -> float | None:
-        """At rest after braking: the heading to turn to before replanning, if the vehicle's
-        heading is its direction of motion and it rests within the planner's margin of a known
-        obstacle (:func:`~secure3d.simulation.loop.escape_heading`), else None."""
-        if not self.model.heading_follows_path:
-            return None
-        loop = self.loop
-        loop.refresh_obstacles()
-        p = np.asarray(self.model.position(self.x), dtype=float).ravel()
-        heading = escape_heading(
-            p,
-            self.model.body_radius,
-            loop.problem.boxes_lo,
-            loop.problem.boxes_hi,
-            loop.problem.options.margin,
-            self.model.planar,
-        )
+        """At rest: the heading to turn to before replanning (:meth:`Loop.way_off`), or None."""
+        heading = self.loop.way_off(self.model, self.x)
         if heading is not None:
             self.event(
                 "face away",
-                f"at rest within {1e3 * loop.problem.options.margin:.0f} mm of a known obstacle:"
-                f" turning to {np.degrees(heading):.0f} deg before replanning",
+                f"at rest within {1e3 * self.loop.problem.options.margin:.0f} mm of a known"
+                f" obstacle: turning to {np.degrees(heading):.0f} deg before replanning",
             )
         return heading
 
@@ -611,17 +592,9 @@ class Flight:
     # ---- logging and the result -----------------------------------------------------------------
 
     def heartbeat(self) -> None:
-        if time.perf_counter() - self.beat < HEARTBEAT_SECONDS:
-            return
-        self.beat = time.perf_counter()
-        log.info(
-            "%s: %.2f of at most %.1f s flown in %.0f s of wall time, %d plans so far",
-            self.loop.scenario.name,
-            self.t,
-            self.s.time_limit,
-            self.beat - self.s.wall0,
-            len(self.plans),
-        )
+        if time.perf_counter() - self.beat >= HEARTBEAT_SECONDS:
+            self.beat = time.perf_counter()
+            log_heartbeat(self.loop.scenario.name, self.t, self.s, self.beat, len(self.plans))
 
     def result(self) -> SimResult:
         return flight_result(self)

@@ -99,6 +99,17 @@ class Loop:
         lo, hi = self.belief.known_obstacle_boxes(close_gaps=self.problem.options.close_gaps)
         self.problem = dataclasses.replace(self.problem, boxes_lo=lo, boxes_hi=hi)
 
+    def way_off(self, model: object, x: np.ndarray) -> float | None:
+        """For a vehicle whose heading is its direction of motion, at rest in state ``x`` within
+        the planner's margin of a known obstacle: the heading to turn to before replanning
+        (:func:`escape_heading`); else None."""
+        if not model.heading_follows_path:
+            return None
+        self.refresh_obstacles()
+        p = np.asarray(model.position(x), dtype=float).ravel()
+        lo, hi, margin = self.problem.boxes_lo, self.problem.boxes_hi, self.problem.options.margin
+        return escape_heading(p, model.body_radius, lo, hi, margin, model.planar)
+
     def judged_against_current(self) -> None:
         """The plan being followed is now known safe against the current obstacle boxes."""
         self.judged_lo, self.judged_hi = self.problem.boxes_lo, self.problem.boxes_hi

@@ -10,12 +10,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from secure3d.planning.result import finite_or_none
+from secure3d.simulation.modes import log
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.result import PlanResult
     from secure3d.simulation.flight import Flight
+    from secure3d.simulation.modes import RunSettings
 
-__all__ = ["SimEvent", "SimResult", "flight_result"]
+__all__ = ["SimEvent", "SimResult", "flight_result", "log_heartbeat"]
 
 
 @dataclass(frozen=True)
@@ -185,4 +187,16 @@ def flight_result(flight: Flight) -> SimResult:
         solve_times=tuple(flight.solve_times),
         certify_log=tuple(flight.certify_log),
         wall_time=time.perf_counter() - flight.s.wall0,
+    )
+
+
+def log_heartbeat(name: str, t: float, settings: RunSettings, now: float, plans: int) -> None:
+    """The INFO line a long flight logs every ``HEARTBEAT_SECONDS`` of wall time (``now``)."""
+    log.info(
+        "%s: %.2f of at most %.1f s flown in %.0f s of wall time, %d plans so far",
+        name,
+        t,
+        settings.time_limit,
+        now - settings.wall0,
+        plans,
     )
