@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from secure3d.errors import SimulationError
-from secure3d.simulation.explore import viewpoint_for_denial
+from secure3d.simulation.explore import LOOK_FROM, nearer_look
 from secure3d.simulation.loop import (
     CERT_STEP,
     SCAN_TOLERANCE,
@@ -106,6 +106,7 @@ class Flight:
         self.explorations = 0
         self.explore_goal: np.ndarray | None = None  # the point to look from while exploring
         self.explore_block: np.ndarray | None = None  # the claim it looks at
+        self.look_from = LOOK_FROM  # how far before it along the route
         self.detection_time: float | None = None
         self.detection_point: np.ndarray | None = None
         self.collided = self.reached = False
@@ -518,7 +519,9 @@ class Flight:
         not checked, plan to a point to look at it from and fly there (HOLD -> EXPLORE)."""
         if not self.s.explore or self.explorations >= MAX_EXPLORATIONS:
             return False
-        found = viewpoint_for_denial(self.loop.start_problem, self.loop.belief)
+        found, self.look_from = nearer_look(
+            self.loop.start_problem, self.loop.belief, self.explore_block, self.look_from
+        )
         if found is None:
             return False
         view, block = found

@@ -92,8 +92,9 @@ TRANSITIONS: dict[tuple[Mode, Trigger], Mode] = {
 }
 #: The modes in which the robot flies a certified plan (re-certified and guarded).
 FLYING = (Mode.FOLLOW, Mode.EXPLORE)
-#: Explorations one run may make (each flies to a point to look from, then replans).
-MAX_EXPLORATIONS = 3
+#: Explorations one run may make (each flies to a point to look from, then replans; a look at the
+#: same claim again goes nearer, see :func:`~secure3d.simulation.explore.nearer_look`).
+MAX_EXPLORATIONS = 5
 
 
 @dataclass(frozen=True)

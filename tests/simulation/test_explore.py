@@ -66,3 +66,45 @@ def test_the_denial_family_closes_the_route_and_keeps_start_and_goal_clear(maps_
         for end in (v.start.position, v.goal.position):
             inside = np.all((np.array(end) >= slab.region.lo) & (np.array(end) <= slab.region.hi))
             assert not inside
+
+
+def _denial_variant(maps_dir, i: int):
+    base = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    return family_variants(FAMILIES["denial"], base, i + 1, seed=0)[i]
+
+
+def test_a_look_at_the_same_claim_again_goes_nearer(maps_dir):
+    from secure3d.planning.problem import problem_from_scenario
+    from secure3d.simulation.explore import LOOK_FROM, nearer_look, viewpoint_for_denial
+    from secure3d.world.attacks import belief_map
+
+    v = _denial_variant(maps_dir, 12)
+    belief = belief_map(v)
+    problem = problem_from_scenario(v, belief=belief, obstacle_boxes=belief.known_obstacle_boxes())
+    first = viewpoint_for_denial(problem, belief)
+    assert first is not None
+    view, block = first
+    # nothing looked at yet, or another claim last time: the usual viewpoint
+    for last in (None, block + np.array([3.0, 0.0, 0.0])):
+        found, look = nearer_look(problem, belief, last, LOOK_FROM)
+        assert look == LOOK_FROM
+        np.testing.assert_array_equal(found[0], view)
+    # the same claim again: from nearer, and nearer again after that
+    (near_view, near_block), look = nearer_look(problem, belief, block, LOOK_FROM)
+    assert look < LOOK_FROM
+    np.testing.assert_allclose(near_block, block)
+    assert np.linalg.norm(near_view - block) < np.linalg.norm(view - block)
+    _, nearer = nearer_look(problem, belief, block, look)
+    assert nearer < look
+
+
+def test_a_phantom_slab_before_open_space_is_looked_at_from_nearer_and_passed(maps_dir):
+    """Denial variant 12 of the campaign: the first look, from behind the blind corner, sees
+    nothing of the claim (the corner hides it); the robot then stands too near for the usual
+    viewpoint, looks again from nearer, and goes on. Before, it held there for good."""
+    run = simulate(_denial_variant(maps_dir, 12), "secure", seed=12, plan_budget=10.0)
+    assert run.reached_goal and not run.collided, run.summary()
+    looks = [e.detail for e in run.events if e.kind == "explore"]
+    assert len(looks) >= 2, looks
+    claims = [d.split("claim at ")[1].split(" from")[0] for d in looks]
+    assert claims[0] == claims[1], claims  # the same claim, looked at again
