@@ -526,12 +526,9 @@ class Flight:
             return False
         view, block = found
         self.explorations += 1
-        self.event(
-            "explore",
-            f"the map shows no route: looking at the claim at {np.round(block, 2).tolist()}"
-            f" from {np.round(view, 2).tolist()}",
-            "WARN",
-        )
+        at, frm = np.round(block, 2).tolist(), np.round(view, 2).tolist()
+        msg = f"the map shows no route: looking at the claim at {at} from {frm}"
+        self.event("explore", msg, "WARN")
         plan = self.make_plan(self.x, goal=view)
         if plan is None:
             return False
