@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -162,6 +164,21 @@ def test_a_row_ranks_as_in_the_matrix_and_ties_are_detected():
     assert _smallest(np.array([2.0, 0.1, 2.0]), 2, 1.5, ordered=False).tolist() == [1]
 
 
+@functools.lru_cache(maxsize=1)
+def _corner_solution(maps_dir: Path):
+    """blind_corner's secure plan: (problem, states, assignment, slots holding no box)."""
+    import secure3d
+    from secure3d.planning import plan_problem, problem_from_scenario
+    from secure3d.planning.lookback import select_slots
+
+    problem = problem_from_scenario(secure3d.load_scenario(maps_dir / "blind_corner.yaml"))
+    secure = plan_problem(problem, "secure")
+    assert secure.ok, secure.message
+    X, assignment = secure.states, tuple(int(j) for j in secure.lookback)
+    no_boxes = dataclasses.replace(problem, boxes_lo=np.empty((0, 3)), boxes_hi=np.empty((0, 3)))
+    return problem, X, assignment, select_slots(no_boxes, "secure", X, assignment)
+
+
 def _left_out_distance(problem, states, assignment, empty) -> float:
     """The smallest distance (to 0.1 mm) from a box to what a node constrains, by bisection on
     ``slots_missing``'s slack with every box left out."""
@@ -180,8 +197,6 @@ def _left_out_distance(problem, states, assignment, empty) -> float:
 def test_a_left_out_box_costs_a_re_solve_only_within_part_of_the_margin(maps_dir):
     """slots_stale: a left-out box closer than the margin but farther than (1 - SLOT_TOLERANCE)
     of it keeps the solution; a closer one sends it back to the solver."""
-    import secure3d
-    from secure3d.planning import plan_problem, problem_from_scenario
     from secure3d.planning.lookback import (
         SLOT_TOLERANCE,
         select_slots,
@@ -189,13 +204,7 @@ def test_a_left_out_box_costs_a_re_solve_only_within_part_of_the_margin(maps_dir
         slots_stale,
     )
 
-    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
-    problem = problem_from_scenario(scenario)
-    secure = plan_problem(problem, "secure")
-    assert secure.ok, secure.message
-    X, assignment = secure.states, tuple(int(j) for j in secure.lookback)
-    no_boxes = dataclasses.replace(problem, boxes_lo=np.empty((0, 3)), boxes_hi=np.empty((0, 3)))
-    empty = select_slots(no_boxes, "secure", X, assignment)
+    problem, X, assignment, empty = _corner_solution(maps_dir)
     d = _left_out_distance(problem, X, assignment, empty)
     assert 0.0 < d < 1.0
 
@@ -217,17 +226,9 @@ def test_a_left_out_box_costs_a_re_solve_only_within_part_of_the_margin(maps_dir
 def test_left_out_boxes_take_the_farthest_slots_nearest_first(maps_dir):
     """with_left_out_boxes: after it, a node leaves a box within the limit out only if every slot
     holds a nearer one, and the boxes it puts in are exactly the nearest left-out ones."""
-    import secure3d
-    from secure3d.planning import plan_problem, problem_from_scenario
-    from secure3d.planning.lookback import left_out_boxes, select_slots, with_left_out_boxes
+    from secure3d.planning.lookback import left_out_boxes, with_left_out_boxes
 
-    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
-    problem = problem_from_scenario(scenario)
-    secure = plan_problem(problem, "secure")
-    assert secure.ok, secure.message
-    X, assignment = secure.states, tuple(int(j) for j in secure.lookback)
-    no_boxes = dataclasses.replace(problem, boxes_lo=np.empty((0, 3)), boxes_hi=np.empty((0, 3)))
-    empty = select_slots(no_boxes, "secure", X, assignment)
+    problem, X, assignment, empty = _corner_solution(maps_dir)
     limit = 1.5
     pairs, d = left_out_boxes(problem, X, assignment, empty, limit)
     assert len(pairs) > 0 and np.all(d < limit)
