@@ -24,6 +24,7 @@ import dataclasses
 
 import numpy as np
 
+from secure3d.errors import SimulationError
 from secure3d.geometry.polytope import min_box_distance
 from secure3d.mapping.boxes import merge_cells
 from secure3d.planning.guess import (
@@ -147,6 +148,8 @@ def nearer_look(
     LOOK_FROM before the claim along the route (the robot is nearer already, after a look that a
     corner occluded), nearer ones are tried too. Returns the viewpoint and blocking point (or
     None) and the distance it looks from."""
+    if not (np.isfinite(last_look_from) and last_look_from > 0):
+        raise SimulationError(f"nearer_look: last_look_from must be > 0 m, got {last_look_from!r}")
     first = viewpoint_for_denial(problem, belief, LOOK_FROM)
     look = LOOK_FROM
     if first is not None:

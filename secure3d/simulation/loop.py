@@ -311,7 +311,17 @@ def escape_heading(
     (``planar_dead_end``: 1.6 mm, then 0.01 mm, then inside). Turning in place on the spot is the
     look-around's motion: the body does not move."""
     p = np.asarray(position, dtype=float).ravel()
-    lo, hi = np.asarray(boxes_lo, dtype=float), np.asarray(boxes_hi, dtype=float)
+    lo = np.asarray(boxes_lo, dtype=float).reshape(-1, 3)
+    hi = np.asarray(boxes_hi, dtype=float).reshape(-1, 3)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise SimulationError(
+            f"escape_heading: position must be 3 finite numbers, got {position!r}"
+        )
+    for name, v in (("radius", radius), ("margin", margin)):
+        if not np.isfinite(v) or v < 0:
+            raise SimulationError(f"escape_heading: {name} must be finite and >= 0, got {v!r}")
+    if lo.shape != hi.shape:
+        raise SimulationError(f"escape_heading: boxes_lo {lo.shape} and boxes_hi {hi.shape} differ")
     if len(lo) == 0:
         return None
     away = p[None, :] - np.clip(p[None, :], lo, hi)  # (n, 3) from each box's nearest point

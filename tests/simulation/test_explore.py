@@ -5,8 +5,10 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 
 import secure3d
+from secure3d.errors import SimulationError
 from secure3d.simulation.closed_loop import simulate
 from secure3d.world.families import family_variants
 from secure3d.world.family_registry import FAMILIES
@@ -96,6 +98,8 @@ def test_a_look_at_the_same_claim_again_goes_nearer(maps_dir):
     assert np.linalg.norm(near_view - block) < np.linalg.norm(view - block)
     _, nearer = nearer_look(problem, belief, block, look)
     assert nearer < look
+    with pytest.raises(SimulationError, match="last_look_from"):
+        nearer_look(problem, belief, block, 0.0)
 
 
 def test_a_phantom_slab_before_open_space_is_looked_at_from_nearer_and_passed(maps_dir):

@@ -151,6 +151,16 @@ def test_escape_heading_points_off_the_walls_the_body_rests_against():
     assert escape_heading(p, 0.2, *low, 0.02, True) == pytest.approx(np.pi / 2)
     assert escape_heading(p, 0.2, np.empty((0, 3)), np.empty((0, 3)), 0.02, True) is None
     assert escape_heading([2.0, 0.5, 0.5], 0.2, wall_lo, wall_hi, 0.02, True) is None
+    # bad input is refused naming the value
+    for args, what in (
+        (([2.0, 1.2], 0.2, wall_lo, wall_hi, 0.02), "position"),
+        (([2.0, np.nan, 0.5], 0.2, wall_lo, wall_hi, 0.02), "position"),
+        ((p, -0.2, wall_lo, wall_hi, 0.02), "radius"),
+        ((p, 0.2, wall_lo, wall_hi, np.inf), "margin"),
+        ((p, 0.2, wall_lo, np.zeros((2, 3)), 0.02), "boxes_lo"),
+    ):
+        with pytest.raises(SimulationError, match=what):
+            escape_heading(*args, True)
 
 
 @pytest.mark.slow
