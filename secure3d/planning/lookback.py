@@ -265,6 +265,30 @@ _EXACT_CHUNK = 256
 FACE_GAP_TOL = 1e-6
 
 
+def _unslotted_pairs(
+    problem: PlanningProblem,
+    planner: str,
+    states: np.ndarray,
+    assignment: tuple[int, ...],
+    slots: np.ndarray,
+    limit: float,
+) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, ...] | None]:
+    """The (node, box) pairs (f, 2) screened below ``limit`` whose box is not in the node's
+    ``slots``, with their screens (f,); for the secure planner (else None) also the constrained
+    sets, and without the pairs that a face gap of at least the limit settles (a separating
+    plane's gap bounds the distance from below; the exact kernel solves to ~1e-9, so a pair within
+    FACE_GAP_TOL of the limit stays)."""
+    flagged, screened = _screened_below(problem, planner, states, assignment, limit)
+    boxes = np.concatenate([problem.boxes_lo, problem.boxes_hi], axis=1)[flagged[:, 1]]  # (f, 6)
+    slotted = np.isclose(slots[flagged[:, 0]], boxes[:, None, :]).all(axis=-1).any(axis=1)
+    flagged, screened = flagged[~slotted], screened[~slotted]
+    if len(flagged) == 0 or planner != Planner.SECURE:
+        return flagged, screened, None
+    sets = _constrained_sets(problem, planner, states, assignment)
+    gapped = _face_gaps(problem, sets, flagged[:, 0], flagged[:, 1]) < limit + FACE_GAP_TOL
+    return flagged[gapped], screened[gapped], sets
+
+
 def slots_missing(
     problem: PlanningProblem,
     planner: str,
@@ -279,22 +303,11 @@ def slots_missing(
     if len(problem.boxes_lo) == 0:
         return False
     limit = problem.options.margin + slack
-    # the (node, box) pairs screened below the limit, in row-major order, and their screens
-    flagged, screened = _screened_below(problem, planner, states, assignment, limit)
-    # boxes already in the node's slots do not count (compared only where flagged)
-    boxes = np.concatenate([problem.boxes_lo, problem.boxes_hi], axis=1)[flagged[:, 1]]  # (f, 6)
-    slotted = np.isclose(slots[flagged[:, 0]], boxes[:, None, :]).all(axis=-1).any(axis=1)
-    flagged, screened = flagged[~slotted], screened[~slotted]
-    if len(flagged) == 0 or planner != Planner.SECURE:
+    flagged, screened, sets = _unslotted_pairs(problem, planner, states, assignment, slots, limit)
+    if sets is None:
         return bool(len(flagged))
     # the screening bound is loose for elongated reactive sets: confirm with exact distances,
     # nearest screened pairs first, stopping at the first pair below the limit (the same answer)
-    sets = _constrained_sets(problem, planner, states, assignment)
-    # a face of the box that separates it from the set by at least the limit settles the pair
-    # without the exact solve (a separating plane's gap bounds the distance from below)
-    # (the exact kernel solves to ~1e-9: a pair within FACE_GAP_TOL of the limit still goes to it)
-    gapped = _face_gaps(problem, sets, flagged[:, 0], flagged[:, 1]) < limit + FACE_GAP_TOL
-    flagged, screened = flagged[gapped], screened[gapped]
     flagged = flagged[np.argsort(screened, kind="stable")]
     for start in range(0, len(flagged), _EXACT_CHUNK):
         part = flagged[start : start + _EXACT_CHUNK]
@@ -339,16 +352,9 @@ def left_out_boxes(
     none = np.zeros((0, 2), np.int64), np.zeros(0)
     if len(problem.boxes_lo) == 0:
         return none
-    flagged, _ = _screened_below(problem, Planner.SECURE, states, assignment, limit)
-    boxes = np.concatenate([problem.boxes_lo, problem.boxes_hi], axis=1)[flagged[:, 1]]
-    slotted = np.isclose(slots[flagged[:, 0]], boxes[:, None, :]).all(axis=-1).any(axis=1)
-    flagged = flagged[~slotted]
-    if len(flagged) == 0:
+    flagged, _, sets = _unslotted_pairs(problem, Planner.SECURE, states, assignment, slots, limit)
+    if sets is None or len(flagged) == 0:
         return none
-    sets = _constrained_sets(problem, Planner.SECURE, states, assignment)
-    flagged = flagged[
-        _face_gaps(problem, sets, flagged[:, 0], flagged[:, 1]) < limit + FACE_GAP_TOL
-    ]
     d = _exact_distances(problem, sets, flagged[:, 0], flagged[:, 1])
     below = d < limit
     return flagged[below], d[below]
