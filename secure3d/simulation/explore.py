@@ -144,7 +144,8 @@ def nearer_look(
     behind it: with a depth camera a ray that ends past its range clears nothing, and a claim in
     front of open space is refuted only by rays that hit a surface behind it. From nearer, that
     surface is nearer too (a campaign's denial variant looked three times from 1.5 m before a
-    phantom slab, with the wall behind it 5.9 m from the viewpoint against a 6 m range, and held). When no point lies
+    phantom slab, with the wall behind it 5.9 m from the viewpoint against a 6 m range, and
+    held). When no point lies
     LOOK_FROM before the claim along the route (the robot is nearer already, after a look that a
     corner occluded), nearer ones are tried too. Returns the viewpoint and blocking point (or
     None) and the distance it looks from."""
