@@ -108,6 +108,14 @@ def viewpoint_for_denial(
     the sensed obstacles alone close the way too (nothing to look at), or when no point before
     the claim is clear.
     """
+    found = _blocked_route(problem, belief)
+    return None if found is None else _view_of(problem, *found, look_from)
+
+
+def _blocked_route(problem: object, belief: object) -> tuple[np.ndarray, int, float] | None:
+    """The least-claimed route (n, 3), the index of its first point whose body touches a claim,
+    and the map resolution; None when there is nothing to look at (see
+    :func:`viewpoint_for_denial`)."""
     from secure3d.mapping.occupancy import Trust
 
     try:
@@ -126,11 +134,17 @@ def viewpoint_for_denial(
         route = _dense(_least_claimed_route(problem, sensed, (claim_lo, claim_hi)), 0.5 * res)
     except NoPathError:
         return None  # what the camera saw closes the way by itself
+    touching = np.flatnonzero(
+        min_box_distance(route, claim_lo, claim_hi) <= problem.model.body_radius
+    )
+    return None if not len(touching) else (route, int(touching[0]), res)
+
+
+def _view_of(
+    problem: object, route: np.ndarray, block: int, res: float, look_from: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """(viewpoint, blocking point) ``look_from`` before ``route[block]``, or None."""
     r = problem.model.body_radius
-    touching = np.flatnonzero(min_box_distance(route, claim_lo, claim_hi) <= r)
-    if not len(touching):
-        return None
-    block = int(touching[0])
     view = _look_from(route, block, problem, look_from, 3 * res, r + res)
     return None if view is None else (view, route[block].copy())
 
@@ -151,7 +165,10 @@ def nearer_look(
     None) and the distance it looks from."""
     if not (np.isfinite(last_look_from) and last_look_from > 0):
         raise SimulationError(f"nearer_look: last_look_from must be > 0 m, got {last_look_from!r}")
-    first = viewpoint_for_denial(problem, belief, LOOK_FROM)
+    found = _blocked_route(problem, belief)  # the route does not depend on the distance
+    if found is None:
+        return None, LOOK_FROM
+    first = _view_of(problem, *found, LOOK_FROM)
     look = LOOK_FROM
     if first is not None:
         if last_block is None or np.linalg.norm(first[1] - last_block) > SAME_CLAIM:
@@ -160,7 +177,7 @@ def nearer_look(
     # no point LOOK_FROM before the claim (the robot is nearer already), or the same claim again
     while look > MIN_LOOK_FROM:
         look = max(MIN_LOOK_FROM, NEARER * look)
-        nearer = viewpoint_for_denial(problem, belief, look)
+        nearer = _view_of(problem, *found, look)
         if nearer is not None:
             return nearer, look
     return first, LOOK_FROM
