@@ -23,6 +23,11 @@ _SCANS = 16
 _RECENT = 4
 
 
+#: The work of one sight-cone test in :func:`best_clear_views`, in units of one camera's margin
+#: (measured on an occluded 70 s plan, 57,000 points x up to 3,566 cameras: a margin ~2 ns, a cone
+#: test ~1.1 µs).
+CONE_WORK = 512
+
 #: A gap this far above 0 (m) stays above 0 through any rounding of the search's evaluations.
 _SURE = 1e-9
 
@@ -129,33 +134,61 @@ def _cone_blocked_by(p0, c, radius, lo, hi, tree, stack, glo, ghi, recent):  # p
 
 @numba.njit(cache=True)
 def best_clear_views(  # pragma: no cover - compiled
-    points, owner, R, o, sin_h, cos_h, sin_v, cos_v, far, far_range, radius, lo, hi, tree, tol, top
+    points,
+    owner,
+    R,
+    o,
+    sin_h,
+    cos_h,
+    sin_v,
+    cos_v,
+    far,
+    far_range,
+    radius,
+    lo,
+    hi,
+    tree,
+    tol,
+    top,
+    found,
+    best,
+    raw,
+    view,
+    first,
+    max_work,
 ):
-    """For each ball B(points[i], radius) and the cameras (R, o) of samples 0 .. owner[i] - 1:
+    """For each ball B(points[i], radius), i = first, first + 1, ..., and the cameras (R, o) of
+    samples 0 .. owner[i] - 1, writes:
 
     - ``raw[i]``: the best view margin min(horizontal side, vertical side, far) - radius;
     - ``found[i]``, ``best[i]``: the best margin among cameras whose sight cone is clear of the boxes
-      (lo, hi) (their spatial index ``tree``: :attr:`BoxIndex.tree`, exact), trying cameras by decreasing margin and giving up past the ``top`` best once margins
-      are <= -tol (then no camera can pass);
+      (lo, hi) (their spatial index ``tree``: :attr:`BoxIndex.tree`, exact), trying cameras by
+      decreasing margin and giving up past the ``top`` best once margins are <= -tol (then no
+      camera can pass);
     - ``view[i]``: that camera (-1 if none was found).
 
-    Margins are -inf where no earlier camera exists.
+    ``found``, ``best``, ``raw``, ``view`` (n,) are the caller's, filled from ``first`` on with
+    False, -inf, -inf, -1 (margins stay -inf where no earlier camera exists). Stops after the
+    point at which ``max_work`` units of work were done since ``first`` (a camera's margin is one
+    unit, a sight-cone test :data:`CONE_WORK`; a point's search is never cut) and returns the index
+    of the next point to judge (n when all are done): a caller with a deadline looks at the clock
+    between calls. One point costs at most (1 + CONE_WORK) units per earlier camera.
     """
     n, c = points.shape[0], R.shape[0]
-    found = np.zeros(n, dtype=np.bool_)
-    best = np.full(n, -np.inf)
-    raw = np.full(n, -np.inf)
-    view = np.full(n, -1, dtype=np.int64)
     m = np.empty(c)
     used = np.zeros(c, dtype=np.bool_)
     grow_lo = np.empty(3)
     grow_hi = np.empty(3)
     stack = np.empty(_STACK, dtype=np.int64)
     recent = np.full(_RECENT, -1, dtype=np.int64)
-    for i in range(n):
+    work = 0
+    for i in range(first, n):
+        if work >= max_work:
+            return i
         k = min(owner[i], c)
         if k <= 0:
             continue
+        work += k
         px, py, pz = points[i, 0], points[i, 1], points[i, 2]
         top_margin = -np.inf
         for j in range(k):
@@ -190,6 +223,7 @@ def best_clear_views(  # pragma: no cover - compiled
             if rank >= top and cand <= -tol:
                 break
             used[cam] = True
+            work += CONE_WORK
             if not _cone_blocked_by(
                 o[cam], points[i], radius, lo, hi, tree, stack, grow_lo, grow_hi, recent
             ):
@@ -197,4 +231,4 @@ def best_clear_views(  # pragma: no cover - compiled
                 best[i] = cand
                 view[i] = cam
                 break
-    return found, best, raw, view
+    return n

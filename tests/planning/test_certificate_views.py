@@ -64,6 +64,42 @@ def test_clear_views_match_the_numpy_definition(rng, far_kind):
     assert np.isneginf(raw[owner == 0]).all() and (owner == 0).any()
 
 
+def test_a_view_search_cut_into_small_pieces_gives_the_same_answers(rng, monkeypatch):
+    """The search looks at the clock between pieces of VIEW_WORK units; any cut gives the answers
+    of one pass, and a deadline that passes between pieces stops it (issue 16)."""
+    from secure3d.planning import _certificate_kernel, certificate, interrupt
+
+    frustum = PinholeFrustum(hfov=np.radians(90), vfov=np.radians(60), far=6.0)
+    n_cams = 40
+    o = np.column_stack([np.linspace(0, 4, n_cams), np.zeros(n_cams), np.full(n_cams, 1.0)])
+    R = np.array([_rotation(y, p) for y, p in rng.uniform([-0.6, -0.2], [0.6, 0.2], (n_cams, 2))])
+    lo = rng.uniform([0, -3, 0], [8, 3, 2], (15, 3))
+    hi = lo + rng.uniform(0.1, 0.8, (15, 3))
+    points = rng.uniform([0, -3, 0], [9, 3, 2], (300, 3))
+    owner = rng.integers(0, n_cams + 1, len(points))
+    whole = _clear_views(points, owner, R, o, frustum, 0.12, lo, hi, 1e-6)
+    calls = []
+    kernel = _certificate_kernel.best_clear_views
+
+    def counted(*args):
+        calls.append(args[-2])
+        return kernel(*args)
+
+    monkeypatch.setattr(_certificate_kernel, "best_clear_views", counted)
+    for work in (1, 700, 5000):
+        monkeypatch.setattr(certificate, "VIEW_WORK", work)
+        calls.clear()
+        pieces = _clear_views(points, owner, R, o, frustum, 0.12, lo, hi, 1e-6)
+        for a, b in zip(whole, pieces, strict=True):
+            np.testing.assert_array_equal(a, b)
+        assert len(calls) > 1 and calls == sorted(calls)  # resumed where the last piece stopped
+        if work == 1:
+            assert len(calls) >= (owner > 0).sum() // 2  # about a point per piece
+    monkeypatch.setattr(certificate, "VIEW_WORK", 5000)
+    with interrupt.deadline(0.0), pytest.raises(interrupt.BudgetSpent):
+        _clear_views(points, owner, R, o, frustum, 0.12, lo, hi, 1e-6)
+
+
 def test_many_blocked_views_are_walked_past_the_scans(rng):
     """A point behind a wall with a slot: the ~50 cameras that see it best are blocked, so the
     search goes past its first 16 maxima (then sorts) to the few that look through the slot."""
