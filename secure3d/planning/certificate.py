@@ -316,6 +316,7 @@ def certify(
     controller: object | None = None,
     settings: CertificateSettings | None = None,
     t_from: float = 0.0,
+    t_until: float = np.inf,
     sampled: SampledPlan | None = None,
 ) -> Certificate:
     """Check a plan against the paper's safety definition, independently of the planner.
@@ -330,6 +331,8 @@ def certify(
     settings : sampling density (:class:`CertificateSettings`).
     t_from : judge only the part of the plan from this time on (views before it still count): used
         to re-certify the rest of a plan in flight (Algorithm 1).
+    t_until : judge only the part of the plan before this time: used in flight while a replan is
+        deferred before a manoeuvre known to fail at ``t_until`` (only an earlier failure matters).
     sampled : the plan's sampled manoeuvres and camera poses (:func:`sample_plan`): they do not
         depend on the map, so re-certifying after every camera frame reuses them.
 
@@ -354,8 +357,8 @@ def certify(
         sampled.origins,
     )
     n_t = len(t)
-    # only the part of the plan from t_from on is judged (views from before it still count)
-    keep = t[owner] >= t_from - 1e-9
+    # only the part of the plan in [t_from, t_until) is judged (views from before it still count)
+    keep = (t[owner] >= t_from - 1e-9) & (t[owner] < t_until - 1e-9)
     kept = np.flatnonzero(keep)
     flat, owner = flat[keep], owner[keep]
 
@@ -366,7 +369,7 @@ def certify(
     bad = margin < -tol
     views = np.full(len(sampled.points), -2, dtype=np.int64)
     views[kept] = np.where(bad, -2, view)  # bad covers every point not observed in time
-    if len(margin) == 0:  # nothing left to judge (t_from past the end of the plan)
+    if len(margin) == 0:  # nothing left to judge (t_from past the end of the plan or t_until)
         return Certificate(True, np.inf, np.inf, np.inf, None, 0, 0, views, sampled)
     return Certificate(
         ok=not bad.any(),

@@ -85,9 +85,8 @@ class Flight:
         self.events: list[SimEvent] = []
         self.plans: list[tuple[float, PlanResult]] = []
         self.solve_times: list[float] = []
-        self.certify_log: list[
-            tuple[int, bool]
-        ] = []  # per judged plan call: (rejections, certified)
+        # per judged plan call: (rejections, certified)
+        self.certify_log: list[tuple[int, bool]] = []
         self.failures = 0  # failed plan calls in a row
         self.t = 0.0
         self.x = np.asarray(loop.problem.x0, dtype=float)
@@ -96,7 +95,8 @@ class Flight:
         self.mode = Mode.HOLD
         self.current: Followed | None = None
         self.pending: Followed | None = None  # a replan waiting out its latency (start = switch)
-        self.deferred: tuple[float, tuple[str, float]] | None = None  # (due, (why, t_bad))
+        # a deferred replan: (due, (why, t_bad), the plan that fails at t_bad)
+        self.deferred: tuple[float, tuple[str, float], object] | None = None
         self.last_attempt = 0.0
         self.headings: list[float] = []  # look-around headings still to turn to
         self.reference: tuple = (None, None)  # (plan followed, its Interpolant) for the tracker
@@ -113,10 +113,8 @@ class Flight:
         self.collision_time: float | None = None
         self.time_to_goal: float | None = None
         self.collision_names: tuple[str, ...] = ()
-        self.clear = float(
-            loop.collision.clearance(self.model.position(self.x), self.model.body_radius)
-        )
-        self.min_clear = self.clear
+        clear = loop.collision.clearance(self.model.position(self.x), self.model.body_radius)
+        self.clear = self.min_clear = float(clear)
         self.T_log: list[float] = [self.t]
         self.X_log: list[np.ndarray] = [self.x.copy()]
         self.beat = time.perf_counter()
@@ -233,16 +231,20 @@ class Flight:
         loop, cur, pending = self.loop, self.current, self.pending
         t_rel = self.t - cur.start
         lo, hi = loop.judged_plus(new)
-        unsafe = plan_unsafe(loop, cur.plan, cur.problem, t_rel, lo, hi)
+        # the plan of a deferred replan fails at until: only an earlier failure is news
+        held = self.deferred[1] if self.deferred and self.deferred[2] is cur.plan else None
+        until = held[1] if held else np.inf
+        unsafe = plan_unsafe(loop, cur.plan, cur.problem, t_rel, lo, hi, until)
         broken = None
         if pending is not None:
             broken = plan_unsafe(loop, pending.plan, pending.problem, 0.0, lo, hi)
         if unsafe is not None or broken is not None:
             loop.refresh_obstacles()
             lo, hi = loop.problem.boxes_lo, loop.problem.boxes_hi
-            unsafe = plan_unsafe(loop, cur.plan, cur.problem, t_rel, lo, hi)
+            unsafe = plan_unsafe(loop, cur.plan, cur.problem, t_rel, lo, hi, until)
             if pending is not None:
                 broken = plan_unsafe(loop, pending.plan, pending.problem, 0.0, lo, hi)
+        unsafe = unsafe or held  # a held plan is still taken to fail where it did
         if broken is not None:
             self.event("pending plan dropped", broken[0], "WARN")
             self.pending = None
@@ -273,15 +275,12 @@ class Flight:
             # The plan stays certified until its first failing manoeuvre: keep following it and
             # replan `defer` before then (sooner if later evidence brings that manoeuvre closer),
             # once, with all the camera sees meanwhile. The judged boxes take the new voxels now:
-            # the guard and later re-checks judge against them, and they must stay a superset of
-            # the known obstacles. (They used to stay as they were, "so every later frame
-            # re-checks": then a later frame's passing re-check, judged without these voxels,
-            # cleared the deferral and dropped them for good; a quadrotor campaign flew into
-            # them, 2 mm deep.)
+            # the guard and later re-checks judge against them, so they stay a superset of the
+            # known obstacles (kept as they were, a quadrotor campaign flew 2 mm into them).
             loop.judged_lo, loop.judged_hi = lo, hi
             if self.deferred is None:
                 self.event("replan deferred", unsafe[0])
-            self.deferred = (self.current.start + unsafe[1] - defer, unsafe)
+            self.deferred = (self.current.start + unsafe[1] - defer, unsafe, self.current.plan)
             unsafe = None
         else:
             self.deferred = None

@@ -54,11 +54,14 @@ def plan_unsafe(
     t_rel: float,
     lo: np.ndarray,
     hi: np.ndarray,
+    t_until: float = np.inf,
 ) -> tuple[str, float] | None:
     """Why the rest of ``plan`` (from ``t_rel`` on) is not safe among the obstacle boxes ``lo, hi``
     (the updated belief), and the plan time from which it is not (the first manoeuvre that fails
     the certificate; ``inf`` for the baseline, which promises no manoeuvre), or None.
-    ``plan_problem_`` is the problem the plan was planned (and certified) on.
+    ``plan_problem_`` is the problem the plan was planned (and certified) on. With a finite
+    ``t_until`` (a secure plan already known to fail there, its replan deferred until before it)
+    only the part before ``t_until`` is judged: None then means no earlier failure.
 
     A secure plan that already passed against a prefix of these boxes (the boxes only grew, as
     :meth:`Loop.judged_plus` grows them) is judged against the added boxes alone first
@@ -68,6 +71,13 @@ def plan_unsafe(
 
     if loop.planner == Planner.SECURE:
         judged = dataclasses.replace(plan_problem_, boxes_lo=lo, boxes_hi=hi)
+        if np.isfinite(t_until):
+            # known to fail at t_until: judge the window before it in full (the views kept for
+            # the incremental check below stay those of the last full pass)
+            sampled = plan.certificate.sampled if plan.certificate is not None else None
+            cert = certify(plan, judged, t_from=t_rel, t_until=t_until, sampled=sampled)
+            first = cert.first_violation
+            return None if cert.ok else (str(first), float(first.time))
         rec = loop.rechecks.get(id(plan))
         if rec is None or rec.plan is not plan:
             cert = plan.certificate

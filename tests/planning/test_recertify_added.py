@@ -105,3 +105,25 @@ def test_shortcut_declines_points_it_never_judged(corner):
     for lo, hi in ((far, far - 0.1), (far, np.zeros((2, 3))), (far[0], far[0] + 0.1)):
         with pytest.raises(PlanningError, match="added boxes"):
             views_after_adding(late.views, sampled, problem, lo, hi, t_from=2.0)
+
+
+def test_a_window_before_a_known_failure_is_judged_alone(corner):
+    """``t_until``: the closed loop, deferring a replan before a manoeuvre known to fail, judges
+    only the part before it. A box across the plan's later half fails the whole rest; the window
+    before the first failure passes, and judges only its own points; a window reaching past the
+    failure fails at the same point."""
+    problem, plan, sampled, _ = corner
+    t = sampled.times[sampled.owner]
+    late = sampled.points[t > 0.6 * plan.final_time]
+    blocked = _with(problem, late.mean(axis=0)[None] - 0.3, late.mean(axis=0)[None] + 0.3)
+    whole = certify(plan, blocked, sampled=sampled, t_from=0.2)
+    assert not whole.ok
+    bad = whole.first_violation.time
+    before = certify(plan, blocked, sampled=sampled, t_from=0.2, t_until=bad)
+    assert before.ok
+    window = (t >= 0.2 - 1e-9) & (t < bad - 1e-9)
+    assert before.n_points == window.sum() > 0
+    assert np.all(before.views[~window] == -2) and np.all(before.views[window] >= -1)
+    past = certify(plan, blocked, sampled=sampled, t_from=0.2, t_until=bad + 0.05)
+    assert not past.ok and past.first_violation.time == bad
+    assert np.array_equal(past.first_violation.point, whole.first_violation.point)

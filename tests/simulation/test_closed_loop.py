@@ -150,7 +150,7 @@ def test_every_in_flight_verdict_is_against_all_known_obstacles(maps_dir, monkey
     judged = []
     original = flight.plan_unsafe
 
-    def checked(loop, plan, problem, t_rel, lo, hi):
+    def checked(loop, plan, problem, t_rel, lo, hi, t_until=np.inf):
         centres = loop.belief.known_obstacle_voxels()
         inside = centres[
             np.all(
@@ -158,7 +158,7 @@ def test_every_in_flight_verdict_is_against_all_known_obstacles(maps_dir, monkey
             )
         ]
         judged.append(float(min_box_distance(inside, lo, hi).max()))
-        return original(loop, plan, problem, t_rel, lo, hi)
+        return original(loop, plan, problem, t_rel, lo, hi, t_until)
 
     monkeypatch.setattr(flight, "plan_unsafe", checked)
     import secure3d.planning.certificate as certificate
@@ -262,10 +262,22 @@ def test_replan_latency_is_validated(maps_dir):
             simulate(scenario, "secure", replan_latency=bad)
 
 
-def test_deferred_replans_wait_for_more_of_the_obstacle_and_stay_safe(maps_dir):
+def test_deferred_replans_wait_for_more_of_the_obstacle_and_stay_safe(maps_dir, monkeypatch):
     """A hidden obstacle revealed a few voxels per frame: replanning at once costs one replan per
-    frame; deferring (the plan is certified until its first failing manoeuvre) replans once."""
+    frame; deferring (the plan is certified until its first failing manoeuvre) replans once. While
+    a replan is deferred, frames re-check only the part of the plan before the failing manoeuvre."""
+    from secure3d.simulation import flight
     from secure3d.world.attacks import random_hidden_obstacle_scenarios
+
+    windows = []
+
+    def spy(loop, plan, problem, t_rel, lo, hi, t_until=np.inf):
+        out = flight_plan_unsafe(loop, plan, problem, t_rel, lo, hi, t_until)
+        windows.append((t_rel, t_until, out))
+        return out
+
+    flight_plan_unsafe = flight.plan_unsafe
+    monkeypatch.setattr(flight, "plan_unsafe", spy)
 
     base = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
     variant = random_hidden_obstacle_scenarios(base, 4, 0)[3]
@@ -279,6 +291,9 @@ def test_deferred_replans_wait_for_more_of_the_obstacle_and_stay_safe(maps_dir):
     assert any(e.kind == "replan deferred" for e in deferred.events)
     assert not any(e.kind == "replan deferred" for e in at_once.events)
     assert deferred.replans < at_once.replans
+    held = [(t, until, out) for t, until, out in windows if np.isfinite(until)]
+    assert held and all(t < until for t, until, _ in held)
+    assert all(out is None or out[1] < until for _, until, out in held)  # only earlier failures
     with pytest.raises(SimulationError, match="replan_defer"):
         simulate(variant, "secure", replan_defer=-1.0)
     with pytest.raises(SimulationError, match="not both"):
