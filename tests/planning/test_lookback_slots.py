@@ -247,3 +247,50 @@ def test_left_out_boxes_take_the_farthest_slots_nearest_first(maps_dir):
         assert rest_d[rest[:, 0] == k].min() >= np.sort(nearest_held)[S - 1] - 1e-12
     # nothing within the limit left out: the slots come back unchanged
     assert with_left_out_boxes(problem, X, assignment, filled, 1e-3) is filled
+
+
+def test_separating_duals_keep_the_set_and_its_camera_clear(maps_dir):
+    """A slot refresh starts its new slots from the exact separating duals: with them the
+    reactive-set row and the occlusion row (the viewing camera on the set's side) hold by the
+    pair's distance, where the centre-pointing duals of ``initial_duals`` leave some violated;
+    pairs not asked for, or not apart, keep the duals given."""
+    from secure3d.geometry.polytope import box_pair_distances
+    from secure3d.planning.lookback import (
+        _constrained_sets,
+        initial_duals,
+        node_geometry,
+        select_slots,
+        separating_duals,
+    )
+
+    problem, X, assignment, _ = _corner_solution(maps_dir)
+    slots = select_slots(problem, "secure", X, assignment)
+    heuristic = initial_duals(problem, "secure", X, slots, assignment)
+    which = np.ones(slots.shape[:2], bool)
+    which[::2] = False
+    exact = separating_duals(problem, "secure", X, slots, assignment, heuristic, which)
+    assert np.array_equal(exact[~which], heuristic[~which])
+    geo = node_geometry(problem, X)
+    lo, hi = slots[..., 0:3], slots[..., 3:6]
+
+    def rows(lam):
+        """(K, S) the smaller of the set's and the camera's clearance of the slot's box."""
+        n = lam[..., 0:3] - lam[..., 3:6]
+        box = np.maximum(n * lo, n * hi).sum(axis=-1)  # the box's support along n
+        reach = np.linalg.norm(np.einsum("kab,ksa->ksb", geo["M"], n), axis=-1)
+        e_row = np.einsum("ksa,ka->ks", n, geo["C"]) - reach - box
+        j = np.maximum(np.asarray(assignment), 0)
+        o_row = np.einsum("ksa,ka->ks", n, geo["o"][j]) - box
+        return np.where(np.asarray(assignment)[:, None] >= 0, np.minimum(e_row, o_row), e_row)
+
+    sets = _constrained_sets(problem, "secure", X, assignment)
+    k, s = np.nonzero(which)
+    d = box_pair_distances(*(a[k] for a in sets[:3]), lo[k, s], hi[k, s], sets[3][k])
+    apart = d > 0
+    assert apart.sum() > 20
+    np.testing.assert_allclose(rows(exact)[k[apart], s[apart]], d[apart], atol=1e-6)
+    assert np.all(rows(exact)[k[apart], s[apart]] >= rows(heuristic)[k[apart], s[apart]] - 1e-6)
+    assert np.any(rows(heuristic)[k[apart], s[apart]] < d[apart] - 0.05)  # the heuristic's loss
+    assert np.array_equal(exact[k[~apart], s[~apart]], heuristic[k[~apart], s[~apart]])
+    none = np.zeros_like(which)
+    assert separating_duals(problem, "secure", X, slots, assignment, heuristic, none) is heuristic
