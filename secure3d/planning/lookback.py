@@ -536,43 +536,6 @@ def initial_duals(
     return lam
 
 
-def separating_duals(
-    problem: PlanningProblem,
-    planner: str,
-    states: np.ndarray,
-    slots: np.ndarray,
-    assignment: tuple[int, ...],
-    duals: np.ndarray,
-    which: np.ndarray,
-) -> np.ndarray:
-    """``duals`` (K, S, 6) with the (node, slot) pairs ``which`` (K, S) bool given the exact
-    separating duals of what the node constrains on ``states`` (:func:`_constrained_sets`) and the
-    slot's box, where the two are apart (elsewhere, ``duals`` as given).
-
-    :func:`initial_duals` points each plane from the box towards the reactive set's centre. The
-    same plane must also keep the viewing camera on the set's side (the occlusion row); beside a
-    long set or a far camera that heuristic leaves such rows violated by metres (2.1 m on
-    ``geb079_hidden_crate``'s slot refresh), and IPOPT spends its first iterations repairing the
-    planes. The exact dual of the set-to-box distance satisfies every row the set stays clear of."""
-    k_idx, s_idx = np.nonzero(which)
-    if len(k_idx) == 0:
-        return duals
-    origins, centres, shapes, los = _constrained_sets(problem, planner, states, assignment)
-    d, lam = box_pair_distances(
-        origins[k_idx],
-        centres[k_idx],
-        shapes[k_idx],
-        slots[k_idx, s_idx, 0:3],
-        slots[k_idx, s_idx, 3:6],
-        los[k_idx],
-        with_duals=True,
-    )
-    out = duals.copy()
-    apart = d > 0.0
-    out[k_idx[apart], s_idx[apart]] = lam[apart]
-    return out
-
-
 __all__ = [
     "adaptive_assignment",
     "fixed_assignment",
@@ -583,7 +546,6 @@ __all__ = [
     "node_geometry",
     "occluded",
     "select_slots",
-    "separating_duals",
     "slot_sides",
     "slots_missing",
     "slots_stale",

@@ -260,7 +260,6 @@ def _start_point(
         L = fresh
     else:  # keep the previous duals only for slots that still hold the same box
         same = np.all(np.isclose(prev_slots, slots), axis=-1)
-        fresh = lb.separating_duals(problem, planner, X, slots, assignment, fresh, ~same)
         L = np.where(same[..., None], L, fresh)
     if getattr(lay, "viewing", False):
         w0 = lay.pack(float(np.clip(T, T_MIN, T_MAX)), X, U, L, assignment=assignment)
