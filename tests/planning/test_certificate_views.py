@@ -42,16 +42,22 @@ def _reference(points, owner, R, o, frustum, radius, lo, hi, tol):
     return found, best, V.max(axis=1)
 
 
-@pytest.mark.parametrize("far_kind", ["depth", "range"])
-def test_clear_views_match_the_numpy_definition(rng, far_kind):
-    frustum = PinholeFrustum(hfov=np.radians(90), vfov=np.radians(60), far=6.0, far_kind=far_kind)
-    n_cams = 40
+def _random_scene(rng, n_points: int, n_cams: int = 40):
+    """Cameras along x looking roughly ahead, 15 random boxes, random points with random owners:
+    (R, o, lo, hi, points, owner)."""
     o = np.column_stack([np.linspace(0, 4, n_cams), np.zeros(n_cams), np.full(n_cams, 1.0)])
     R = np.array([_rotation(y, p) for y, p in rng.uniform([-0.6, -0.2], [0.6, 0.2], (n_cams, 2))])
     lo = rng.uniform([0, -3, 0], [8, 3, 2], (15, 3))
     hi = lo + rng.uniform(0.1, 0.8, (15, 3))
-    points = rng.uniform([0, -3, 0], [9, 3, 2], (400, 3))
-    owner = rng.integers(0, n_cams + 1, len(points))
+    points = rng.uniform([0, -3, 0], [9, 3, 2], (n_points, 3))
+    owner = rng.integers(0, n_cams + 1, n_points)
+    return R, o, lo, hi, points, owner
+
+
+@pytest.mark.parametrize("far_kind", ["depth", "range"])
+def test_clear_views_match_the_numpy_definition(rng, far_kind):
+    frustum = PinholeFrustum(hfov=np.radians(90), vfov=np.radians(60), far=6.0, far_kind=far_kind)
+    R, o, lo, hi, points, owner = _random_scene(rng, 400)
     r, tol = 0.12, 1e-6
     found, best, raw, _ = _clear_views(points, owner, R, o, frustum, r, lo, hi, tol)
     want = _reference(points, owner, R, o, frustum, r, lo, hi, tol)
@@ -70,13 +76,7 @@ def test_a_view_search_cut_into_small_pieces_gives_the_same_answers(rng, monkeyp
     from secure3d.planning import _certificate_kernel, certificate, interrupt
 
     frustum = PinholeFrustum(hfov=np.radians(90), vfov=np.radians(60), far=6.0)
-    n_cams = 40
-    o = np.column_stack([np.linspace(0, 4, n_cams), np.zeros(n_cams), np.full(n_cams, 1.0)])
-    R = np.array([_rotation(y, p) for y, p in rng.uniform([-0.6, -0.2], [0.6, 0.2], (n_cams, 2))])
-    lo = rng.uniform([0, -3, 0], [8, 3, 2], (15, 3))
-    hi = lo + rng.uniform(0.1, 0.8, (15, 3))
-    points = rng.uniform([0, -3, 0], [9, 3, 2], (300, 3))
-    owner = rng.integers(0, n_cams + 1, len(points))
+    R, o, lo, hi, points, owner = _random_scene(rng, 300)
     whole = _clear_views(points, owner, R, o, frustum, 0.12, lo, hi, 1e-6)
     calls = []
     kernel = _certificate_kernel.best_clear_views
