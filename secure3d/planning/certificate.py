@@ -29,6 +29,7 @@ from secure3d.geometry.polytope import min_box_distance
 from secure3d.planning.interrupt import BudgetSpent, deadline_passed
 from secure3d.planning.result import Certificate, PlanResult, Violation
 from secure3d.planning.trajectory import interpolate
+from secure3d.validation import is_real
 
 #: Candidate earlier views tried per manoeuvre point before the exhaustive pass.
 TOP_VIEWS = 8
@@ -342,6 +343,11 @@ def certify(
         ``ok``, the smallest margins and the first violation (time, point, reason).
     """
     settings = settings or CertificateSettings()
+    for name, v in (("t_from", t_from), ("t_until", t_until)):
+        if not is_real(v, numpy=True) or np.isnan(v) or v == -np.inf:
+            raise PlanningError(f"certify: {name} must be a number (t_until may be inf), got {v!r}")
+    if not t_from < t_until:
+        raise PlanningError(f"certify: t_until must be after t_from, got {t_from!r}, {t_until!r}")
     model = problem.model
     r = model.body_radius
     tol = settings.tolerance

@@ -127,3 +127,18 @@ def test_a_window_before_a_known_failure_is_judged_alone(corner):
     past = certify(plan, blocked, sampled=sampled, t_from=0.2, t_until=bad + 0.05)
     assert not past.ok and past.first_violation.time == bad
     assert np.array_equal(past.first_violation.point, whole.first_violation.point)
+
+
+def test_a_window_must_be_numbers_in_order(corner):
+    """A NaN or reversed window would judge no point and pass the plan: refused, naming it."""
+    problem, plan, sampled, _ = corner
+    for kw, name in (
+        ({"t_from": float("nan")}, "t_from"),
+        ({"t_until": float("nan")}, "t_until"),
+        ({"t_from": "0"}, "t_from"),
+        ({"t_until": -np.inf}, "t_until"),
+        ({"t_from": 1.0, "t_until": 1.0}, "after t_from"),
+    ):
+        with pytest.raises(PlanningError, match=name):
+            certify(plan, problem, sampled=sampled, **kw)
+    assert certify(plan, problem, sampled=sampled, t_from=np.float64(0.5), t_until=np.inf).ok
