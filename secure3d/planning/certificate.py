@@ -310,6 +310,16 @@ def state_margin(
     return float(visible.min()), "its reactive manoeuvre reaches space not observed before"
 
 
+def _check_window(t_from: object, t_until: object) -> None:
+    """A window of plan time to judge: numbers with ``t_from < t_until`` (``t_until`` may be inf).
+    A NaN or reversed window would judge no point and pass the plan."""
+    for name, v in (("t_from", t_from), ("t_until", t_until)):
+        if not is_real(v, numpy=True) or np.isnan(v) or v == -np.inf:
+            raise PlanningError(f"certify: {name} must be a number (t_until may be inf), got {v!r}")
+    if not t_from < t_until:
+        raise PlanningError(f"certify: t_until must be after t_from, got {t_from!r}, {t_until!r}")
+
+
 def certify(
     plan: PlanResult,
     problem: object,
@@ -343,11 +353,7 @@ def certify(
         ``ok``, the smallest margins and the first violation (time, point, reason).
     """
     settings = settings or CertificateSettings()
-    for name, v in (("t_from", t_from), ("t_until", t_until)):
-        if not is_real(v, numpy=True) or np.isnan(v) or v == -np.inf:
-            raise PlanningError(f"certify: {name} must be a number (t_until may be inf), got {v!r}")
-    if not t_from < t_until:
-        raise PlanningError(f"certify: t_until must be after t_from, got {t_from!r}, {t_until!r}")
+    _check_window(t_from, t_until)
     model = problem.model
     r = model.body_radius
     tol = settings.tolerance
