@@ -213,12 +213,26 @@ def _dense_trace(
     return occ_idx[:nocc], free_bits, occ_bits
 
 
-#: Bit position of a 64-bit word with one bit set, by de Bruijn multiplication.
-_DEBRUIJN = np.uint64(0x03F79D71B4CB0A89)
-_DEBRUIJN_BIT = np.zeros(64, np.int64)
-for _b in range(64):
-    _DEBRUIJN_BIT[((1 << _b) * 0x03F79D71B4CB0A89 & 0xFFFFFFFFFFFFFFFF) >> 58] = _b
-del _b
+def _tile_inner() -> np.ndarray:
+    """(4, 4, 4) [z, y, x]: the low six bits of a Morton code, voxel (x, y, z) of its 4 x 4 x 4
+    tile (the blocks of :class:`~secure3d.mapping.store.VoxelTable`)."""
+    out = np.zeros((4, 4, 4), np.int64)
+    for z in range(4):
+        for y in range(4):
+            for x in range(4):
+                for b in range(2):
+                    out[z, y, x] |= ((x >> b) & 1) << (3 * b)
+                    out[z, y, x] |= ((y >> b) & 1) << (3 * b + 1)
+                    out[z, y, x] |= ((z >> b) & 1) << (3 * b + 2)
+    return out
+
+
+_TILE_INNER = _tile_inner()
+#: Index of the lowest set bit of a nibble (1..15; entry 0 unused).
+_LOWEST_BIT = np.array([0, 0, 1, 0, 2, 0, 1, 0, 3, 0, 1, 0, 2, 0, 1, 0], np.int64)
+#: Voxels along x in one bitmap word, and tiles (4 voxels wide) in it.
+_WORD = 64
+_TILES_PER_WORD = 16
 
 
 @numba.njit(cache=True)
@@ -231,12 +245,17 @@ def _dense_codes(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(free codes, occupied codes) of a dense scan; occupied wins over free within a scan.
 
-    The free voxels are read off the bitmaps row by row (x fastest): their codes come out in the
-    box's index order, one Morton spread of y and z per row, one of x per voxel. The occupied ones
-    keep their order of first appearance.
+    The box must be aligned to 4 x 4 x 4 tiles (``lo`` multiples of 4, ``dims`` multiples of 4,
+    x a multiple of 64 so that a row is whole words: :func:`_dense_box`). The free voxels come out
+    tile by tile, so that every 4 x 4 x 4 block of the voxel store is updated in one visit: one
+    hash probe and one stretch of memory for up to 64 voxels. Tiles are read from 16 rows at a
+    time (4 in y by 4 in z), one word (16 tiles) of each; a word column with no free bit in its 16
+    rows is skipped whole. The occupied ones keep their order of first appearance.
     """
     nx, ny, nz = dims[0], dims[1], dims[2]
+    wpr = nx // _WORD
     one = np.uint64(1)
+    nib = np.uint64(15)
     n = 0
     for w in range(free_bits.shape[0]):
         v = free_bits[w] & ~occ_bits[w]
@@ -244,29 +263,47 @@ def _dense_codes(
             v &= v - one
             n += 1
     out = np.empty(n, np.int64)
+    rows = np.empty(16, np.int64)
+    words = np.empty(16, np.uint64)  # free bits of one word column, row r = 4 z + y
+    inner = _TILE_INNER.reshape(-1)  # [4 r + x]
     j = 0
-    for z in range(nz):
-        mz = _spread16(lo[2] + z) << 2
-        for y in range(ny):
-            myz = mz | (_spread16(lo[1] + y) << 1)
-            base = nx * (y + ny * z)
-            x = 0
-            while x < nx:
-                i = base + x
-                w = i >> 6
-                shift = i & 63
-                span = min(64 - shift, nx - x)  # bits of this word inside the row
-                v = (free_bits[w] & ~occ_bits[w]) >> np.uint64(shift)
-                if span < 64:
-                    v &= (one << np.uint64(span)) - one
-                while v:
-                    low = v & (~v + one)
-                    b = _DEBRUIJN_BIT[(low * _DEBRUIJN) >> np.uint64(58)]
-                    out[j] = myz | _spread16(lo[0] + x + b)
-                    j += 1
-                    v ^= low
-                x += span
+    for tz in range(0, nz, 4):
+        mz = _spread16(lo[2] + tz) << 2
+        for ty in range(0, ny, 4):
+            myz = mz | (_spread16(lo[1] + ty) << 1)
+            for r in range(16):
+                rows[r] = (ty + (r & 3) + ny * (tz + (r >> 2))) * wpr
+            for wx in range(wpr):
+                any_bits = np.uint64(0)
+                for r in range(16):
+                    w = rows[r] + wx
+                    words[r] = free_bits[w] & ~occ_bits[w]
+                    any_bits |= words[r]
+                if any_bits == 0:
+                    continue
+                for t in range(_TILES_PER_WORD):
+                    sh = np.uint64(4 * t)
+                    if (any_bits >> sh) & nib == 0:
+                        continue
+                    code = myz | _spread16(lo[0] + wx * _WORD + 4 * t)
+                    for r in range(16):
+                        bits = (words[r] >> sh) & nib
+                        while bits:
+                            out[j] = code | inner[4 * r + _LOWEST_BIT[bits]]
+                            j += 1
+                            bits &= bits - one
     return out, _idx_to_codes(occ_idx, lo, dims)
+
+
+def _dense_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, dims) of the dense kernel's key box around keys ``lo..hi`` (3,): padded by
+    :data:`_BOX_PAD`, aligned to 4 x 4 x 4 tiles, rows of whole 64-bit words (see
+    :func:`_dense_codes`)."""
+    lo = (lo - _BOX_PAD) & ~np.int64(3)
+    dims = hi + _BOX_PAD - lo + 1
+    dims = (dims + 3) & ~np.int64(3)
+    dims[0] = (dims[0] + _WORD - 1) // _WORD * _WORD
+    return lo, dims
 
 
 def _scan_dense(
@@ -579,8 +616,7 @@ def scan_update(
             upd.rays,
         )
     ends, keys, status, lo, hi = _clipped_ends(p, o, float(resolution), mr, cr)
-    lo = lo - _BOX_PAD
-    dims = hi + _BOX_PAD - lo + 1
+    lo, dims = _dense_box(lo, hi)
     if float(np.prod(dims.astype(np.float64))) <= _DENSE_VOXEL_LIMIT:
         free, occ = _scan_dense(ends, keys, status, o, float(resolution), lo, dims)
     else:

@@ -1,12 +1,20 @@
-"""Storage of per-voxel log-odds: a numba hash table of finest-level voxels plus coarse leaves.
+"""Storage of per-voxel log-odds: a numba block table of finest-level voxels plus coarse leaves.
 
-A sensor-built map only has finest-level voxels (depth 16), kept in an open-addressing hash table
-(``int64`` Morton code -> ``float32`` log-odds) so that a scan's updates and point queries are O(1)
-per voxel inside numba kernels. A map read from a ``.bt``/``.ot`` file may also hold *coarse
-leaves*: pruned octree nodes at depth < 16 that stand for ``8**(16 - depth)`` voxels with one value.
-They are kept as they are (a sorted array of Morton ranges), which bounds memory by the file size,
-and split exactly like OctoMap's ``expandNode`` (one level at a time, 8 children carrying the
-parent's value) when an update touches them. Queries give the same answer either way.
+A sensor-built map only has finest-level voxels (depth 16). They are kept in blocks of 4 x 4 x 4
+voxels, the voxels whose Morton codes share all bits but the low six: an open-addressing hash
+table (``int64`` block code -> block number) over a ``float32`` array of whole blocks, NaN where a
+voxel is unknown (the layout of voxblox's block maps). A scan's updates walk its codes in order,
+so neighbours share a block: one hash probe serves up to 64 voxels and their values sit side by
+side in memory. Measured on the voxel updates of whole closed-loop flights (``forest``, 40 M
+updates; ``narrow_passage_20cm`` at 2 cm, 123 M updates) against the former table of single voxels
+(Fibonacci hashing, one probe and one cache line per voxel): 0.31-0.44x and 0.26x the time, 0.34x
+the memory, the same values bit for bit.
+
+A map read from a ``.bt``/``.ot`` file may also hold *coarse leaves*: pruned octree nodes at
+depth < 16 that stand for ``8**(16 - depth)`` voxels with one value. They are kept as they are (a
+sorted array of Morton ranges), which bounds memory by the file size, and split exactly like
+OctoMap's ``expandNode`` (one level at a time, 8 children carrying the parent's value) when an
+update touches them. Queries give the same answer either way.
 """
 
 from __future__ import annotations
@@ -21,189 +29,195 @@ from secure3d.mapping.keys import TREE_DEPTH
 
 _EMPTY = -1
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+#: Voxels of a block: the low BLOCK_BITS bits of a Morton code interleave the low two bits of x,
+#: y and z, so a block is a 4 x 4 x 4 cube. (8 x 8 x 8 blocks were 10-30 % faster on dense scans
+#: but cost 2 KB per isolated voxel; a 4 x 4 x 4 block costs 256 bytes.)
+BLOCK_BITS = 6
+BLOCK = 1 << BLOCK_BITS
+_INNER = BLOCK - 1
 #: Largest number of voxels a coarse-leaf expansion may produce (about 1 GB of centres). Asking
 #: for more (e.g. every free voxel of a huge pruned ``.bt``) raises instead of exhausting memory.
 MAX_EXPANDED_VOXELS = 40_000_000
 
 
 @numba.njit(cache=True, inline="always")
-def _slot(key: int, shift: int) -> int:
-    return np.int64((np.uint64(key) * _GOLDEN) >> np.uint64(shift))
+def _probe(bkeys: np.ndarray, shift: int, bc: int) -> int:
+    """Slot of block ``bc`` in the hash, or the empty slot where it would go."""
+    mask = bkeys.shape[0] - 1
+    h = np.int64((np.uint64(bc) * _GOLDEN) >> np.uint64(shift))
+    while bkeys[h] != bc and bkeys[h] != _EMPTY:
+        h = (h + 1) & mask
+    return h
 
 
 @numba.njit(cache=True)
-def _lookup(keys: np.ndarray, shift: int, codes: np.ndarray) -> np.ndarray:
-    """Slot of each code in the table, or -1 (codes of -1 stand for invalid points)."""
-    mask = keys.shape[0] - 1
-    out = np.empty(codes.shape[0], np.int64)
+def _lookup(
+    bkeys: np.ndarray, bids: np.ndarray, shift: int, vals: np.ndarray, codes: np.ndarray
+) -> np.ndarray:
+    """Index into ``vals`` of each code's voxel, or -1 if unknown (or the code negative)."""
+    out = np.full(codes.shape[0], -1, np.int64)
+    last = -2
+    base = -1
     for i in range(codes.shape[0]):
         c = codes[i]
-        out[i] = -1
         if c < 0:
             continue
-        h = _slot(c, shift)
-        while True:
-            k = keys[h]
-            if k == c:
-                out[i] = h
-                break
-            if k == _EMPTY:
-                break
-            h = (h + 1) & mask
+        bc = c >> BLOCK_BITS
+        if bc != last:
+            h = _probe(bkeys, shift, bc)
+            base = -1 if bkeys[h] == _EMPTY else np.int64(bids[h]) << BLOCK_BITS
+            last = bc
+        if base >= 0:
+            j = base + (c & _INNER)
+            if not np.isnan(vals[j]):
+                out[i] = j
     return out
 
 
 @numba.njit(cache=True)
-def _insert_slots(keys: np.ndarray, shift: int, codes: np.ndarray) -> tuple[np.ndarray, int]:
-    """Slots of ``codes``, inserting missing ones (capacity must suffice); returns (slots, new)."""
-    mask = keys.shape[0] - 1
-    out = np.empty(codes.shape[0], np.int64)
-    new = 0
-    for i in range(codes.shape[0]):
-        c = codes[i]
-        h = _slot(c, shift)
-        while True:
-            k = keys[h]
-            if k == c:
-                break
-            if k == _EMPTY:
-                keys[h] = c
-                new += 1
-                break
-            h = (h + 1) & mask
-        out[i] = h
-    return out, new
-
-
-@numba.njit(cache=True)
-def _add_logodds(
-    keys: np.ndarray,
-    vals: np.ndarray,
+def _update(
+    bkeys: np.ndarray,
+    bids: np.ndarray,
     shift: int,
+    vals: np.ndarray,
+    nblocks: int,
     codes: np.ndarray,
     start: int,
-    room: int,
+    values: np.ndarray,
     delta: np.float32,
     clamp_min: np.float32,
     clamp_max: np.float32,
-) -> tuple[int, int]:
-    """OctoMap's ``updateNodeLogOdds`` for ``codes[start:]`` (new voxels start at 0), stopping
-    before the code that would be the ``room + 1``-th new entry; returns (where it stopped, #new).
+) -> tuple[int, int, int]:
+    """Update ``codes[start:]``, stopping before a code whose block does not fit; returns (where it
+    stopped, blocks in use, voxels added).
 
-    Arithmetic is float32 like OctoMap's nodes: ``v += delta`` then clamp to [min, max].
+    With ``values`` of the codes' length: store ``values[i]`` (overwrite). Else OctoMap's
+    ``updateNodeLogOdds``, float32 like OctoMap's nodes: ``v += delta`` (new voxels start at 0),
+    then clamp to [min, max].
     """
-    mask = keys.shape[0] - 1
+    room = bkeys.shape[0] // 2 - nblocks
+    overwrite = values.shape[0] == codes.shape[0]
     new = 0
+    last = -1
+    base = 0
     for i in range(start, codes.shape[0]):
         c = codes[i]
-        h = _slot(c, shift)
-        while True:
-            k = keys[h]
-            if k == c:
-                v = vals[h] + delta
-                break
-            if k == _EMPTY:
-                if new == room:
-                    return i, new
-                keys[h] = c
-                new += 1
-                v = np.float32(0.0) + delta
-                break
-            h = (h + 1) & mask
-        if v < clamp_min:
-            v = clamp_min
-        elif v > clamp_max:
-            v = clamp_max
-        vals[h] = v
-    return codes.shape[0], new
+        bc = c >> BLOCK_BITS
+        if bc != last:
+            h = _probe(bkeys, shift, bc)
+            if bkeys[h] == _EMPTY:
+                if room == 0:
+                    return i, nblocks, new
+                bkeys[h] = bc
+                bids[h] = nblocks
+                nblocks += 1
+                room -= 1
+            base = np.int64(bids[h]) << BLOCK_BITS
+            last = bc
+        j = base + (c & _INNER)
+        v = vals[j]
+        if np.isnan(v):
+            new += 1
+            v = np.float32(0.0)
+        if overwrite:
+            v = values[i]
+        else:
+            v = v + delta
+            if v < clamp_min:
+                v = clamp_min
+            elif v > clamp_max:
+                v = clamp_max
+        vals[j] = v
+    return codes.shape[0], nblocks, new
 
 
 @numba.njit(cache=True)
-def _rehash(
-    keys: np.ndarray, vals: np.ndarray, new_cap: int, shift: int
-) -> tuple[np.ndarray, np.ndarray]:
+def _rehash(bkeys: np.ndarray, bids: np.ndarray, new_cap: int, shift: int) -> tuple:
     nk = np.full(new_cap, _EMPTY, np.int64)
-    nv = np.empty(new_cap, np.float32)
-    mask = new_cap - 1
-    for i in range(keys.shape[0]):
-        c = keys[i]
-        if c != _EMPTY:
-            h = _slot(c, shift)
-            while nk[h] != _EMPTY:
-                h = (h + 1) & mask
-            nk[h] = c
-            nv[h] = vals[i]
-    return nk, nv
+    ni = np.zeros(new_cap, np.int32)
+    for i in range(bkeys.shape[0]):
+        if bkeys[i] != _EMPTY:
+            h = _probe(nk, shift, bkeys[i])
+            nk[h] = bkeys[i]
+            ni[h] = bids[i]
+    return nk, ni
 
 
 class VoxelTable:
-    """Hash table from finest-level Morton code (``int64``) to a ``float32`` value.
+    """Map from finest-level Morton code (``int64``) to a ``float32`` value, in 4 x 4 x 4 blocks.
 
-    Linear probing with Fibonacci hashing, load factor at most 1/2, no deletion (OctoMap never
-    deletes voxels on update either).
+    The block hash uses linear probing with Fibonacci hashing at load factor at most 1/2; block
+    storage holds as many blocks as half the hash's slots. No deletion (OctoMap never deletes
+    voxels on update either); ``count`` is the number of voxels held.
     """
 
     def __init__(self, capacity: int = 1 << 12) -> None:
-        cap = 1 << max(4, int(np.ceil(np.log2(max(capacity, 16)))))
-        self.keys = np.full(cap, _EMPTY, np.int64)
-        self.vals = np.zeros(cap, np.float32)
+        """Room for ``capacity`` voxels packed in whole blocks (a sparse map grows as it needs)."""
+        self._allocate(max(16, 2 * (int(capacity) >> BLOCK_BITS)))
+        self.nblocks = 0
         self.count = 0
+
+    def _allocate(self, slots: int) -> None:
+        cap = 1 << max(4, int(np.ceil(np.log2(max(slots, 16)))))
+        self.bkeys = np.full(cap, _EMPTY, np.int64)
+        self.bids = np.zeros(cap, np.int32)
+        self.vals = np.full((cap // 2) << BLOCK_BITS, np.nan, np.float32)
 
     @property
     def _shift(self) -> int:
-        return 64 - int(self.keys.shape[0]).bit_length() + 1
+        return 64 - int(self.bkeys.shape[0]).bit_length() + 1
 
-    def reserve(self, extra: int) -> None:
-        """Grow so that ``extra`` more entries keep the load factor at most 1/2."""
-        need = 2 * (self.count + int(extra))
-        cap = self.keys.shape[0]
+    @property
+    def capacity(self) -> int:
+        """Blocks the table holds before it grows."""
+        return self.bkeys.shape[0] // 2
+
+    def reserve_blocks(self, extra: int) -> None:
+        """Grow so that ``extra`` more blocks fit (hash load factor at most 1/2)."""
+        need = 2 * (self.nblocks + int(extra))
+        cap = self.bkeys.shape[0]
         if need <= cap:
             return
         while cap < need:
             cap *= 2
-        self.keys, self.vals = _rehash(self.keys, self.vals, cap, 64 - cap.bit_length() + 1)
+        self.bkeys, self.bids = _rehash(self.bkeys, self.bids, cap, 64 - cap.bit_length() + 1)
+        vals = np.full((cap // 2) << BLOCK_BITS, np.nan, np.float32)
+        vals[: self.vals.shape[0]] = self.vals
+        self.vals = vals
 
-    def _room(self) -> int:
-        """New entries the table takes before its load factor exceeds 1/2."""
-        return max(0, self.keys.shape[0] // 2 - self.count)
-
-    def slots(self, codes: NDArray[np.int64]) -> NDArray[np.int64]:
-        """Slot of each code, ``-1`` if absent (or if the code is negative)."""
-        return _lookup(self.keys, self._shift, np.ascontiguousarray(codes, dtype=np.int64))
+    def _index(self, codes: NDArray[np.int64]) -> NDArray[np.int64]:
+        """Index into the block storage of each code's voxel, ``-1`` if unknown or negative."""
+        codes = np.ascontiguousarray(codes, dtype=np.int64)
+        return _lookup(self.bkeys, self.bids, self._shift, self.vals, codes)
 
     def get(self, codes: NDArray[np.int64]) -> NDArray[np.float32]:
         """Values of ``codes``; NaN where absent."""
-        s = self.slots(codes)
+        s = self._index(codes)
         out = np.full(s.shape[0], np.nan, np.float32)
         hit = s >= 0
         out[hit] = self.vals[s[hit]]
         return out
 
-    def set(self, codes: NDArray[np.int64], values: NDArray[np.float32]) -> None:
-        """Insert or overwrite; ``codes`` must be unique."""
-        codes = np.ascontiguousarray(codes, dtype=np.int64)
-        self.reserve(codes.shape[0])
-        s, new = _insert_slots(self.keys, self._shift, codes)
-        self.vals[s] = values
-        self.count += int(new)
-
-    def add_logodds(
-        self, codes: NDArray[np.int64], delta: float, clamp_min: float, clamp_max: float
+    def _apply(
+        self,
+        codes: NDArray[np.int64],
+        values: NDArray[np.float32],
+        delta: float,
+        clamp_min: float,
+        clamp_max: float,
     ) -> None:
-        """Add ``delta`` to each (unique) code's log-odds, creating at 0, clamping (float32)."""
         codes = np.ascontiguousarray(codes, dtype=np.int64)
-        # Grow only when the entries actually added need it, not whenever len(codes) might: most
-        # codes of a scan are already in the table (a 2 cm map, 6M codes a frame, 0.4-1M of them
-        # new, held 33M voxels in 134M slots when every call reserved room for all its codes).
         done = 0
         while True:
-            done, new = _add_logodds(
-                self.keys,
-                self.vals,
+            done, self.nblocks, new = _update(
+                self.bkeys,
+                self.bids,
                 self._shift,
+                self.vals,
+                self.nblocks,
                 codes,
                 done,
-                self._room(),
+                values,
                 np.float32(delta),
                 np.float32(clamp_min),
                 np.float32(clamp_max),
@@ -211,21 +225,54 @@ class VoxelTable:
             self.count += int(new)
             if done == codes.shape[0]:
                 return
-            # out of room: grow as if every remaining code were new (one rehash for a fresh map)
-            self.reserve(codes.shape[0] - done)
+            # out of room: grow as if each remaining code started a block, up to twice the size
+            self.reserve_blocks(min(codes.shape[0] - done, max(self.nblocks, 16)))
+
+    def set(self, codes: NDArray[np.int64], values: NDArray[np.float32]) -> None:
+        """Insert or overwrite; ``codes`` must be unique and ``values`` not NaN (NaN is how the
+        table marks an unknown voxel)."""
+        values = np.ascontiguousarray(values, dtype=np.float32)
+        if values.shape != np.shape(codes):
+            raise GeometryError(f"{np.shape(codes)} codes but {values.shape} values")
+        if np.isnan(values).any():
+            raise GeometryError("a voxel's value must not be NaN (NaN marks unknown voxels)")
+        if values.size:
+            self.reserve_blocks(np.unique(np.asarray(codes) >> BLOCK_BITS).size)
+            self._apply(codes, values, 0.0, 0.0, 0.0)
+
+    def add_logodds(
+        self, codes: NDArray[np.int64], delta: float, clamp_min: float, clamp_max: float
+    ) -> None:
+        """Add ``delta`` to each (unique) code's log-odds, creating at 0, clamping (float32). The
+        table grows only for the blocks actually added: most of a scan's voxels are known."""
+        self._apply(codes, np.empty(0, np.float32), delta, clamp_min, clamp_max)
+
+    def _blocks(self) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+        """Codes of the blocks in use, sorted, and their values (n, BLOCK)."""
+        used = np.flatnonzero(self.bkeys != _EMPTY)
+        order = np.argsort(self.bkeys[used], kind="stable")
+        used = used[order]
+        return self.bkeys[used], self.vals.reshape(-1, BLOCK)[self.bids[used]]
 
     def items(self) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
         """All (codes, values), sorted by code (depth-first octree order)."""
-        used = self.keys != _EMPTY
-        codes = self.keys[used]
-        vals = self.vals[used]
-        order = np.argsort(codes, kind="stable")
-        return codes[order], vals[order]
+        blocks, vals = self._blocks()
+        known = ~np.isnan(vals)
+        codes = (blocks[:, None] << BLOCK_BITS) | np.arange(BLOCK, dtype=np.int64)
+        return codes[known], vals[known]
+
+    def codes_at_least(self, threshold: float) -> NDArray[np.int64]:
+        """The codes whose value is >= ``threshold``, sorted."""
+        blocks, vals = self._blocks()
+        codes = (blocks[:, None] << BLOCK_BITS) | np.arange(BLOCK, dtype=np.int64)
+        return codes[vals >= threshold]
 
     def copy(self) -> VoxelTable:
         out = VoxelTable.__new__(VoxelTable)
-        out.keys = self.keys.copy()
+        out.bkeys = self.bkeys.copy()
+        out.bids = self.bids.copy()
         out.vals = self.vals.copy()
+        out.nblocks = self.nblocks
         out.count = self.count
         return out
 
@@ -321,13 +368,12 @@ class LeafLayer:
     ) -> NDArray[np.int64]:
         """The finest-level codes whose value is >= ``threshold`` (coarse leaves expanded), sorted:
         ``codes[vals >= threshold]`` of :meth:`voxels` without sorting every voxel."""
-        t = self.table
-        codes = t.keys[(t.keys != _EMPTY) & (t.vals >= threshold)]
+        codes = self.table.codes_at_least(threshold)
         if self.c_start.size:
             sel = self.c_val >= threshold
             ccodes, _ = expand_ranges(self.c_start[sel], self.c_depth[sel], limit - codes.size)
-            codes = np.concatenate([codes, ccodes])
-        return np.sort(codes)
+            codes = np.sort(np.concatenate([codes, ccodes]))
+        return codes
 
     # ------------------------------------------------------------------ updates
 

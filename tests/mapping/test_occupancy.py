@@ -291,23 +291,51 @@ def test_sparse_closing_equals_the_dense_closing(rng):
             np.testing.assert_array_equal(got, expected)
 
 
-def test_voxel_table_grows_by_the_entries_it_adds(rng):
-    """add_logodds grows when the load factor would pass 1/2 by entries actually added (possibly
-    several times within one call), and updates every code exactly once, as a dict would."""
-    from secure3d.mapping.store import VoxelTable
+@pytest.mark.parametrize("span", [5000, 1 << 40])
+def test_voxel_table_grows_by_the_blocks_it_adds(rng, span):
+    """add_logodds grows when the blocks actually added need it (possibly several times within one
+    call), and updates every code exactly once, as a dict would; get, set and the sorted listings
+    agree with the dict. Dense codes (most share 4 x 4 x 4 blocks) and scattered ones (one voxel a
+    block)."""
+    from secure3d.mapping.store import BLOCK_BITS, VoxelTable
 
     table, ref = VoxelTable(capacity=16), {}
     for _ in range(6):
-        codes = rng.choice(5000, size=rng.integers(1, 3000), replace=False).astype(np.int64)
+        codes = rng.choice(span, size=rng.integers(1, 3000), replace=False).astype(np.int64)
         delta = float(rng.uniform(-0.5, 0.9))
         table.add_logodds(codes, delta, -2.0, 3.5)
         for c in codes.tolist():
             ref[c] = float(np.clip(np.float32(ref.get(c, 0.0)) + np.float32(delta), -2.0, 3.5))
-        assert table.count == len(ref) <= table.keys.shape[0] // 2
+        blocks = len({c >> BLOCK_BITS for c in ref})
+        assert table.count == len(ref) and table.nblocks == blocks <= table.capacity
     got_codes, got_vals = table.items()
     assert got_codes.tolist() == sorted(ref)
     np.testing.assert_allclose(got_vals, [ref[c] for c in sorted(ref)], rtol=1e-6)
+    probe = np.concatenate([got_codes[::7], rng.integers(0, span, 500), [-1]])
+    want = [ref.get(c, np.nan) if c >= 0 else np.nan for c in probe.tolist()]
+    np.testing.assert_allclose(table.get(probe), want, rtol=1e-6)
+    at_least = [c for c in sorted(ref) if ref[c] >= 0.5]
+    assert table.codes_at_least(0.5).tolist() == at_least
     # codes already present take no room: the capacity stays
-    cap = table.keys.shape[0]
+    cap = table.capacity
     table.add_logodds(got_codes, -0.1, -2.0, 3.5)
-    assert table.keys.shape[0] == cap and table.count == len(ref)
+    assert table.capacity == cap and table.count == len(ref)
+    # set overwrites and inserts; a copy is independent
+    copy = table.copy()
+    fresh = np.array([span + 3, span + 64 * 9], np.int64)
+    table.set(np.concatenate([got_codes[:2], fresh]), np.array([1.0, -1.0, 2.0, 3.0], np.float32))
+    np.testing.assert_array_equal(table.get(got_codes[:2]), [1.0, -1.0])
+    assert table.count == len(ref) + 2 and copy.count == len(ref)
+    assert np.isnan(copy.get(fresh)).all()
+
+
+def test_voxel_table_set_rejects_nan_and_mismatched_values():
+    """NaN marks an unknown voxel, so a NaN value cannot be stored; values must match codes."""
+    from secure3d.mapping.store import VoxelTable
+
+    table = VoxelTable()
+    with pytest.raises(GeometryError, match="NaN"):
+        table.set(np.array([5], np.int64), np.array([np.nan], np.float32))
+    with pytest.raises(GeometryError, match="values"):
+        table.set(np.array([5, 6], np.int64), np.array([1.0], np.float32))
+    assert table.count == 0
