@@ -58,6 +58,7 @@ from secure3d.simulation.modes import (
     RunSettings,
     Trigger,
     detour_reason,
+    hold_after,
     log,
 )
 from secure3d.simulation.recheck import plan_unsafe
@@ -424,10 +425,12 @@ class Flight:
         }[self.mode]()
 
     def reference_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """The followed plan's state and control now."""
+        """The followed plan's state and control now; past its end, a hold (:func:`hold_after`)."""
         from secure3d.planning.trajectory import Interpolant
 
         p = self.current.plan
+        if self.t - self.current.start >= p.times[-1]:
+            return hold_after(self.model, p)
         if self.reference[0] is not p:
             self.reference = (p, Interpolant(self.model, p.times, p.states, p.controls))
         x_ref, u_ref = self.reference[1](np.array([self.t - self.current.start]))

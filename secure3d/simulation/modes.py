@@ -158,6 +158,21 @@ class Followed:
     problem: object
 
 
+def hold_after(model: object, plan: PlanResult) -> tuple[np.ndarray, np.ndarray]:
+    """The reference (x (nx,), u (nu,)) once ``plan`` has ended: at rest where it ends, level, its
+    heading kept, with the model's nominal control (hover, or no acceleration).
+
+    The last node's own state and control are no hold: a minimum-time plan ends mid-manoeuvre (a
+    quadrotor's last node tilted at full thrust), and fed forward for ever they pushed the robot
+    off the goal, out of the plan's last reactive set (forest variant 80: 2.1 m, at up to 2.9 m/s,
+    after passing 6 cm from the goal at 1.6 m/s).
+    """
+    x_end = np.asarray(plan.states[-1], dtype=float)
+    position = np.asarray(model.position(x_end), dtype=float).ravel()
+    x = model.rest_state(position, float(model.yaw(x_end)))
+    return x, model.nominal_control(x)
+
+
 def detour_reason(
     positions: np.ndarray, final_time: float, p0: np.ndarray, goal: np.ndarray, max_speed: float
 ) -> str | None:

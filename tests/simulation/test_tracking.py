@@ -203,3 +203,46 @@ def test_diff_drive_tracker_follows_a_plan_that_reverses():
     assert heading[reversing].max() < 0.1, (
         f"heading error while reversing {heading[reversing].max():.3f}"
     )
+
+
+def _held(model, x0, x_ref, u_ref, seconds=4.0, dt=0.01):
+    """The state after tracking the constant reference (x_ref, u_ref) from x0 (the closed loop's
+    model.step and tracker)."""
+    tracker, x = make_tracker(model), np.asarray(x0, dtype=float)
+    for _ in range(int(round(seconds / dt))):
+        x = np.asarray(model.step(x, tracker.control(x, x_ref, u_ref), dt), dtype=float)
+    return x
+
+
+@pytest.mark.parametrize("name", ["point_mass", "quadrotor", "diff_drive"])
+def test_the_hold_after_a_plan_keeps_the_robot_at_rest_where_the_plan_ends(name):
+    """Past a plan's end the closed loop tracks :func:`hold_after`: at rest where the plan ends.
+
+    A minimum-time plan ends mid-manoeuvre. Fed forward for ever, its last node's control (what
+    the loop did before) pushed a quadrotor 2.1 m off its goal in forest variant 80; the point mass
+    drifts the same way. Here the last node holds a strong control and, for the quadrotor, a 0.6 rad
+    roll; the robot arrives moving at 1 m/s, 5 cm off along its heading.
+    """
+    from types import SimpleNamespace
+
+    from secure3d.geometry.transforms import yaw_matrix
+    from secure3d.simulation.modes import ARRIVAL_SPEED, hold_after
+
+    model = make_model(name)
+    yaw, p_end = 0.3, np.array([2.0, 1.0, 1.5])
+    heading = np.asarray(yaw_matrix(yaw), dtype=float)[:, 0]
+    x_end = model.initial_state(p_end, (0.0, 0.0, 0.0), yaw)
+    if name == "quadrotor":
+        x_end[6:10] = [np.cos(0.3) * np.cos(0.15), np.sin(0.3) * np.cos(0.15), 0.0, np.sin(0.15)]
+    u_end = 0.5 * (model.u_lo + model.u_hi) + 0.4 * (model.u_hi - model.u_lo)
+    x0 = model.initial_state(p_end - 0.05 * heading, 1.0 * heading, yaw)
+    x_ref, u_ref = hold_after(model, SimpleNamespace(states=np.array([x_end])))
+    np.testing.assert_allclose(model.position(x_ref), model.position(x_end))
+    np.testing.assert_allclose(model.velocity(x_ref), 0.0, atol=1e-12)
+    np.testing.assert_allclose(u_ref, model.nominal_control(x_ref))
+    x, end = _held(model, x0, x_ref, u_ref), model.position(x_end)
+    assert np.linalg.norm(model.position(x) - end) < 0.02
+    assert np.linalg.norm(model.velocity(x)) < 0.1 * ARRIVAL_SPEED
+    if name != "diff_drive":  # the last node as the hold: off by metres (a / kp), still moving
+        x_old = _held(model, x0, x_end, u_end)
+        assert np.linalg.norm(model.position(x_old) - end) > 0.5
