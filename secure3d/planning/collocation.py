@@ -101,7 +101,7 @@ def _solver_options(problem: PlanningProblem, planner: str = "secure") -> tuple[
         # diverging solve cannot outlast the plan budget's reserve: each failed attempt refactors
         # the KKT matrix with 8x the regularisation, ~27 factorizations up to 1e20. A forest
         # campaign replan (variant 151, call 2) spent 2.4-3.2 s in one such iteration and ended at
-        # 10.5-11.5 s against a 10 s budget; with 1e10 it ends at 8.7 s, in TIME_BUDGET as before.
+        # 10.5-11.5 s against a 10 s budget; with 1e10 it ends at 8.7-8.9 s, in TIME_BUDGET as before.
         # Every shipped scenario's cold secure plan is the same with 1e10 or 1e6 (iterations and
         # final time). Not for the baseline: its 793-iteration cloud_server solve changes.
         opts["ipopt.max_hessian_perturbation"] = MAX_HESSIAN_PERTURBATION
