@@ -248,23 +248,22 @@ class VoxelTable:
         self._apply(codes, np.empty(0, np.float32), delta, clamp_min, clamp_max)
 
     def _blocks(self) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
-        """Codes of the blocks in use, sorted, and their values (n, BLOCK)."""
+        """Codes (n, BLOCK) and values (n, BLOCK) of the blocks in use, blocks sorted by code (so
+        both read row by row are sorted)."""
         used = np.flatnonzero(self.bkeys != _EMPTY)
-        order = np.argsort(self.bkeys[used], kind="stable")
-        used = used[order]
-        return self.bkeys[used], self.vals.reshape(-1, BLOCK)[self.bids[used]]
+        used = used[np.argsort(self.bkeys[used], kind="stable")]
+        codes = (self.bkeys[used][:, None] << BLOCK_BITS) | np.arange(BLOCK, dtype=np.int64)
+        return codes, self.vals.reshape(-1, BLOCK)[self.bids[used]]
 
     def items(self) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
         """All (codes, values), sorted by code (depth-first octree order)."""
-        blocks, vals = self._blocks()
+        codes, vals = self._blocks()
         known = ~np.isnan(vals)
-        codes = (blocks[:, None] << BLOCK_BITS) | np.arange(BLOCK, dtype=np.int64)
         return codes[known], vals[known]
 
     def codes_at_least(self, threshold: float) -> NDArray[np.int64]:
         """The codes whose value is >= ``threshold``, sorted."""
-        blocks, vals = self._blocks()
-        codes = (blocks[:, None] << BLOCK_BITS) | np.arange(BLOCK, dtype=np.int64)
+        codes, vals = self._blocks()
         return codes[vals >= threshold]
 
     def copy(self) -> VoxelTable:
