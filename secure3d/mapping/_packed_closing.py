@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
 from secure3d.mapping.boxes import BLOCK_EDGE
-from secure3d.mapping.morton import _compact16
+from secure3d.mapping.morton import _compact16, _ctz
 
 __all__ = ["packed_closed_boxes"]
 
@@ -35,25 +35,6 @@ _ZERO = np.uint64(0)
 _ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
 _SIX = np.uint64(6)
 _63 = np.uint64(63)
-_DEBRUIJN = np.uint64(0x03F79D71B4CB0A89)
-_DEBRUIJN_SHIFT = np.uint64(58)
-
-
-def _debruijn_table() -> NDArray[np.int64]:
-    table = np.zeros(64, np.int64)
-    for i in range(64):
-        table[((1 << i) * 0x03F79D71B4CB0A89 % (1 << 64)) >> 58] = i
-    return table
-
-
-_CTZ = _debruijn_table()
-
-
-@numba.njit(cache=True, inline="always")
-def _ctz(w: np.uint64) -> int:
-    """Index of the lowest set bit of ``w`` (nonzero)."""
-    low = w & (~w + _ONE)
-    return _CTZ[(low * _DEBRUIJN) >> _DEBRUIJN_SHIFT]
 
 
 @numba.njit(cache=True)

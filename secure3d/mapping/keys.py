@@ -30,15 +30,18 @@ from secure3d.mapping.morton import (
     keys_to_coords,
     morton_decode,
     morton_encode,
+    tile_voxel_count,
+    tiles_to_codes,
     unique_sorted,
 )
 from secure3d.mapping.raycast import check_origin, check_points, ray_keys
-from secure3d.mapping.scan import ScanUpdate, scan_update
+from secure3d.mapping.scan import ScanTiles, ScanUpdate, scan_tiles, scan_update
 
 __all__ = [
     "KEY_LIMIT",
     "TREE_DEPTH",
     "TREE_MAX_VAL",
+    "ScanTiles",
     "ScanUpdate",
     "box_codes",
     "check_origin",
@@ -50,6 +53,9 @@ __all__ = [
     "morton_decode",
     "morton_encode",
     "ray_keys",
+    "scan_tiles",
     "scan_update",
+    "tile_voxel_count",
+    "tiles_to_codes",
     "unique_sorted",
 ]

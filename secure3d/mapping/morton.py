@@ -24,11 +24,14 @@ __all__ = [
     "TREE_MAX_VAL",
     "box_codes",
     "codes_to_coords",
+    "codes_to_tiles",
     "coords_to_codes",
     "coords_to_keys",
     "keys_to_coords",
     "morton_decode",
     "morton_encode",
+    "tile_voxel_count",
+    "tiles_to_codes",
     "unique_sorted",
 ]
 
@@ -64,6 +67,27 @@ def _compact16(v: int) -> int:
     v = (v | (v >> 8)) & 0x0000FF0000FF
     v = (v | (v >> 16)) & 0xFFFF
     return v
+
+
+_DEBRUIJN = np.uint64(0x03F79D71B4CB0A89)
+_DEBRUIJN_SHIFT = np.uint64(58)
+
+
+def _debruijn_table() -> NDArray[np.int64]:
+    table = np.zeros(64, np.int64)
+    for i in range(64):
+        table[((1 << i) * 0x03F79D71B4CB0A89 % (1 << 64)) >> 58] = i
+    return table
+
+
+_CTZ = _debruijn_table()
+
+
+@numba.njit(cache=True, inline="always")
+def _ctz(w: np.uint64) -> int:
+    """Index of the lowest set bit of ``w`` (nonzero): a de Bruijn multiply and a table lookup."""
+    low = w & (~w + np.uint64(1))
+    return _CTZ[(low * _DEBRUIJN) >> _DEBRUIJN_SHIFT]
 
 
 @numba.njit(cache=True, inline="always")
@@ -214,3 +238,65 @@ def keys_to_coords(keys: ArrayLike, resolution: float) -> NDArray[np.float64]:
 def codes_to_coords(codes: ArrayLike, resolution: float) -> NDArray[np.float64]:
     """Voxel centres of Morton codes, ``(n, 3) float64``."""
     return keys_to_coords(morton_decode(codes), resolution)
+
+
+# --------------------------------------------------------------------------- 4 x 4 x 4 tiles
+#
+# A *tile* is the 64 voxels whose Morton codes share all bits but the low six (a 4 x 4 x 4 cube,
+# a block of :class:`~secure3d.mapping.store.VoxelTable`). A set of voxels as tiles is two arrays:
+# the tiles' block codes (``code >> 6``) and one ``uint64`` mask per tile, bit ``i`` set when voxel
+# ``block << 6 | i`` is in the set.
+
+
+@numba.njit(cache=True)
+def _popcount_sum(masks: np.ndarray) -> int:
+    n = 0
+    for i in range(masks.shape[0]):
+        v = masks[i]
+        v = v - ((v >> np.uint64(1)) & np.uint64(0x5555555555555555))
+        v = (v & np.uint64(0x3333333333333333)) + (
+            (v >> np.uint64(2)) & np.uint64(0x3333333333333333)
+        )
+        v = (v + (v >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+        n += np.int64((v * np.uint64(0x0101010101010101)) >> np.uint64(56))
+    return n
+
+
+def tile_voxel_count(masks: ArrayLike) -> int:
+    """Number of voxels in tiles with these ``masks`` (uint64): their bits set."""
+    return int(_popcount_sum(np.ascontiguousarray(masks, dtype=np.uint64).reshape(-1)))
+
+
+@numba.njit(cache=True)
+def _tiles_to_codes_kernel(blocks: np.ndarray, masks: np.ndarray) -> np.ndarray:
+    out = np.empty(_popcount_sum(masks), np.int64)
+    j = 0
+    for i in range(masks.shape[0]):
+        m = masks[i]
+        base = blocks[i] << 6
+        while m:
+            out[j] = base | _ctz(m)
+            j += 1
+            m &= m - np.uint64(1)
+    return out
+
+
+def tiles_to_codes(blocks: ArrayLike, masks: ArrayLike) -> NDArray[np.int64]:
+    """The voxels of tiles (``blocks`` (m,) int64, ``masks`` (m,) uint64) as Morton codes (n,),
+    tile by tile, ascending within a tile."""
+    blocks = np.ascontiguousarray(blocks, dtype=np.int64).reshape(-1)
+    masks = np.ascontiguousarray(masks, dtype=np.uint64).reshape(-1)
+    if blocks.shape != masks.shape:
+        raise GeometryError(f"tiles: {blocks.shape[0]} block codes but {masks.shape[0]} masks")
+    return _tiles_to_codes_kernel(blocks, masks)
+
+
+def codes_to_tiles(codes: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.uint64]]:
+    """Morton codes (n,) (non-negative) as tiles: (block codes (m,) sorted, masks (m,))."""
+    codes = np.asarray(codes, dtype=np.int64).reshape(-1)
+    if codes.size and codes.min() < 0:
+        raise GeometryError("codes_to_tiles: codes must be non-negative")
+    blocks, inverse = np.unique(codes >> 6, return_inverse=True)
+    masks = np.zeros(blocks.shape[0], np.uint64)
+    np.bitwise_or.at(masks, inverse, np.left_shift(np.uint64(1), (codes & 63).astype(np.uint64)))
+    return blocks, masks

@@ -51,7 +51,8 @@ from secure3d.mapping.keys import (
     coords_to_codes,
     morton_decode,
     morton_encode,
-    scan_update,
+    scan_tiles,
+    tile_voxel_count,
 )
 from secure3d.mapping.occupancy_claims import ClaimEditing
 from secure3d.mapping.occupancy_files import OccupancyFiles
@@ -215,11 +216,13 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
         """
         mr = self._check_max_range(max_range)
         cr = self._check_max_range(clear_range, "clear_range")
-        upd = scan_update(
+        upd = scan_tiles(
             points, origin, self._resolution, mr, discretize=bool(discretize), clear_range=cr
         )
         p = self._params
-        self._sensor.add_logodds(upd.free, p.miss_log, p.clamp_min_log, p.clamp_max_log)
+        self._sensor.add_logodds_tiles(
+            upd.blocks, upd.masks, p.miss_log, p.clamp_min_log, p.clamp_max_log
+        )
         self._sensor.add_logodds(upd.occupied, p.hit_log, p.clamp_min_log, p.clamp_max_log)
         self._hits.add(upd.occupied)
         self._changed()
@@ -228,7 +231,7 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
             upd.skipped_nonfinite,
             upd.skipped_out_of_range,
             upd.clipped,
-            int(upd.free.size),
+            tile_voxel_count(upd.masks),
             int(upd.occupied.size),
             upd.occupied,
             upd.rays,

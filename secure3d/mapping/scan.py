@@ -20,10 +20,18 @@ from numpy.typing import ArrayLike, NDArray
 
 import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
 from secure3d.errors import GeometryError
-from secure3d.mapping.morton import EMPTY, KEY_LIMIT, TREE_MAX_VAL, _morton3, _spread16
+from secure3d.mapping.morton import (
+    EMPTY,
+    KEY_LIMIT,
+    TREE_MAX_VAL,
+    _morton3,
+    _spread16,
+    codes_to_tiles,
+    tiles_to_codes,
+)
 from secure3d.mapping.raycast import _clipped_ends, _dda_setup, _key_of, check_origin, check_points
 
-__all__ = ["ScanUpdate", "scan_update"]
+__all__ = ["ScanTiles", "ScanUpdate", "scan_tiles", "scan_update"]
 
 # Fibonacci hashing constant (2**64 / golden ratio): spreads clustered Morton codes over the table.
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -228,44 +236,48 @@ def _tile_inner() -> np.ndarray:
 
 
 _TILE_INNER = _tile_inner()
-#: Index of the lowest set bit of a nibble (1..15; entry 0 unused).
-_LOWEST_BIT = np.array([0, 0, 1, 0, 2, 0, 1, 0, 3, 0, 1, 0, 2, 0, 1, 0], np.int64)
+
+
+def _row_masks() -> np.ndarray:
+    """(16, 16) uint64: the tile-mask bits (bit ``i``: the voxel of Morton inner code ``i``) of the
+    x bits ``b`` (a nibble) in row ``r = 4 z + y`` of a 4 x 4 x 4 tile."""
+    inner = _TILE_INNER.reshape(16, 4)  # [r, x]
+    out = np.zeros((16, 16), np.uint64)
+    for r in range(16):
+        for b in range(16):
+            for x in range(4):
+                if (b >> x) & 1:
+                    out[r, b] |= np.uint64(1) << np.uint64(inner[r, x])
+    return out
+
+
+_ROW_MASKS = _row_masks()
 #: Voxels along x in one bitmap word, and tiles (4 voxels wide) in it.
 _WORD = 64
 _TILES_PER_WORD = 16
 
 
 @numba.njit(cache=True)
-def _dense_codes(
-    free_bits: np.ndarray,
-    occ_idx: np.ndarray,
-    occ_bits: np.ndarray,
-    lo: np.ndarray,
-    dims: np.ndarray,
+def _dense_tiles(
+    free_bits: np.ndarray, occ_bits: np.ndarray, lo: np.ndarray, dims: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(free codes, occupied codes) of a dense scan; occupied wins over free within a scan.
+    """The free voxels of a dense scan (occupied wins over free within a scan) as 4 x 4 x 4 tiles:
+    (block codes (m,) int64, masks (m,) uint64; :mod:`secure3d.mapping.morton`'s tile form).
 
-    The box must be aligned to 4 x 4 x 4 tiles (``lo`` multiples of 4, ``dims`` multiples of 4,
-    x a multiple of 64 so that a row is whole words: :func:`_dense_box`). The free voxels come out
-    tile by tile, so that every 4 x 4 x 4 block of the voxel store is updated in one visit: one
-    hash probe and one stretch of memory for up to 64 voxels. Tiles are read from 16 rows at a
-    time (4 in y by 4 in z), one word (16 tiles) of each; a word column with no free bit in its 16
-    rows is skipped whole. The occupied ones keep their order of first appearance.
+    The box must be aligned to tiles (``lo`` multiples of 4, ``dims`` multiples of 4, x a multiple
+    of 64 so that a row is whole words: :func:`_dense_box`). Tiles are read from 16 rows at a time
+    (4 in y by 4 in z), one word (16 tiles) of each; a word column with no free bit in its 16 rows
+    is skipped whole. A tile is a block of the voxel store: one hash probe and one stretch of
+    memory update up to 64 voxels (:meth:`~secure3d.mapping.store.VoxelTable.add_logodds_tiles`).
     """
     nx, ny, nz = dims[0], dims[1], dims[2]
     wpr = nx // _WORD
-    one = np.uint64(1)
     nib = np.uint64(15)
-    n = 0
-    for w in range(free_bits.shape[0]):
-        v = free_bits[w] & ~occ_bits[w]
-        while v:
-            v &= v - one
-            n += 1
-    out = np.empty(n, np.int64)
+    # the box holds as many tiles as bitmap words (64 voxels each); untouched pages stay virtual
+    blocks = np.empty(free_bits.shape[0], np.int64)
+    masks = np.empty(free_bits.shape[0], np.uint64)
     rows = np.empty(16, np.int64)
     words = np.empty(16, np.uint64)  # free bits of one word column, row r = 4 z + y
-    inner = _TILE_INNER.reshape(-1)  # [4 r + x]
     j = 0
     for tz in range(0, nz, 4):
         mz = _spread16(lo[2] + tz) << 2
@@ -285,20 +297,19 @@ def _dense_codes(
                     sh = np.uint64(4 * t)
                     if (any_bits >> sh) & nib == 0:
                         continue
-                    code = myz | _spread16(lo[0] + wx * _WORD + 4 * t)
+                    m = np.uint64(0)
                     for r in range(16):
-                        bits = (words[r] >> sh) & nib
-                        while bits:
-                            out[j] = code | inner[4 * r + _LOWEST_BIT[bits]]
-                            j += 1
-                            bits &= bits - one
-    return out, _idx_to_codes(occ_idx, lo, dims)
+                        m |= _ROW_MASKS[r, (words[r] >> sh) & nib]
+                    blocks[j] = (myz | _spread16(lo[0] + wx * _WORD + 4 * t)) >> 6
+                    masks[j] = m
+                    j += 1
+    return blocks[:j], masks[:j]
 
 
 def _dense_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(lo, dims) of the dense kernel's key box around keys ``lo..hi`` (3,): padded by
     :data:`_BOX_PAD`, aligned to 4 x 4 x 4 tiles, rows of whole 64-bit words (see
-    :func:`_dense_codes`)."""
+    :func:`_dense_tiles`)."""
     lo = (lo - _BOX_PAD) & ~np.int64(3)
     dims = hi + _BOX_PAD - lo + 1
     dims = (dims + 3) & ~np.int64(3)
@@ -314,10 +325,12 @@ def _scan_dense(
     resolution: float,
     lo: np.ndarray,
     dims: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """(free codes, occupied codes) of a scan whose key box fits dense bitmaps."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(free tiles' block codes, their masks, occupied codes) of a scan whose key box fits dense
+    bitmaps."""
     occ, free_bits, occ_bits = _dense_trace(ends, end_keys, status, origin, resolution, lo, dims)
-    return _dense_codes(free_bits, occ, occ_bits, lo, dims)
+    blocks, masks = _dense_tiles(free_bits, occ_bits, lo, dims)
+    return blocks, masks, _idx_to_codes(occ, lo, dims)
 
 
 @numba.njit(cache=True)
@@ -559,6 +572,34 @@ class ScanUpdate(NamedTuple):
     rays: int
 
 
+class ScanTiles(NamedTuple):
+    """A scan's voxel updates (:class:`ScanUpdate`) with its free voxels as 4 x 4 x 4 tiles, the
+    form the dense kernel builds and the voxel store updates block by block
+    (:meth:`~secure3d.mapping.store.VoxelTable.add_logodds_tiles`); :meth:`free` lists them.
+
+    Attributes
+    ----------
+    blocks, masks : (m,) int64, (m,) uint64
+        The free voxels: tile ``i`` holds voxel ``blocks[i] << 6 | b`` for every set bit ``b`` of
+        ``masks[i]`` (disjoint from ``occupied``; each tile once).
+    occupied, points_used, skipped_nonfinite, skipped_out_of_range, clipped, rays
+        As :class:`ScanUpdate`.
+    """
+
+    blocks: NDArray[np.int64]
+    masks: NDArray[np.uint64]
+    occupied: NDArray[np.int64]
+    points_used: int
+    skipped_nonfinite: int
+    skipped_out_of_range: int
+    clipped: int
+    rays: int
+
+    def free(self) -> NDArray[np.int64]:
+        """Morton codes of the free voxels (tile by tile)."""
+        return tiles_to_codes(self.blocks, self.masks)
+
+
 def scan_update(
     points: ArrayLike,
     origin: ArrayLike,
@@ -597,6 +638,21 @@ def scan_update(
     -------
     ScanUpdate
     """
+    s = scan_tiles(points, origin, resolution, max_range, discretize, clear_range)
+    return ScanUpdate(s.free(), *s[2:])
+
+
+def scan_tiles(
+    points: ArrayLike,
+    origin: ArrayLike,
+    resolution: float,
+    max_range: float | None = None,
+    discretize: bool = False,
+    clear_range: float | None = None,
+) -> ScanTiles:
+    """:func:`scan_update` with the free voxels as 4 x 4 x 4 tiles (:class:`ScanTiles`), as the
+    dense kernel builds them: what :meth:`OccupancyMap.insert_point_cloud` feeds the voxel store,
+    without listing every free voxel's code. Same parameters and errors as :func:`scan_update`."""
     p = np.ascontiguousarray(check_points(points))
     o = check_origin(origin, resolution)
     mr = -1.0 if max_range is None or not np.isfinite(max_range) else float(max_range)
@@ -605,22 +661,18 @@ def scan_update(
         raise GeometryError(f"clear_range: must be in [0, max_range = {mr}], got {clear_range!r}")
     if discretize:
         centres, nonfinite, outside = _discretize_kernel(p, float(resolution))
-        upd = scan_update(centres, o.astype(np.float64), resolution, max_range, False, clear_range)
-        return ScanUpdate(
-            upd.free,
-            upd.occupied,
-            p.shape[0] - nonfinite - outside,
-            nonfinite,
-            outside,
-            upd.clipped,
-            upd.rays,
+        s = scan_tiles(centres, o.astype(np.float64), resolution, max_range, False, clear_range)
+        used = p.shape[0] - nonfinite - outside
+        return s._replace(
+            points_used=used, skipped_nonfinite=nonfinite, skipped_out_of_range=outside
         )
     ends, keys, status, lo, hi = _clipped_ends(p, o, float(resolution), mr, cr)
     lo, dims = _dense_box(lo, hi)
     if float(np.prod(dims.astype(np.float64))) <= _DENSE_VOXEL_LIMIT:
-        free, occ = _scan_dense(ends, keys, status, o, float(resolution), lo, dims)
+        blocks, masks, occ = _scan_dense(ends, keys, status, o, float(resolution), lo, dims)
     else:
         free, occ = _scan_chunked_kernel(ends, keys, status, o, float(resolution))
+        blocks, masks = codes_to_tiles(free)
     counts = np.bincount(status, minlength=4)
     used = int(counts[0] + counts[1])
-    return ScanUpdate(free, occ, used, int(counts[2]), int(counts[3]), int(counts[1]), used)
+    return ScanTiles(blocks, masks, occ, used, int(counts[2]), int(counts[3]), int(counts[1]), used)

@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
 from secure3d.errors import GeometryError
-from secure3d.mapping.keys import TREE_DEPTH
+from secure3d.mapping.morton import TREE_DEPTH, _ctz, tiles_to_codes
 
 _EMPTY = -1
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -35,6 +35,7 @@ _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 BLOCK_BITS = 6
 BLOCK = 1 << BLOCK_BITS
 _INNER = BLOCK - 1
+_FULL = np.uint64(0xFFFFFFFFFFFFFFFF)
 #: Largest number of voxels a coarse-leaf expansion may produce (about 1 GB of centres). Asking
 #: for more (e.g. every free voxel of a huge pruned ``.bt``) raises instead of exhausting memory.
 MAX_EXPANDED_VOXELS = 40_000_000
@@ -132,6 +133,55 @@ def _update(
 
 
 @numba.njit(cache=True)
+def _update_tiles(
+    bkeys: np.ndarray,
+    bids: np.ndarray,
+    shift: int,
+    vals: np.ndarray,
+    nblocks: int,
+    blocks: np.ndarray,
+    masks: np.ndarray,
+    start: int,
+    delta: np.float32,
+    clamp_min: np.float32,
+    clamp_max: np.float32,
+) -> tuple[int, int, int]:
+    """:func:`_update` (log-odds, not overwrite) of the voxels of tiles ``start:`` (block codes and
+    masks, :mod:`secure3d.mapping.morton`'s tile form): one probe per tile, then its set bits.
+    Returns (where it stopped, blocks in use, voxels added)."""
+    room = bkeys.shape[0] // 2 - nblocks
+    new = 0
+    for i in range(start, blocks.shape[0]):
+        h = _probe(bkeys, shift, blocks[i])
+        if bkeys[h] == _EMPTY:
+            if room == 0:
+                return i, nblocks, new
+            bkeys[h] = blocks[i]
+            bids[h] = nblocks
+            nblocks += 1
+            room -= 1
+        base = np.int64(bids[h]) << BLOCK_BITS
+        m = masks[i]
+        if m == _FULL:  # a whole block: one branch-free pass the compiler vectorises
+            for j in range(base, base + BLOCK):
+                v = vals[j]
+                unknown = np.isnan(v)
+                new += unknown
+                v = np.float32(0.0) if unknown else v
+                vals[j] = min(max(v + delta, clamp_min), clamp_max)
+            continue
+        while m:
+            j = base + _ctz(m)
+            m &= m - np.uint64(1)
+            v = vals[j]
+            if np.isnan(v):
+                new += 1
+                v = np.float32(0.0)
+            vals[j] = min(max(v + delta, clamp_min), clamp_max)
+    return blocks.shape[0], nblocks, new
+
+
+@numba.njit(cache=True)
 def _rehash(bkeys: np.ndarray, bids: np.ndarray, new_cap: int, shift: int) -> tuple:
     nk = np.full(new_cap, _EMPTY, np.int64)
     ni = np.zeros(new_cap, np.int32)
@@ -181,8 +231,10 @@ class VoxelTable:
         while cap < need:
             cap *= 2
         self.bkeys, self.bids = _rehash(self.bkeys, self.bids, cap, 64 - cap.bit_length() + 1)
-        vals = np.full((cap // 2) << BLOCK_BITS, np.nan, np.float32)
-        vals[: self.vals.shape[0]] = self.vals
+        vals = np.empty((cap // 2) << BLOCK_BITS, np.float32)
+        n = self.vals.shape[0]
+        vals[:n] = self.vals
+        vals[n:] = np.nan
         self.vals = vals
 
     def _index(self, codes: NDArray[np.int64]) -> NDArray[np.int64]:
@@ -246,6 +298,41 @@ class VoxelTable:
         """Add ``delta`` to each (unique) code's log-odds, creating at 0, clamping (float32). The
         table grows only for the blocks actually added: most of a scan's voxels are known."""
         self._apply(codes, np.empty(0, np.float32), delta, clamp_min, clamp_max)
+
+    def add_logodds_tiles(
+        self,
+        blocks: NDArray[np.int64],
+        masks: NDArray[np.uint64],
+        delta: float,
+        clamp_min: float,
+        clamp_max: float,
+    ) -> None:
+        """:meth:`add_logodds` of the voxels of tiles (unique block codes ``blocks`` (m,) and their
+        ``masks`` (m,) uint64, :mod:`secure3d.mapping.morton`'s tile form): the same values, one
+        hash probe per tile instead of a code per voxel."""
+        blocks = np.ascontiguousarray(blocks, dtype=np.int64)
+        masks = np.ascontiguousarray(masks, dtype=np.uint64)
+        if blocks.shape != masks.shape or blocks.ndim != 1:
+            raise GeometryError(f"tiles: {blocks.shape} block codes but {masks.shape} masks")
+        done = 0
+        while True:
+            done, self.nblocks, new = _update_tiles(
+                self.bkeys,
+                self.bids,
+                self._shift,
+                self.vals,
+                self.nblocks,
+                blocks,
+                masks,
+                done,
+                np.float32(delta),
+                np.float32(clamp_min),
+                np.float32(clamp_max),
+            )
+            self.count += int(new)
+            if done == blocks.shape[0]:
+                return
+            self.reserve_blocks(min(blocks.shape[0] - done, max(self.nblocks, 16)))
 
     def _blocks(self) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
         """Codes (n, BLOCK) and values (n, BLOCK) of the blocks in use, blocks sorted by code (so
@@ -384,6 +471,20 @@ class LeafLayer:
             return
         self._split_coarse(codes)
         self.table.add_logodds(codes, delta, clamp_min, clamp_max)
+
+    def add_logodds_tiles(
+        self,
+        blocks: NDArray[np.int64],
+        masks: NDArray[np.uint64],
+        delta: float,
+        clamp_min: float,
+        clamp_max: float,
+    ) -> None:
+        """:meth:`add_logodds` of the voxels of tiles (see :meth:`VoxelTable.add_logodds_tiles`)."""
+        if self.c_start.size:  # coarse leaves to split first: by codes
+            self.add_logodds(tiles_to_codes(blocks, masks), delta, clamp_min, clamp_max)
+        elif blocks.size:
+            self.table.add_logodds_tiles(blocks, masks, delta, clamp_min, clamp_max)
 
     def set_leaves(
         self, starts: NDArray[np.int64], depths: NDArray[np.integer], values: NDArray[np.float32]

@@ -171,6 +171,23 @@ def test_chunked_kernel_equals_dense_kernel(scan):
     np.testing.assert_array_equal(np.sort(occ), np.sort(dense.occupied))
 
 
+def test_scan_tiles_hold_the_scan_updates_voxels(scan, monkeypatch):
+    """scan_tiles lists the free voxels of scan_update as tiles (each tile once, nonzero masks),
+    with the same occupied voxels and counts, from the dense kernel and from the chunked one."""
+    from secure3d.mapping import scan as scan_module
+    from secure3d.mapping.keys import scan_tiles, tile_voxel_count
+
+    o = np.array([0.1, -0.2, 0.3])
+    for limit in (scan_module._DENSE_VOXEL_LIMIT, 0):  # 0: every scan takes the chunked kernel
+        monkeypatch.setattr(scan_module, "_DENSE_VOXEL_LIMIT", limit)
+        upd, tiles = scan_update(scan, o, 0.1, 6.0), scan_tiles(scan, o, 0.1, 6.0)
+        assert np.unique(tiles.blocks).size == tiles.blocks.size and np.all(tiles.masks != 0)
+        assert tile_voxel_count(tiles.masks) == upd.free.size
+        np.testing.assert_array_equal(np.sort(tiles.free()), np.sort(upd.free))
+        np.testing.assert_array_equal(tiles.occupied, upd.occupied)
+        assert tuple(tiles[3:]) == tuple(upd[2:])
+
+
 def test_bad_points_are_counted_and_ignored(rng):
     res = 0.01  # key range +-327.68 m
     good = rng.uniform(-2, 2, size=(200, 3))

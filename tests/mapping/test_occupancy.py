@@ -339,3 +339,54 @@ def test_voxel_table_set_rejects_nan_and_mismatched_values():
     with pytest.raises(GeometryError, match="values"):
         table.set(np.array([5, 6], np.int64), np.array([1.0], np.float32))
     assert table.count == 0
+
+
+def test_tiles_round_trip_and_count(rng):
+    """codes_to_tiles and tiles_to_codes are inverse (as sets; ascending within a tile), the
+    voxel count is the masks' bits, and mismatched or negative input raises."""
+    from secure3d.mapping.morton import codes_to_tiles, tile_voxel_count, tiles_to_codes
+
+    codes = np.unique(rng.integers(0, 1 << 20, 5000)).astype(np.int64)
+    codes = np.concatenate([codes, (77 << 6) + np.arange(64)])  # one whole tile
+    codes = np.unique(codes)
+    blocks, masks = codes_to_tiles(rng.permutation(codes))
+    assert np.all(np.diff(blocks) > 0) and np.all(masks != 0)
+    assert tile_voxel_count(masks) == codes.size
+    np.testing.assert_array_equal(tiles_to_codes(blocks, masks), codes)
+    assert masks[np.searchsorted(blocks, 77)] == np.uint64(0xFFFFFFFFFFFFFFFF)
+    with pytest.raises(GeometryError, match="masks"):
+        tiles_to_codes(blocks, masks[:-1])
+    with pytest.raises(GeometryError, match="non-negative"):
+        codes_to_tiles(np.array([-3, 4]))
+
+
+@pytest.mark.parametrize("span", [5000, 1 << 40])
+def test_voxel_table_tile_updates_equal_code_updates(rng, span):
+    """add_logodds_tiles gives the values add_logodds gives for the same voxels, bit for bit, with
+    whole tiles (the vectorised path) and partial ones, growing several times; a LeafLayer with
+    coarse leaves splits them first, as with codes."""
+    from secure3d.mapping.morton import codes_to_tiles
+    from secure3d.mapping.store import LeafLayer, VoxelTable
+
+    by_tiles, by_codes = VoxelTable(capacity=16), VoxelTable(capacity=16)
+    for _ in range(6):
+        codes = rng.choice(span, size=rng.integers(1, 3000), replace=False).astype(np.int64)
+        whole = (rng.integers(0, span >> 6, 3)[:, None] << 6) + np.arange(64)
+        codes = np.unique(np.concatenate([codes, whole.ravel()]))
+        delta = float(rng.choice([-0.4, 0.85, -2.5]))
+        by_codes.add_logodds(codes, delta, -2.0, 3.5)
+        by_tiles.add_logodds_tiles(*codes_to_tiles(codes), delta, -2.0, 3.5)
+        assert by_tiles.count == by_codes.count and by_tiles.nblocks == by_codes.nblocks
+    for a, b in zip(by_tiles.items(), by_codes.items(), strict=True):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(GeometryError, match="masks"):
+        by_tiles.add_logodds_tiles(np.array([1, 2]), np.array([3], np.uint64), -0.4, -2.0, 3.5)
+
+    coarse_tiles, coarse_codes = LeafLayer(), LeafLayer()
+    for layer in (coarse_tiles, coarse_codes):  # one depth-14 leaf (4096 voxels) and one voxel
+        layer.set_leaves(np.array([0, 1 << 20]), np.array([14, 16]), np.array([1.0, 2.0]))
+    codes = np.array([5, 70, 4095, (1 << 20) + 1], np.int64)
+    coarse_codes.add_logodds(codes, -0.4, -2.0, 3.5)
+    coarse_tiles.add_logodds_tiles(*codes_to_tiles(codes), -0.4, -2.0, 3.5)
+    for a, b in zip(coarse_tiles.leaves(), coarse_codes.leaves(), strict=True):
+        np.testing.assert_array_equal(a, b)
