@@ -19,6 +19,8 @@ update touches them. Queries give the same answer either way.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numba
 import numpy as np
 from numpy.typing import NDArray
@@ -259,9 +261,8 @@ class VoxelTable:
         clamp_max: float,
     ) -> None:
         codes = np.ascontiguousarray(codes, dtype=np.int64)
-        done = 0
-        while True:
-            done, self.nblocks, new = _update(
+        self._until_done(
+            lambda done: _update(
                 self.bkeys,
                 self.bids,
                 self._shift,
@@ -273,12 +274,22 @@ class VoxelTable:
                 np.float32(delta),
                 np.float32(clamp_min),
                 np.float32(clamp_max),
-            )
+            ),
+            codes.shape[0],
+        )
+
+    def _until_done(self, step: Callable[[int], tuple[int, int, int]], n: int) -> None:
+        """Run an update kernel over its ``n`` items from 0: ``step(done)`` updates from item
+        ``done`` on and returns (where it stopped, blocks in use, voxels added); when a block does
+        not fit it stops there, and the table grows before it goes on."""
+        done = 0
+        while True:
+            done, self.nblocks, new = step(done)
             self.count += int(new)
-            if done == codes.shape[0]:
+            if done == n:
                 return
-            # out of room: grow as if each remaining code started a block, up to twice the size
-            self.reserve_blocks(min(codes.shape[0] - done, max(self.nblocks, 16)))
+            # out of room: grow as if each remaining item started a block, up to twice the size
+            self.reserve_blocks(min(n - done, max(self.nblocks, 16)))
 
     def set(self, codes: NDArray[np.int64], values: NDArray[np.float32]) -> None:
         """Insert or overwrite; ``codes`` must be unique and ``values`` not NaN (NaN is how the
@@ -314,9 +325,8 @@ class VoxelTable:
         masks = np.ascontiguousarray(masks, dtype=np.uint64)
         if blocks.shape != masks.shape or blocks.ndim != 1:
             raise GeometryError(f"tiles: {blocks.shape} block codes but {masks.shape} masks")
-        done = 0
-        while True:
-            done, self.nblocks, new = _update_tiles(
+        self._until_done(
+            lambda done: _update_tiles(
                 self.bkeys,
                 self.bids,
                 self._shift,
@@ -328,11 +338,9 @@ class VoxelTable:
                 np.float32(delta),
                 np.float32(clamp_min),
                 np.float32(clamp_max),
-            )
-            self.count += int(new)
-            if done == blocks.shape[0]:
-                return
-            self.reserve_blocks(min(blocks.shape[0] - done, max(self.nblocks, 16)))
+            ),
+            blocks.shape[0],
+        )
 
     def _blocks(self) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
         """Codes (n, BLOCK) and values (n, BLOCK) of the blocks in use, blocks sorted by code (so
