@@ -1,7 +1,9 @@
 """Voxel store: the log-odds updates of whole closed-loop flights, replayed (issues 17, 18).
 
-Each scenario is flown once (secure planner, seed 0) while every ``VoxelTable.add_logodds`` call
-of the robot's map is recorded (codes, delta, clamps). The recorded stream is then replayed into
+Each scenario is flown once (secure planner, seed 0) while every update of the robot's map is
+recorded: ``VoxelTable.add_logodds`` calls (codes, delta, clamps) and ``add_logodds_tiles`` calls
+(a scan's free voxels as 4 x 4 x 4 tiles; a store without that method replays their codes through
+``add_logodds``, converted before the timing). The recorded stream is then replayed into
 a fresh table ``--reps`` times, timing the updates, one sorted listing (``items``) and a lookup of
 every third voxel (``get``); the table's memory is reported. With ``--compare-with DIR`` (another
 checkout, e.g. a ``git worktree`` at an older commit) the same stream is replayed into that
@@ -26,28 +28,42 @@ import numpy as np
 from _common import REPO, atomic_write_text, fmt, machine_info, markdown_table
 
 from secure3d.mapping import store
+from secure3d.mapping.morton import tiles_to_codes
 from secure3d.planning import NLPCache
 
 
 def record_stream(scenario: str) -> tuple[list[tuple], str]:
-    """Fly ``scenario`` and return its map's add_logodds calls and the flight's outcome."""
+    """Fly ``scenario`` and return its map's update calls and the flight's outcome: each call is
+    ``(codes, delta, clamp_min, clamp_max)`` (``add_logodds``) or ``((blocks, masks), delta, ...)``
+    (``add_logodds_tiles``, a scan's free voxels as 4 x 4 x 4 tiles)."""
     import secure3d
 
     calls: list[tuple] = []
-    original = store.VoxelTable.add_logodds
+    by_codes, by_tiles = store.VoxelTable.add_logodds, store.VoxelTable.add_logodds_tiles
 
-    def spy(table: store.VoxelTable, codes: np.ndarray, *args: float) -> None:
+    def spy_codes(table: store.VoxelTable, codes: np.ndarray, *args: float) -> None:
         calls.append((np.array(codes, np.int64), *args))
-        original(table, codes, *args)
+        by_codes(table, codes, *args)
 
-    store.VoxelTable.add_logodds = spy
+    def spy_tiles(
+        table: store.VoxelTable, blocks: np.ndarray, masks: np.ndarray, *a: float
+    ) -> None:
+        calls.append(((np.array(blocks, np.int64), np.array(masks, np.uint64)), *a))
+        by_tiles(table, blocks, masks, *a)
+
+    store.VoxelTable.add_logodds, store.VoxelTable.add_logodds_tiles = spy_codes, spy_tiles
     try:
         result = secure3d.simulate(
             REPO / "maps" / f"{scenario}.yaml", "secure", seed=0, cache=NLPCache()
         )
     finally:
-        store.VoxelTable.add_logodds = original
+        store.VoxelTable.add_logodds, store.VoxelTable.add_logodds_tiles = by_codes, by_tiles
     return calls, result.outcome
+
+
+def as_codes(calls: list[tuple]) -> list[tuple]:
+    """The same calls with every tile update listed as codes (for a store without tiles)."""
+    return [((tiles_to_codes(*c[0]),) + c[1:]) if isinstance(c[0], tuple) else c for c in calls]
 
 
 def load_store(checkout: Path) -> ModuleType:
@@ -70,8 +86,11 @@ def replay(module: ModuleType, calls: list[tuple]) -> tuple[dict, tuple]:
     """One replay into a fresh table: times (s), memory (bytes), and its final items."""
     table = module.VoxelTable()
     t0 = time.perf_counter()
-    for codes, *args in calls:
-        table.add_logodds(codes, *args)
+    for what, *args in calls:
+        if isinstance(what, tuple):
+            table.add_logodds_tiles(*what, *args)
+        else:
+            table.add_logodds(what, *args)
     update = time.perf_counter() - t0
     t0 = time.perf_counter()
     items = table.items()
@@ -84,15 +103,22 @@ def replay(module: ModuleType, calls: list[tuple]) -> tuple[dict, tuple]:
 
 
 def measure(scenario: str, modules: dict[str, ModuleType], reps: int) -> dict:
-    calls, outcome = record_stream(scenario)
-    codes = sum(len(c[0]) for c in calls)
+    recorded, outcome = record_stream(scenario)
+    listed = as_codes(recorded)
+    # each store replays what it takes: tiles where it has add_logodds_tiles, else their codes
+    streams = {
+        name: recorded if hasattr(m.VoxelTable, "add_logodds_tiles") else listed
+        for name, m in modules.items()
+    }
+    codes = sum(len(c[0]) for c in listed)
     for m in modules.values():  # compile outside the timing
-        m.VoxelTable().add_logodds(calls[0][0][:4].copy(), *calls[0][1:])
+        m.VoxelTable().add_logodds(listed[0][0][:4].copy(), *listed[0][1:])
+    replay(modules["this"], recorded[:3])
     runs: dict[str, list[dict]] = {name: [] for name in modules}
     finals = {}
     for _ in range(reps):
         for name, m in modules.items():
-            times, finals[name] = replay(m, calls)
+            times, finals[name] = replay(m, streams[name])
             runs[name].append(times)
     same = None
     if len(finals) == 2:
@@ -101,7 +127,8 @@ def measure(scenario: str, modules: dict[str, ModuleType], reps: int) -> dict:
     return {
         "scenario": scenario,
         "outcome": outcome,
-        "calls": len(calls),
+        "calls": len(recorded),
+        "tile calls": sum(isinstance(c[0], tuple) for c in recorded),
         "codes": codes,
         "voxels": len(next(iter(finals.values()))[0]),
         "runs": runs,
@@ -111,14 +138,15 @@ def measure(scenario: str, modules: dict[str, ModuleType], reps: int) -> dict:
 
 def report(rows: list[dict], reps: int) -> str:
     names = list(rows[0]["runs"])
-    head = ["scenario", "updates (calls / codes)", "voxels at the end"]
+    head = ["scenario", "updates (calls, of which tiles / voxels)", "voxels at the end"]
     for n in names:
         head += [f"{n}: update (s)", f"{n}: items (s)", f"{n}: get (s)", f"{n}: MB"]
     if len(names) == 2:
         head += ["update ratio (this / other)", "same values"]
     body = []
     for r in rows:
-        cells = [r["scenario"], f"{r['calls']} / {r['codes'] / 1e6:.1f} M", f"{r['voxels']:,}"]
+        calls = f"{r['calls']}, {r['tile calls']} / {r['codes'] / 1e6:.1f} M"
+        cells = [r["scenario"], calls, f"{r['voxels']:,}"]
         med = {
             n: {k: statistics.median(t[k] for t in r["runs"][n]) for k in r["runs"][n][0]}
             for n in names

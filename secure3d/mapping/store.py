@@ -3,12 +3,15 @@
 A sensor-built map only has finest-level voxels (depth 16). They are kept in blocks of 4 x 4 x 4
 voxels, the voxels whose Morton codes share all bits but the low six: an open-addressing hash
 table (``int64`` block code -> block number) over a ``float32`` array of whole blocks, NaN where a
-voxel is unknown (the layout of voxblox's block maps). A scan's updates walk its codes in order,
-so neighbours share a block: one hash probe serves up to 64 voxels and their values sit side by
-side in memory. Measured on the voxel updates of whole closed-loop flights (``forest``, 40 M
-updates; ``narrow_passage_20cm`` at 2 cm, 123 M updates) against the former table of single voxels
-(Fibonacci hashing, one probe and one cache line per voxel): 0.31-0.44x and 0.26x the time, 0.34x
-the memory, the same values bit for bit.
+voxel is unknown (the layout of voxblox's block maps). A scan's free voxels arrive as tiles, a
+block code and a 64-bit mask each (:meth:`VoxelTable.add_logodds_tiles`): one hash probe per
+block, and a whole block updated in one pass over 64 values side by side in memory; listed codes
+(:meth:`VoxelTable.add_logodds`) share a probe while consecutive codes share a block. Measured on
+the voxel updates of whole closed-loop flights (``forest``, 40 M updates; ``narrow_passage_20cm``
+at 2 cm, 123 M): the blocks took 0.17-0.19x the time of the former table of single voxels
+(Fibonacci hashing, one probe and one cache line per voxel) and 0.36x the memory; tiles take
+0.45x and 0.73x the time of the same updates as codes (``benchmarks/results/map_store.md``). The
+values are the same bit for bit either way.
 
 A map read from a ``.bt``/``.ot`` file may also hold *coarse leaves*: pruned octree nodes at
 depth < 16 that stand for ``8**(16 - depth)`` voxels with one value. They are kept as they are (a
