@@ -163,41 +163,46 @@ def _solve_once(
         # a second nlpsol (same NLP, warm-start options) on first use
         solver = nlp.get_warm_solver()
         warm_build = time.perf_counter() - t_build
+    run = _Run(nlp, start, assignment, cached, warm_build, grid)
     t0 = time.perf_counter()
     try:
         with interruptible():
             sol = solver(**start.args)
     except RuntimeError as exc:  # CasADi raises on evaluation errors (NaN in a function, ...)
-        return _solver_error(
-            exc, nlp, start, T, assignment, time.perf_counter() - t0, cached, warm_build, grid
+        return _solver_error(exc, run, T, time.perf_counter() - t0)
+    return _read_solution(run, sol, solver.stats(), time.perf_counter() - t0)
+
+
+@dataclass(frozen=True)
+class _Run:
+    """One solve call's bookkeeping, which every :class:`_Solve` it ends in carries: the NLP, its
+    start point, the look-back assignment, whether the NLP came from the cache, the seconds spent
+    building a warm-start solver, and the node time grid."""
+
+    nlp: TranscribedNLP
+    start: _StartPoint
+    assignment: tuple[int, ...]
+    cached: bool
+    warm_build: float
+    grid: np.ndarray | None
+
+    def solve(self, **fields: object) -> _Solve:
+        """The :class:`_Solve` with this call's bookkeeping and the given result ``fields``."""
+        return _Solve(
+            nlp=self.nlp,
+            assignment=self.assignment,
+            slots=self.start.slots,
+            cached=self.cached,
+            warm_build=self.warm_build,
+            grid=self.grid,
+            **fields,
         )
-    solve_time = time.perf_counter() - t0
-    return _read_solution(
-        nlp,
-        start,
-        sol,
-        solver.stats(),
-        assignment=assignment,
-        solve_time=solve_time,
-        cached=cached,
-        warm_build=warm_build,
-        grid=grid,
-    )
 
 
-def _solver_error(
-    exc: Exception,
-    nlp: TranscribedNLP,
-    start: _StartPoint,
-    T: float,
-    assignment: tuple[int, ...],
-    solve_time: float,
-    cached: bool,
-    warm_build: float,
-    grid: np.ndarray | None,
-) -> _Solve:
+def _solver_error(exc: Exception, run: _Run, T: float, solve_time: float) -> _Solve:
     """The solve that CasADi stopped with ``exc``: the start point, status SOLVER_ERROR."""
-    return _Solve(
+    start, nlp = run.start, run.nlp
+    return run.solve(
         status=PlanStatus.SOLVER_ERROR,
         message=f"solver error: {exc}".splitlines()[0],
         T=T,
@@ -207,15 +212,9 @@ def _solver_error(
         w=start.args["x0"],
         lam_x=np.zeros(nlp.layout.n_w),
         lam_g=np.zeros(len(nlp.lbg)),
-        nlp=nlp,
-        assignment=assignment,
-        slots=start.slots,
         violations={},
         solve_time=solve_time,
         iterations=0,
-        cached=cached,
-        warm_build=warm_build,
-        grid=grid,
     )
 
 
@@ -279,20 +278,10 @@ def _start_point(
     return _StartPoint(X, U, L, slots, sides, args)
 
 
-def _read_solution(
-    nlp: TranscribedNLP,
-    start: _StartPoint,
-    sol: dict,
-    stats: dict,
-    *,
-    assignment: tuple[int, ...],
-    solve_time: float,
-    cached: bool,
-    warm_build: float,
-    grid: np.ndarray | None,
-) -> _Solve:
+def _read_solution(run: _Run, sol: dict, stats: dict, solve_time: float) -> _Solve:
     """The solver's answer: the solution unpacked, its status (a converged solution that violates
     a row by more than :data:`FEASIBILITY_TOL` is INFEASIBLE) and its violations."""
+    nlp, start = run.nlp, run.start
     a = start.args
     w = np.asarray(sol["x"]).ravel()
     lay = nlp.layout
@@ -319,7 +308,7 @@ def _read_solution(
         # under a 10 s cap (its 1.66 s plan solves from the next guess)
         status = PlanStatus.ITERATION_LIMIT
         rs += f" but the final time {Ts:.2f} s sits at its upper bound"
-    return _Solve(
+    return run.solve(
         status=status,
         message=rs,
         T=Ts,
@@ -329,13 +318,7 @@ def _read_solution(
         w=w,
         lam_x=np.asarray(sol["lam_x"]).ravel(),
         lam_g=np.asarray(sol["lam_g"]).ravel(),
-        nlp=nlp,
-        assignment=assignment,
-        slots=start.slots,
         violations=viol,
         solve_time=solve_time,
         iterations=int(stats.get("iter_count", 0)),
-        cached=cached,
-        warm_build=warm_build,
-        grid=grid,
     )

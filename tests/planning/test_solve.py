@@ -31,3 +31,36 @@ def test_a_goal_outside_the_map_is_reported_without_a_solve(problem):
     assert result.status is not PlanStatus.SUCCESS
     assert "goal" in result.message and "outside the map bounds" in result.message
     assert len(cache) == 0, "no NLP was built"
+
+
+def test_a_solver_exception_ends_the_solve_as_a_solver_error(problem, monkeypatch):
+    """When CasADi raises inside a solve (an evaluation error), the solve reports SOLVER_ERROR with
+    the first line of the message, no iterations, the start point as its answer, multipliers of
+    the NLP's sizes, and the call's slots, assignment and grid; a real solve of the same NLP after
+    it carries the same bookkeeping."""
+    from secure3d.planning.guess import initial_guess
+    from secure3d.planning.nlp_solve import _solve_once
+
+    cache = NLPCache()
+    guess = initial_guess(problem, secure=False, speed_fraction=1.0)
+    K = problem.options.nodes
+    args = (problem, "baseline", (-1,) * K, guess.final_time, guess.states, guess.controls, cache)
+    nlp, _ = cache.get(problem, "baseline", (-1,) * K)
+    real = nlp.solver
+
+    def failing(**kwargs):
+        raise RuntimeError("Error in Function::call for 'nlp_g' [SXFunction]\nNaN detected")
+
+    monkeypatch.setattr(nlp, "solver", failing)
+    s = _solve_once(*args)
+    assert s.status is PlanStatus.SOLVER_ERROR
+    assert s.message == "solver error: Error in Function::call for 'nlp_g' [SXFunction]"
+    assert s.iterations == 0 and s.cached and s.assignment == (-1,) * K
+    np.testing.assert_array_equal(s.X[1:], guess.states[1:])
+    assert s.lam_x.shape == (nlp.layout.n_w,) and not s.lam_x.any()
+    assert s.lam_g.shape == (len(nlp.lbg),) and not s.lam_g.any()
+    monkeypatch.setattr(nlp, "solver", real)
+    ok = _solve_once(*args)
+    assert ok.status is PlanStatus.SUCCESS and ok.iterations > 0
+    np.testing.assert_array_equal(ok.slots, s.slots)
+    assert ok.assignment == s.assignment and ok.grid is None and s.grid is None
