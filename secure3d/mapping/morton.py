@@ -21,6 +21,7 @@ from secure3d.errors import GeometryError
 __all__ = [
     "KEY_LIMIT",
     "TREE_DEPTH",
+    "TILE_BITS",
     "TREE_MAX_VAL",
     "box_codes",
     "codes_to_coords",
@@ -247,6 +248,10 @@ def codes_to_coords(codes: ArrayLike, resolution: float) -> NDArray[np.float64]:
 # the tiles' block codes (``code >> 6``) and one ``uint64`` mask per tile, bit ``i`` set when voxel
 # ``block << 6 | i`` is in the set.
 
+#: Bits of a Morton code inside its tile (4 x 4 x 4 = 2**6 voxels).
+TILE_BITS = 6
+_TILE_INNER = (1 << TILE_BITS) - 1
+
 
 @numba.njit(cache=True)
 def _popcount_sum(masks: np.ndarray) -> int:
@@ -273,7 +278,7 @@ def _tiles_to_codes_kernel(blocks: np.ndarray, masks: np.ndarray) -> np.ndarray:
     j = 0
     for i in range(masks.shape[0]):
         m = masks[i]
-        base = blocks[i] << 6
+        base = blocks[i] << TILE_BITS
         while m:
             out[j] = base | _ctz(m)
             j += 1
@@ -291,12 +296,24 @@ def tiles_to_codes(blocks: ArrayLike, masks: ArrayLike) -> NDArray[np.int64]:
     return _tiles_to_codes_kernel(blocks, masks)
 
 
+@numba.njit(cache=True)
+def _sorted_codes_to_tiles(codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    blocks = np.empty(codes.shape[0], np.int64)
+    masks = np.zeros(codes.shape[0], np.uint64)
+    m = -1
+    for i in range(codes.shape[0]):
+        b = codes[i] >> TILE_BITS
+        if m < 0 or blocks[m] != b:
+            m += 1
+            blocks[m] = b
+        masks[m] |= np.uint64(1) << np.uint64(codes[i] & _TILE_INNER)
+    return blocks[: m + 1], masks[: m + 1]
+
+
 def codes_to_tiles(codes: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.uint64]]:
-    """Morton codes (n,) (non-negative) as tiles: (block codes (m,) sorted, masks (m,))."""
+    """Morton codes (n,) (non-negative; repeats allowed) as tiles: (block codes (m,) ascending,
+    masks (m,))."""
     codes = np.asarray(codes, dtype=np.int64).reshape(-1)
     if codes.size and codes.min() < 0:
         raise GeometryError("codes_to_tiles: codes must be non-negative")
-    blocks, inverse = np.unique(codes >> 6, return_inverse=True)
-    masks = np.zeros(blocks.shape[0], np.uint64)
-    np.bitwise_or.at(masks, inverse, np.left_shift(np.uint64(1), (codes & 63).astype(np.uint64)))
-    return blocks, masks
+    return _sorted_codes_to_tiles(np.sort(codes))

@@ -23,6 +23,7 @@ from secure3d.errors import GeometryError
 from secure3d.mapping.morton import (
     EMPTY,
     KEY_LIMIT,
+    TILE_BITS,
     TREE_MAX_VAL,
     _morton3,
     _spread16,
@@ -300,7 +301,7 @@ def _dense_tiles(
                     m = np.uint64(0)
                     for r in range(16):
                         m |= _ROW_MASKS[r, (words[r] >> sh) & nib]
-                    blocks[j] = (myz | _spread16(lo[0] + wx * _WORD + 4 * t)) >> 6
+                    blocks[j] = (myz | _spread16(lo[0] + wx * _WORD + 4 * t)) >> TILE_BITS
                     masks[j] = m
                     j += 1
     return blocks[:j], masks[:j]

@@ -30,14 +30,15 @@ from numpy.typing import NDArray
 
 import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
 from secure3d.errors import GeometryError
-from secure3d.mapping.morton import TREE_DEPTH, _ctz, tiles_to_codes
+from secure3d.mapping.morton import TILE_BITS, TREE_DEPTH, _ctz, tiles_to_codes
 
 _EMPTY = -1
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 #: Voxels of a block: the low BLOCK_BITS bits of a Morton code interleave the low two bits of x,
 #: y and z, so a block is a 4 x 4 x 4 cube. (8 x 8 x 8 blocks were 10-30 % faster on dense scans
-#: but cost 2 KB per isolated voxel; a 4 x 4 x 4 block costs 256 bytes.)
-BLOCK_BITS = 6
+#: but cost 2 KB per isolated voxel; a 4 x 4 x 4 block costs 256 bytes.) A block is a tile of
+#: :mod:`secure3d.mapping.morton`, the unit a scan's free voxels arrive in.
+BLOCK_BITS = TILE_BITS
 BLOCK = 1 << BLOCK_BITS
 _INNER = BLOCK - 1
 _FULL = np.uint64(0xFFFFFFFFFFFFFFFF)
