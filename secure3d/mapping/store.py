@@ -265,30 +265,22 @@ class VoxelTable:
         clamp_max: float,
     ) -> None:
         codes = np.ascontiguousarray(codes, dtype=np.int64)
-        self._until_done(
-            lambda done: _update(
-                self.bkeys,
-                self.bids,
-                self._shift,
-                self.vals,
-                self.nblocks,
-                codes,
-                done,
-                values,
-                np.float32(delta),
-                np.float32(clamp_min),
-                np.float32(clamp_max),
-            ),
-            codes.shape[0],
-        )
+        clamps = (np.float32(delta), np.float32(clamp_min), np.float32(clamp_max))
+        self._until_done(_update, (codes,), (values, *clamps))
 
-    def _until_done(self, step: Callable[[int], tuple[int, int, int]], n: int) -> None:
-        """Run an update kernel over its ``n`` items from 0: ``step(done)`` updates from item
-        ``done`` on and returns (where it stopped, blocks in use, voxels added); when a block does
+    def _until_done(
+        self, kernel: Callable[..., tuple[int, int, int]], items: tuple, rest: tuple
+    ) -> None:
+        """Run an update kernel (:func:`_update`, :func:`_update_tiles`) over its items from the
+        first: ``kernel(table arrays, block count, *items, start, *rest)`` updates from item
+        ``start`` on and returns (where it stopped, blocks in use, voxels added); when a block does
         not fit it stops there, and the table grows before it goes on."""
+        n = items[0].shape[0]
         done = 0
         while True:
-            done, self.nblocks, new = step(done)
+            done, self.nblocks, new = kernel(
+                self.bkeys, self.bids, self._shift, self.vals, self.nblocks, *items, done, *rest
+            )
             self.count += int(new)
             if done == n:
                 return
@@ -329,22 +321,8 @@ class VoxelTable:
         masks = np.ascontiguousarray(masks, dtype=np.uint64)
         if blocks.shape != masks.shape or blocks.ndim != 1:
             raise GeometryError(f"tiles: {blocks.shape} block codes but {masks.shape} masks")
-        self._until_done(
-            lambda done: _update_tiles(
-                self.bkeys,
-                self.bids,
-                self._shift,
-                self.vals,
-                self.nblocks,
-                blocks,
-                masks,
-                done,
-                np.float32(delta),
-                np.float32(clamp_min),
-                np.float32(clamp_max),
-            ),
-            blocks.shape[0],
-        )
+        clamps = (np.float32(delta), np.float32(clamp_min), np.float32(clamp_max))
+        self._until_done(_update_tiles, (blocks, masks), clamps)
 
     def _blocks(self) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
         """Codes (n, BLOCK) and values (n, BLOCK) of the blocks in use, blocks sorted by code (so
