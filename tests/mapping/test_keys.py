@@ -7,6 +7,7 @@ import octomap
 import pytest
 
 from secure3d.errors import GeometryError
+from secure3d.mapping._scan_chunked import _scan_chunked_kernel
 from secure3d.mapping.keys import (
     KEY_LIMIT,
     codes_to_coords,
@@ -19,7 +20,6 @@ from secure3d.mapping.keys import (
 )
 from secure3d.mapping.octomap_io import read_scan_dat
 from secure3d.mapping.raycast import _clipped_ends
-from secure3d.mapping.scan import _scan_chunked_kernel
 
 
 @pytest.fixture(scope="module")
