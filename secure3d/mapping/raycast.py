@@ -74,6 +74,22 @@ def _dda_setup(
     return length, sx, sy, sz, tmx, tmy, tmz, tdx, tdy, tdz
 
 
+@numba.njit(cache=True, inline="always")
+def _dda_step(
+    tmx: float, tmy: float, tmz: float, tdx: float, tdy: float, tdz: float
+) -> tuple[int, float, float, float]:
+    """One step of ``computeRayKeys``: the axis (0, 1, 2) whose voxel border comes first (ties as
+    OctoMap breaks them), and the t-values after crossing it. The caller moves its key, or its
+    index, one step along that axis and stops once ``min(tmax) > length``."""
+    if tmx < tmy:
+        if tmx < tmz:
+            return 0, tmx + tdx, tmy, tmz
+        return 2, tmx, tmy, tmz + tdz
+    if tmy < tmz:
+        return 1, tmx, tmy + tdy, tmz
+    return 2, tmx, tmy, tmz + tdz
+
+
 @numba.njit(cache=True)
 def _clipped_ends(
     points: np.ndarray,
@@ -216,19 +232,13 @@ def _single_ray_kernel(end: np.ndarray, origin: np.ndarray, resolution: float) -
     n = 0
     for s in range(bound):
         if s > 0:
-            if tmx < tmy:
-                if tmx < tmz:
-                    kx += sx
-                    tmx += tdx
-                else:
-                    kz += sz
-                    tmz += tdz
-            elif tmy < tmz:
+            axis, tmx, tmy, tmz = _dda_step(tmx, tmy, tmz, tdx, tdy, tdz)
+            if axis == 0:
+                kx += sx
+            elif axis == 1:
                 ky += sy
-                tmy += tdy
             else:
                 kz += sz
-                tmz += tdz
             if (kx == ekx and ky == eky and kz == ekz) or min(tmx, min(tmy, tmz)) > length:
                 break
         out[n, 0] = kx

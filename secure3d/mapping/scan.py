@@ -32,7 +32,14 @@ from secure3d.mapping.morton import (
     codes_to_tiles,
     tiles_to_codes,
 )
-from secure3d.mapping.raycast import _clipped_ends, _dda_setup, _key_of, check_origin, check_points
+from secure3d.mapping.raycast import (
+    _clipped_ends,
+    _dda_setup,
+    _dda_step,
+    _key_of,
+    check_origin,
+    check_points,
+)
 
 __all__ = ["ScanTiles", "ScanUpdate", "scan_tiles", "scan_update"]
 
@@ -156,19 +163,8 @@ def _dense_trace(
             idx = origin_idx
             free_bits[idx >> 6] |= one << np.uint64(idx & 63)
             for _ in range(bound):
-                if tmx < tmy:
-                    if tmx < tmz:
-                        idx += stx
-                        tmx += tdx
-                    else:
-                        idx += stz
-                        tmz += tdz
-                elif tmy < tmz:
-                    idx += sty
-                    tmy += tdy
-                else:
-                    idx += stz
-                    tmz += tdz
+                axis, tmx, tmy, tmz = _dda_step(tmx, tmy, tmz, tdx, tdy, tdz)
+                idx += stx if axis == 0 else (sty if axis == 1 else stz)
                 # Accumulated rounding can pass the end voxel without hitting it: stop there.
                 if idx == end_idx or min(tmx, min(tmy, tmz)) > length:
                     break
