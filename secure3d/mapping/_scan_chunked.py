@@ -12,7 +12,7 @@ import numpy as np
 
 import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
 from secure3d.mapping.morton import EMPTY, KEY_LIMIT, _morton3
-from secure3d.mapping.raycast import _dda_setup, _dda_step, _key_of
+from secure3d.mapping.raycast import _dda_key_step, _dda_setup, _key_of
 
 # Fibonacci hashing constant (2**64 / golden ratio): spreads clustered Morton codes over the table.
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -121,13 +121,9 @@ def _chunked_batch(
             if same_voxel or s == bound:
                 layer = 1
             elif s > 0:
-                axis, tmx, tmy, tmz = _dda_step(tmx, tmy, tmz, tdx, tdy, tdz)
-                if axis == 0:
-                    kx += sx
-                elif axis == 1:
-                    ky += sy
-                else:
-                    kz += sz
+                kx, ky, kz, tmx, tmy, tmz = _dda_key_step(
+                    kx, ky, kz, sx, sy, sz, tmx, tmy, tmz, tdx, tdy, tdz
+                )
                 if (kx == ekx and ky == eky and kz == ekz) or min(tmx, min(tmy, tmz)) > length:
                     layer = 1
             if layer == 1:

@@ -90,6 +90,32 @@ def _dda_step(
     return 2, tmx, tmy, tmz + tdz
 
 
+@numba.njit(cache=True, inline="always")
+def _dda_key_step(
+    kx: int,
+    ky: int,
+    kz: int,
+    sx: int,
+    sy: int,
+    sz: int,
+    tmx: float,
+    tmy: float,
+    tmz: float,
+    tdx: float,
+    tdy: float,
+    tdz: float,
+) -> tuple[int, int, int, float, float, float]:
+    """:func:`_dda_step` on a key: (key x/y/z, t-values) after one step."""
+    axis, tmx, tmy, tmz = _dda_step(tmx, tmy, tmz, tdx, tdy, tdz)
+    if axis == 0:
+        kx += sx
+    elif axis == 1:
+        ky += sy
+    else:
+        kz += sz
+    return kx, ky, kz, tmx, tmy, tmz
+
+
 @numba.njit(cache=True)
 def _clipped_ends(
     points: np.ndarray,
@@ -232,13 +258,9 @@ def _single_ray_kernel(end: np.ndarray, origin: np.ndarray, resolution: float) -
     n = 0
     for s in range(bound):
         if s > 0:
-            axis, tmx, tmy, tmz = _dda_step(tmx, tmy, tmz, tdx, tdy, tdz)
-            if axis == 0:
-                kx += sx
-            elif axis == 1:
-                ky += sy
-            else:
-                kz += sz
+            kx, ky, kz, tmx, tmy, tmz = _dda_key_step(
+                kx, ky, kz, sx, sy, sz, tmx, tmy, tmz, tdx, tdy, tdz
+            )
             if (kx == ekx and ky == eky and kz == ekz) or min(tmx, min(tmy, tmz)) > length:
                 break
         out[n, 0] = kx
