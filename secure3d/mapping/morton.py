@@ -267,9 +267,22 @@ def _popcount_sum(masks: np.ndarray) -> int:
     return n
 
 
+def _tile_masks(masks: ArrayLike) -> NDArray[np.uint64]:
+    """``masks`` as a flat uint64 array; anything but non-negative integers is refused."""
+    m = np.asarray(masks)
+    if m.size and (
+        not np.issubdtype(m.dtype, np.integer)
+        or (np.issubdtype(m.dtype, np.signedinteger) and m.min() < 0)
+    ):
+        raise GeometryError(
+            f"tile masks: expected non-negative integers (uint64), got {m.dtype} {m.ravel()[:3]}"
+        )
+    return np.ascontiguousarray(m, dtype=np.uint64).reshape(-1)
+
+
 def tile_voxel_count(masks: ArrayLike) -> int:
     """Number of voxels in tiles with these ``masks`` (uint64): their bits set."""
-    return int(_popcount_sum(np.ascontiguousarray(masks, dtype=np.uint64).reshape(-1)))
+    return int(_popcount_sum(_tile_masks(masks)))
 
 
 @numba.njit(cache=True)
@@ -290,7 +303,7 @@ def tiles_to_codes(blocks: ArrayLike, masks: ArrayLike) -> NDArray[np.int64]:
     """The voxels of tiles (``blocks`` (m,) int64, ``masks`` (m,) uint64) as Morton codes (n,),
     tile by tile, ascending within a tile."""
     blocks = np.ascontiguousarray(blocks, dtype=np.int64).reshape(-1)
-    masks = np.ascontiguousarray(masks, dtype=np.uint64).reshape(-1)
+    masks = _tile_masks(masks)
     if blocks.shape != masks.shape:
         raise GeometryError(f"tiles: {blocks.shape[0]} block codes but {masks.shape[0]} masks")
     return _tiles_to_codes_kernel(blocks, masks)

@@ -358,6 +358,10 @@ def test_tiles_round_trip_and_count(rng):
         tiles_to_codes(blocks, masks[:-1])
     with pytest.raises(GeometryError, match="non-negative"):
         codes_to_tiles(np.array([-3, 4]))
+    with pytest.raises(GeometryError, match="tile masks.*float64"):
+        tile_voxel_count(np.array([1.5]))
+    with pytest.raises(GeometryError, match="tile masks.*int64"):
+        tiles_to_codes(np.array([1]), np.array([-1]))
 
 
 @pytest.mark.parametrize("span", [5000, 1 << 40])
