@@ -160,7 +160,7 @@ def _hull_box_distances(
     return hull_screen(pts, reach, lo, hi)
 
 
-def _constrained_sets(
+def constrained_sets(
     problem: PlanningProblem, planner: str, states: np.ndarray, assignment: tuple[int, ...] | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per node, what its obstacle rows keep clear, as (origins, centres, shapes, los) for
@@ -186,7 +186,7 @@ def _face_gaps(
     b_idx: np.ndarray,
 ) -> np.ndarray:
     """(n,) lower bounds on the distance from node ``k_idx[i]``'s constrained set
-    (:func:`_constrained_sets`: ``conv({o} ∪ E)``, ``E = {c + M z : |z| <= 1}``) to box
+    (:func:`constrained_sets`: ``conv({o} ∪ E)``, ``E = {c + M z : |z| <= 1}``) to box
     ``b_idx[i]``: the widest gap along the box's six face normals. Along unit ``d`` the set reaches
     ``max(d.o, d.c + |M^T d|)`` and the box starts at ``min_y d.y``; any such gap is a separating
     slab, so the Euclidean distance is at least it (negative: no face separates them)."""
@@ -205,7 +205,7 @@ def _exact_distances(
     k_idx: np.ndarray,
     b_idx: np.ndarray,
 ) -> np.ndarray:
-    """Exact distance from node ``k_idx[i]``'s constrained set (:func:`_constrained_sets`) to box
+    """Exact distance from node ``k_idx[i]``'s constrained set (:func:`constrained_sets`) to box
     ``b_idx[i]``."""
     origins, centres, shapes, los = sets
     return box_pair_distances(
@@ -227,7 +227,7 @@ def _refine_distances(
 ) -> np.ndarray:
     """Replace the screening distances of each node's ``keep`` nearest boxes by exact ones (the
     screening subtracts the largest semi-axis, which ranks boxes poorly beside long reactive sets)."""
-    sets = _constrained_sets(problem, "secure", states, assignment)
+    sets = constrained_sets(problem, "secure", states, assignment)
     out = np.full_like(screen, np.inf)
     order = np.argsort(screen, axis=1)[:, :keep]
     k_idx = np.repeat(np.arange(len(states)), order.shape[1])
@@ -284,7 +284,7 @@ def _unslotted_pairs(
     flagged, screened = flagged[~slotted], screened[~slotted]
     if len(flagged) == 0 or planner != Planner.SECURE:
         return flagged, screened, None
-    sets = _constrained_sets(problem, planner, states, assignment)
+    sets = constrained_sets(problem, planner, states, assignment)
     gapped = _face_gaps(problem, sets, flagged[:, 0], flagged[:, 1]) < limit + FACE_GAP_TOL
     return flagged[gapped], screened[gapped], sets
 
@@ -379,10 +379,10 @@ def with_left_out_boxes(
     pairs, d = left_out_boxes(problem, states, assignment, slots, limit)
     if len(pairs) == 0:
         return slots
-    origins, centres, shapes, los = _constrained_sets(problem, Planner.SECURE, states, assignment)
+    origins, centres, shapes, los = constrained_sets(problem, Planner.SECURE, states, assignment)
     out = slots.copy()
     S = slots.shape[1]
-    far = np.all(np.isclose(slots[:, :, 0:3], _empty_slot_lo(problem)), axis=-1)  # (K, S)
+    far = np.all(np.isclose(slots[:, :, 0:3], empty_slot_lo(problem)), axis=-1)  # (K, S)
     for k in np.unique(pairs[:, 0]):
         mine = np.flatnonzero(pairs[:, 0] == k)
         mine = mine[np.argsort(d[mine], kind="stable")]
@@ -401,7 +401,7 @@ def with_left_out_boxes(
     return out
 
 
-def _empty_slot_lo(problem: PlanningProblem) -> np.ndarray:
+def empty_slot_lo(problem: PlanningProblem) -> np.ndarray:
     """Lower corner of the small box an empty slot holds, far outside the world (inactive rows)."""
     return np.asarray(problem.bounds_hi, dtype=float) + 1e3
 
@@ -414,7 +414,7 @@ def select_slots(
     Empty slots hold a small box far outside the world (its constraint is inactive)."""
     o = problem.options
     K, S = len(states), o.obstacle_slots
-    far = _empty_slot_lo(problem)
+    far = empty_slot_lo(problem)
     slots = np.empty((K, S, 6))
     slots[:, :, 0:3] = far
     slots[:, :, 3:6] = far + 0.1
@@ -425,7 +425,7 @@ def select_slots(
         pts, reach = _hull_samples(problem, planner, states, assignment)
 
         def exact(k_idx: np.ndarray, b_idx: np.ndarray) -> np.ndarray:
-            sets = _constrained_sets(problem, "secure", states, assignment)
+            sets = constrained_sets(problem, "secure", states, assignment)
             return _exact_distances(problem, sets, k_idx, b_idx)
 
         chosen = indexed_slot_boxes(problem, planner, pts, reach, exact)
@@ -467,86 +467,23 @@ def keep_slot_positions(previous: np.ndarray, slots: np.ndarray) -> np.ndarray:
     return out
 
 
-def slot_sides(
-    problem: PlanningProblem,
-    planner: str,
-    states: np.ndarray,
-    slots: np.ndarray,
-    assignment: tuple[int, ...] | None = None,
-) -> np.ndarray:
-    """(K, S, 3) bool: for one-sided duals, whether each slot's dual acts on the box's upper face
-    along each axis or on its lower face.
-
-    The side is the one the optimal separating plane uses on ``states``: the exact dual of what the
-    slot's rows constrain (the line-of-sight hull from camera j to E_k, or E_k alone, for the secure
-    planner; the segment from the body at node k to node k+1 for the baseline). Where that dual has
-    no component along an axis (or the sets touch), the side of the box's middle the set's centre
-    lies on. Any choice is sound (weak duality holds for every dual-feasible lam); a poor one only
-    makes the constraint conservative.
-    """
-    origins, centres, shapes, los = _constrained_sets(problem, planner, states, assignment)
-    middle = 0.5 * (slots[:, :, 0:3] + slots[:, :, 3:6])
-    sides = centres[:, None, :] >= middle
-    real = ~np.all(np.isclose(slots[:, :, 0:3], _empty_slot_lo(problem)), axis=-1)
-    k_idx, s_idx = np.nonzero(real)
-    if len(k_idx):
-        _, lam = box_pair_distances(
-            origins[k_idx],
-            centres[k_idx],
-            shapes[k_idx],
-            slots[k_idx, s_idx, 0:3],
-            slots[k_idx, s_idx, 3:6],
-            los[k_idx],
-            with_duals=True,
-        )
-        nu = lam[:, 0:3] - lam[:, 3:6]
-        decided = np.abs(nu) > 1e-6
-        sides[k_idx, s_idx] = np.where(decided, nu > 0, sides[k_idx, s_idx])
-    return sides
-
-
 def min_box_distance_all(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """(n_points, n_boxes) Euclidean distance from points to boxes (0 inside)."""
     q = np.clip(points[:, None, :], lo[None], hi[None])
     return np.linalg.norm(points[:, None, :] - q, axis=-1)
 
 
-def initial_duals(
-    problem: PlanningProblem,
-    planner: str,
-    states: np.ndarray,
-    slots: np.ndarray,
-    assignment: tuple[int, ...],
-) -> np.ndarray:
-    """(K, S, 6) dual vectors: the outward normal at the box point nearest to the constrained set,
-    split into its positive face components (so |A^T lam| = 1 and lam.(A c - b) = distance)."""
-    geo = node_geometry(problem, states)
-    K, S = slots.shape[:2]
-    centres = geo["C"] if planner == Planner.SECURE else geo["P"]
-    lo, hi = slots[:, :, 0:3], slots[:, :, 3:6]
-    q = np.clip(centres[:, None, :], lo, hi)
-    n = centres[:, None, :] - q
-    norm = np.linalg.norm(n, axis=-1, keepdims=True)
-    box_centre = 0.5 * (lo + hi)
-    fallback = centres[:, None, :] - box_centre
-    n = np.where(norm > 1e-9, n, fallback)
-    # choose the dominant axis if the centre is inside the box (degenerate guess)
-    n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
-    lam = np.concatenate([np.maximum(n, 0.0), np.maximum(-n, 0.0)], axis=-1)
-    return lam
-
-
 __all__ = [
     "adaptive_assignment",
+    "constrained_sets",
+    "empty_slot_lo",
     "fixed_assignment",
     "frustum_margins",
-    "initial_duals",
     "keep_slot_positions",
     "left_out_boxes",
     "node_geometry",
     "occluded",
     "select_slots",
-    "slot_sides",
     "slots_missing",
     "slots_stale",
     "start_margins",

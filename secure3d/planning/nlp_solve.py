@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from secure3d.planning import lookback as lb
+from secure3d.planning import slot_duals as sd
 from secure3d.planning.fatrop_transcription import fatrop_status
 from secure3d.planning.interrupt import budget_spent, interruptible, stopped_for_budget
 from secure3d.planning.nlp_cache import NLPCache
@@ -254,7 +255,7 @@ def _start_point(
     slots = lb.keep_slot_positions(prev_slots, lb.select_slots(problem, planner, X, assignment))
     if left_out_limit is not None and planner == Planner.SECURE:
         slots = lb.with_left_out_boxes(problem, X, assignment, slots, left_out_limit)
-    fresh = lb.initial_duals(problem, planner, X, slots, assignment)
+    fresh = sd.initial_duals(problem, planner, X, slots, assignment)
     if L is None or prev_slots is None or L.shape != fresh.shape:
         L = fresh
     else:  # keep the previous duals only for slots that still hold the same box
@@ -265,7 +266,7 @@ def _start_point(
     else:
         w0 = lay.pack(float(np.clip(T, T_MIN, T_MAX)), X, U, L)
     one_sided = getattr(lay, "one_sided", False)
-    sides = lb.slot_sides(problem, planner, X, slots, assignment) if one_sided else None
+    sides = sd.slot_sides(problem, planner, X, slots, assignment) if one_sided else None
     p = nlp.parameters(problem, slots, assignment, sides, grid)
     lbx, ubx = _variable_bounds(problem, nlp, T)
     lbg, ubg = nlp.bounds_for(assignment)
