@@ -59,7 +59,7 @@ def test_a_solution_is_re_solved_only_if_a_left_out_box_breaks_a_row(maps_dir):
     assert slots_missing(problem, "secure", baseline.states, assignment, empty)
 
 
-def test_face_gaps_bound_the_exact_distance_from_below():
+def test_face_gaps_bound_the_exact_distance_from_below(hull_box_pairs):
     """A box face that separates a line-of-sight hull (or an ellipsoid) from a box by g means the
     exact distance is at least g (the slot screen drops such pairs without the exact solve); the
     bound is tight where a face is the separating plane (a set straight beside the box)."""
@@ -68,15 +68,8 @@ def test_face_gaps_bound_the_exact_distance_from_below():
     from secure3d.geometry.polytope import box_pair_distances
     from secure3d.planning.lookback import FACE_GAP_TOL, _face_gaps
 
-    rng = np.random.default_rng(3)
     n = 4000
-    a = rng.normal(0.0, 0.4, (n, 3, 3))
-    shapes = a @ a.transpose(0, 2, 1) + 0.01 * np.eye(3)
-    centres = rng.uniform(-3, 3, (n, 3))
-    los = rng.random(n) < 0.5
-    origins = np.where(los[:, None], rng.uniform(-3, 3, (n, 3)), centres)
-    lo = rng.uniform(-3, 3, (n, 3))
-    hi = lo + rng.uniform(0.02, 1.0, (n, 3))
+    origins, centres, shapes, lo, hi, los = hull_box_pairs(np.random.default_rng(3), n, 0.5)
     problem = SimpleNamespace(boxes_lo=lo, boxes_hi=hi)
     idx = np.arange(n)
     gaps = _face_gaps(problem, (origins, centres, shapes, los), idx, idx)

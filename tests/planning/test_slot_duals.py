@@ -10,21 +10,10 @@ from secure3d.planning import lookback as lb
 from secure3d.planning import slot_duals as sd
 
 
-def _random_pairs(rng: np.random.Generator, n: int) -> tuple[np.ndarray, ...]:
-    a = rng.normal(0.0, 0.4, (n, 3, 3))
-    shapes = a @ a.transpose(0, 2, 1) + 0.01 * np.eye(3)
-    centres = rng.uniform(-3, 3, (n, 3))
-    los = rng.random(n) < 0.6
-    origins = np.where(los[:, None], rng.uniform(-3, 3, (n, 3)), centres)
-    lo = rng.uniform(-3, 3, (n, 3))
-    hi = lo + rng.uniform(0.02, 1.0, (n, 3))
-    return origins, centres, shapes, lo, hi, los
-
-
-def test_the_exact_dual_makes_the_rows_the_distance_and_no_dual_does_better(rng):
+def test_the_exact_dual_makes_the_rows_the_distance_and_no_dual_does_better(rng, hull_box_pairs):
     """Weak duality: with any dual (lam >= 0, |A^T lam| <= 1) the smaller row is at most the
     distance between the sets; the certifying dual of box_pair_distances reaches it."""
-    pairs = _random_pairs(rng, 3000)
+    pairs = hull_box_pairs(rng, 3000, 0.6)
     origins, centres, shapes, lo, hi, los = pairs
     dist, exact = box_pair_distances(*pairs, with_duals=True)
     clear = dist > 1e-3
