@@ -382,7 +382,7 @@ def with_left_out_boxes(
     origins, centres, shapes, los = constrained_sets(problem, Planner.SECURE, states, assignment)
     out = slots.copy()
     S = slots.shape[1]
-    far = np.all(np.isclose(slots[:, :, 0:3], empty_slot_lo(problem)), axis=-1)  # (K, S)
+    far = empty_slots(problem, slots)  # (K, S)
     for k in np.unique(pairs[:, 0]):
         mine = np.flatnonzero(pairs[:, 0] == k)
         mine = mine[np.argsort(d[mine], kind="stable")]
@@ -404,6 +404,11 @@ def with_left_out_boxes(
 def empty_slot_lo(problem: PlanningProblem) -> np.ndarray:
     """Lower corner of the small box an empty slot holds, far outside the world (inactive rows)."""
     return np.asarray(problem.bounds_hi, dtype=float) + 1e3
+
+
+def empty_slots(problem: PlanningProblem, slots: np.ndarray) -> np.ndarray:
+    """(K, S) bool: which of ``slots`` (K, S, 6) hold the far box of an empty slot."""
+    return np.all(np.isclose(slots[:, :, 0:3], empty_slot_lo(problem)), axis=-1)
 
 
 def select_slots(
@@ -477,6 +482,7 @@ __all__ = [
     "adaptive_assignment",
     "constrained_sets",
     "empty_slot_lo",
+    "empty_slots",
     "fixed_assignment",
     "frustum_margins",
     "keep_slot_positions",

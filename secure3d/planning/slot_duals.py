@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from secure3d.errors import GeometryError
 from secure3d.geometry.polytope import box_pair_distances
-from secure3d.planning.lookback import constrained_sets, empty_slot_lo, node_geometry
+from secure3d.planning.lookback import constrained_sets, empty_slots, node_geometry
 from secure3d.planning.problem import Planner, PlanningProblem
 
 __all__ = ["dual_row_margins", "initial_duals", "slot_sides"]
@@ -47,6 +48,21 @@ def dual_row_margins(
     (n,) float: ``min(lam.(A c - b) - |M nu|, lam.(A o - b) - pad)``.
     """
     lam = np.asarray(lam, dtype=float)
+    n = len(lam)
+    expected = {
+        "lam": (lam, (n, 6)),
+        "origins": (origins, (n, 3)),
+        "centres": (centres, (n, 3)),
+        "shapes": (shapes, (n, 3, 3)),
+        "lo": (lo, (n, 3)),
+        "hi": (hi, (n, 3)),
+        "los": (los, (n,)),
+    }
+    for name, (value, shape) in expected.items():
+        if np.shape(value) != shape:
+            raise GeometryError(
+                f"dual_row_margins: {name} must have shape {shape}, got {np.shape(value)}"
+            )
     nu = lam[:, 0:3] - lam[:, 3:6]
     b = np.concatenate([hi, -lo], axis=1)
     spread = np.linalg.norm(np.einsum("nij,nj->ni", shapes, nu), axis=1)
@@ -87,15 +103,13 @@ def initial_duals(
     (the exact one can lead the solver to another local optimum: thin_pole's 12.27 s plan became
     12.72 s with exact duals everywhere). The baseline keeps the normals.
     """
-    geo = node_geometry(problem, states)
-    centres = geo["C"] if planner == Planner.SECURE else geo["P"]
     lo, hi = slots[:, :, 0:3], slots[:, :, 3:6]
-    lam = _normal_duals(centres, lo, hi)
     if planner != Planner.SECURE:
-        return lam
+        return _normal_duals(node_geometry(problem, states)["P"], lo, hi)
+    # the secure planner's centres: node_geometry's "C", as constrained_sets returns them
     origins, centres, shapes, los = constrained_sets(problem, planner, states, assignment)
-    real = ~np.all(np.isclose(lo, empty_slot_lo(problem)), axis=-1)
-    k_idx, s_idx = np.nonzero(real)
+    lam = _normal_duals(centres, lo, hi)
+    k_idx, s_idx = np.nonzero(~empty_slots(problem, slots))
     if not len(k_idx):
         return lam
     pair_lo, pair_hi = lo[k_idx, s_idx], hi[k_idx, s_idx]
@@ -130,8 +144,7 @@ def slot_sides(
     origins, centres, shapes, los = constrained_sets(problem, planner, states, assignment)
     middle = 0.5 * (slots[:, :, 0:3] + slots[:, :, 3:6])
     sides = centres[:, None, :] >= middle
-    real = ~np.all(np.isclose(slots[:, :, 0:3], empty_slot_lo(problem)), axis=-1)
-    k_idx, s_idx = np.nonzero(real)
+    k_idx, s_idx = np.nonzero(~empty_slots(problem, slots))
     if len(k_idx):
         _, lam = box_pair_distances(
             origins[k_idx],

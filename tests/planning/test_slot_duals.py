@@ -61,7 +61,7 @@ def test_initial_duals_replace_only_the_normals_that_fall_short(maps_dir, name):
     # dual feasible everywhere
     assert np.all(lam >= 0)
     assert np.all(np.linalg.norm(lam[..., 0:3] - lam[..., 3:6], axis=-1) <= 1 + 1e-9)
-    real = ~np.all(np.isclose(lo, lb.empty_slot_lo(problem)), axis=-1)
+    real = ~lb.empty_slots(problem, slots)
     o, c, M, los = lb.constrained_sets(problem, "secure", X, assignment)
     k, s = np.nonzero(real)
     sets = (o[k], c[k], M[k], lo[k, s], hi[k, s], los[k])
@@ -75,3 +75,13 @@ def test_initial_duals_replace_only_the_normals_that_fall_short(maps_dir, name):
     assert mended.sum() >= 10  # real scenes start many rows short with the normals
     assert np.allclose(after[mended], dist[mended], atol=1e-6)  # the best any dual can do
     assert (after < m).sum() < (before < m).sum()
+
+
+def test_row_margins_name_a_misshapen_argument():
+    from secure3d.errors import GeometryError
+
+    one = (np.zeros((1, 3)), np.zeros((1, 3)), np.eye(3)[None], np.zeros((1, 3)), np.ones((1, 3)))
+    with pytest.raises(GeometryError, match=r"lam must have shape \(1, 6\), got \(1, 3\)"):
+        sd.dual_row_margins(np.zeros((1, 3)), *one, np.array([True]))
+    with pytest.raises(GeometryError, match="los must have shape"):
+        sd.dual_row_margins(np.zeros((1, 6)), *one, np.array([True, False]))
