@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 import secure3d._numba_cache  # noqa: F401  (kernels cached in the user's cache dir)
 from secure3d.errors import GeometryError
-from secure3d.mapping.morton import TILE_BITS, TREE_DEPTH, _ctz, tiles_to_codes
+from secure3d.mapping.morton import TILE_BITS, TREE_DEPTH, _ctz, _tile_masks, tiles_to_codes
 
 _EMPTY = -1
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -318,9 +318,9 @@ class VoxelTable:
         ``masks`` (m,) uint64, :mod:`secure3d.mapping.morton`'s tile form): the same values, one
         hash probe per tile instead of a code per voxel."""
         blocks = np.ascontiguousarray(blocks, dtype=np.int64)
-        masks = np.ascontiguousarray(masks, dtype=np.uint64)
-        if blocks.shape != masks.shape or blocks.ndim != 1:
-            raise GeometryError(f"tiles: {blocks.shape} block codes but {masks.shape} masks")
+        if blocks.shape != np.shape(masks) or blocks.ndim != 1:
+            raise GeometryError(f"tiles: {blocks.shape} block codes but {np.shape(masks)} masks")
+        masks = _tile_masks(masks)  # non-negative integers, as morton's tile functions take them
         clamps = (np.float32(delta), np.float32(clamp_min), np.float32(clamp_max))
         self._until_done(_update_tiles, (blocks, masks), clamps)
 

@@ -385,6 +385,8 @@ def test_voxel_table_tile_updates_equal_code_updates(rng, span):
         np.testing.assert_array_equal(a, b)
     with pytest.raises(GeometryError, match="masks"):
         by_tiles.add_logodds_tiles(np.array([1, 2]), np.array([3], np.uint64), -0.4, -2.0, 3.5)
+    with pytest.raises(GeometryError, match="non-negative integers"):  # not cast silently
+        by_tiles.add_logodds_tiles(np.array([1, 2]), np.array([3.0, 1.5]), -0.4, -2.0, 3.5)
 
     coarse_tiles, coarse_codes = LeafLayer(), LeafLayer()
     for layer in (coarse_tiles, coarse_codes):  # one depth-14 leaf (4096 voxels) and one voxel
