@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from secure3d.errors import PlanningError
 from secure3d.geometry.frustum import frustum_halfspaces
 from secure3d.geometry.polytope import box_pair_distances
 from secure3d.planning.problem import Planner, PlanningProblem
@@ -408,6 +409,8 @@ def empty_slot_lo(problem: PlanningProblem) -> np.ndarray:
 
 def empty_slots(problem: PlanningProblem, slots: np.ndarray) -> np.ndarray:
     """(K, S) bool: which of ``slots`` (K, S, 6) hold the far box of an empty slot."""
+    if np.ndim(slots) != 3 or np.shape(slots)[-1] != 6:
+        raise PlanningError(f"empty_slots: slots must have shape (K, S, 6), got {np.shape(slots)}")
     return np.all(np.isclose(slots[:, :, 0:3], empty_slot_lo(problem)), axis=-1)
 
 

@@ -85,3 +85,16 @@ def test_row_margins_name_a_misshapen_argument():
         sd.dual_row_margins(np.zeros((1, 3)), *one, np.array([True]))
     with pytest.raises(GeometryError, match="los must have shape"):
         sd.dual_row_margins(np.zeros((1, 6)), *one, np.array([True, False]))
+
+
+def test_empty_slots_names_a_misshapen_slot_array():
+    from types import SimpleNamespace
+
+    from secure3d.errors import PlanningError
+
+    problem = SimpleNamespace(bounds_hi=np.ones(3))
+    far = np.full((2, 3, 6), 1001.0)
+    far[0, 1, :3] = 0.0  # one real box
+    assert lb.empty_slots(problem, far).tolist() == [[True, False, True], [True, True, True]]
+    with pytest.raises(PlanningError, match=r"shape \(K, S, 6\), got \(2, 3\)"):
+        lb.empty_slots(problem, far[..., 0])
