@@ -102,8 +102,22 @@ def quat_to_matrix(q: ArrayOrSym) -> ArrayOrSym:
         if not np.all(np.isfinite(q)) or np.any(n < 1e-12):
             raise GeometryError("quaternion: must be finite and non-zero")
         q = q / n
+        if q.ndim == 1:  # one rotation: the same products on floats, without the batch machinery
+            return _one_quat_matrix(*q.tolist())
     w, x, y, z = (B.component(q, i) for i in range(4))
     return B.block(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def _one_quat_matrix(w: float, x: float, y: float, z: float) -> np.ndarray:
+    """(3, 3) rotation of the unit quaternion (w, x, y, z): :func:`quat_to_matrix`'s entries,
+    term for term (the same values bit for bit)."""
+    return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
             [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],

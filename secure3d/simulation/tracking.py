@@ -292,19 +292,27 @@ class QuadrotorTracker(Tracker):
         R_ref = np.asarray(m.body_rotation(x_ref), dtype=float)
         b3 = thrust_vec / np.linalg.norm(thrust_vec)
         # Heading from the plan's body x axis (its y axis if x is along the thrust direction).
-        side = np.cross(b3, R_ref[:, 0])
+        side = _cross3(b3, R_ref[:, 0])
         if np.linalg.norm(side) > 1e-3:
             b2 = side / np.linalg.norm(side)
-            b1 = np.cross(b2, b3)
+            b1 = _cross3(b2, b3)
         else:
-            b1 = np.cross(R_ref[:, 1], b3)
+            b1 = _cross3(R_ref[:, 1], b3)
             b1 /= np.linalg.norm(b1)
-            b2 = np.cross(b3, b1)
+            b2 = _cross3(b3, b1)
         R_des = np.column_stack([b1, b2, b3])
         e_R = 0.5 * _vee(R_des.T @ R - R.T @ R_des)
         rates = R.T @ R_des @ u_ref[1:4] - g.k_att * e_R
         thrust = float(thrust_vec @ R[:, 2])
         return np.concatenate([[thrust], rates])
+
+
+def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` of two (3,) vectors, the same products and differences written out (called a
+    few times per simulation step, where np.cross's overhead showed: ~35 us against ~3 us)."""
+    a0, a1, a2 = a.tolist()
+    b0, b1, b2 = b.tolist()
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 def _tilt_limited(thrust_vec: np.ndarray, max_tilt: float) -> np.ndarray:

@@ -92,6 +92,19 @@ def test_batch_equals_single(name, rng):
 
 
 @pytest.mark.parametrize("name", MODELS)
+def test_single_state_fast_paths_give_the_batch_values_bit_for_bit(name, rng):
+    """One state's f (its components as floats) and body rotation (a quaternion's entries written
+    out) are the batch path's values exactly, not just to rounding: the simulator steps one state
+    at a time and its flights are pinned bit for bit (tests/test_golden_outputs.py)."""
+    model = make_model(name, mount=MOUNT)
+    X, U = _random(model, rng, 200)
+    F, R = model.f_batch(X, U), model.body_rotation(X)
+    for i in range(len(X)):
+        np.testing.assert_array_equal(model.f(X[i], U[i]), F[i])
+        np.testing.assert_array_equal(model.body_rotation(X[i]), R[i])
+
+
+@pytest.mark.parametrize("name", MODELS)
 def test_rotations_are_proper(name, rng):
     model = make_model(name, mount=MOUNT)
     X = sample_states(model, 30, rng)

@@ -329,6 +329,32 @@ def test_voxel_table_grows_by_the_blocks_it_adds(rng, span):
     assert np.isnan(copy.get(fresh)).all()
 
 
+def test_voxel_table_hash_keeps_neighbouring_blocks_in_one_cache_line(rng):
+    """The blocks of a 2 x 2 x 2 group (block codes equal but for the low three bits) take the
+    slots of one aligned run of eight in an empty table, one each; the listing and the values are
+    those of a dict, whatever the slots (a table of many such groups, several per run)."""
+    from secure3d.mapping.store import BLOCK_BITS, VoxelTable
+
+    table = VoxelTable(capacity=1 << 16)
+    group = int(rng.integers(0, 1 << 30)) << 3
+    codes = np.array([(group + i) << BLOCK_BITS for i in range(8)], np.int64)
+    table.add_logodds(codes, 0.85, -2.0, 3.5)
+    slots = np.flatnonzero(table.bkeys != -1)
+    assert len(slots) == 8 and slots[0] % 8 == 0 and slots[-1] == slots[0] + 7
+    np.testing.assert_array_equal(np.sort(table.bkeys[slots]), codes >> BLOCK_BITS)
+
+    crowded, ref = VoxelTable(capacity=16), {}
+    for _ in range(4):
+        blocks = rng.integers(0, 64, 200) + (rng.integers(0, 4, 200) << 20)  # few groups, dense
+        codes = np.unique((blocks << BLOCK_BITS) + rng.integers(0, 64, 200)).astype(np.int64)
+        crowded.add_logodds(codes, -0.4, -2.0, 3.5)
+        for c in codes.tolist():
+            ref[c] = float(np.clip(np.float32(ref.get(c, 0.0)) + np.float32(-0.4), -2.0, 3.5))
+    got_codes, got_vals = crowded.items()
+    assert got_codes.tolist() == sorted(ref)
+    np.testing.assert_array_equal(got_vals, np.float32([ref[c] for c in sorted(ref)]))
+
+
 def test_voxel_table_set_rejects_nan_and_mismatched_values():
     """NaN marks an unknown voxel, so a NaN value cannot be stored; values must match codes."""
     from secure3d.mapping.store import VoxelTable

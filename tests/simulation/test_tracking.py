@@ -246,3 +246,15 @@ def test_the_hold_after_a_plan_keeps_the_robot_at_rest_where_the_plan_ends(name)
     if name != "diff_drive":  # the last node as the hold: off by metres (a / kp), still moving
         x_old = _held(model, x0, x_end, u_end)
         assert np.linalg.norm(model.position(x_old) - end) > 0.5
+
+
+def test_cross3_is_numpys_cross_bit_for_bit(rng):
+    """The tracker's written-out cross product of two 3-vectors is np.cross's, value for value."""
+    from secure3d.simulation.tracking import _cross3
+
+    A, B = (
+        rng.normal(size=(500, 3)) * 10.0 ** rng.integers(-6, 6, (500, 1)),
+        rng.normal(size=(500, 3)),
+    )
+    for a, b in zip(A, B, strict=True):
+        np.testing.assert_array_equal(_cross3(a, b), np.cross(a, b))
