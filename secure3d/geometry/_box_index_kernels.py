@@ -308,3 +308,43 @@ def near_mask(points, radius, lo, hi, perm, nlo, nhi, child, start, count):  # p
                 if _point_box_distance(x, y, z, lo[j], hi[j]) <= r:
                     out[j] = True
     return out
+
+
+@numba.njit(cache=True)
+def overlap_mask(a, b, lo, hi, perm, nlo, nhi, child, start, count):  # pragma: no cover - compiled
+    """(m,) bool: boxes that overlap the closed box [a, b] (3,), ``lo <= b`` and ``hi >= a`` on
+    every axis (comparisons only: exact). A node whose bounds fail the test has no box below it
+    that passes (its bounds are its boxes' extreme corners)."""
+    m = lo.shape[0]
+    out = np.zeros(m, dtype=np.bool_)
+    if m == 0:
+        return out
+    stack = np.empty(_STACK, dtype=np.int64)
+    stack[0] = 0
+    top = 1
+    while top > 0:
+        top -= 1
+        node = stack[top]
+        miss = False
+        for d in range(3):
+            if nlo[node, d] > b[d] or nhi[node, d] < a[d]:
+                miss = True
+        if miss:
+            continue
+        c = child[node]
+        if c >= 0:
+            stack[top], stack[top + 1] = c, c + 1
+            top += 2
+            continue
+        for k in range(start[node], start[node] + count[node]):
+            j = perm[k]
+            if (
+                lo[j, 0] <= b[0]
+                and lo[j, 1] <= b[1]
+                and lo[j, 2] <= b[2]
+                and hi[j, 0] >= a[0]
+                and hi[j, 1] >= a[1]
+                and hi[j, 2] >= a[2]
+            ):
+                out[j] = True
+    return out

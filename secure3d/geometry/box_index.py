@@ -150,6 +150,14 @@ class BoxIndex:
             raise GeometryError(f"radius: must be finite and >= 0, got {radius!r}")
         return _kern().cones_blocked(a, c, float(radius), self.lo, self.hi, *self.tree)
 
+    def overlapping(self, a: object, b: object) -> np.ndarray:
+        """Sorted indices of the boxes that overlap the closed box ``[a, b]`` ((3,) each): equal to
+        ``np.flatnonzero(np.all((lo <= b) & (hi >= a), axis=1))`` (comparisons only)."""
+        a, b = _points(a), _points(b)
+        if a.shape != (1, 3) or b.shape != (1, 3):
+            raise GeometryError(f"overlapping: a and b must be 3-vectors, got {a.shape}, {b.shape}")
+        return np.flatnonzero(_kern().overlap_mask(a[0], b[0], self.lo, self.hi, *self.tree))
+
     def near(self, points: object, radius: object) -> np.ndarray:
         """Sorted indices of the boxes within (unsigned, 0 inside) distance ``radius`` ((n,) or
         scalar) of some point: a superset by at most rounding of

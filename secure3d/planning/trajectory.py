@@ -52,6 +52,19 @@ class Interpolant:
             )
         self.times, self.states, self.controls, self.derivatives = times, states, controls, F
         self._project = getattr(model, "project_state", None)
+        self._last: tuple[float, tuple[np.ndarray, np.ndarray]] | None = None
+
+    def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """State (nx,) and control (nu,) at one time ``t``: row 0 of ``self([t])``, read-only and
+        kept for the next call at the same time (a simulation step reads its reference twice:
+        the tracker, then the tracking guard)."""
+        if self._last is not None and self._last[0] == t:
+            return self._last[1]
+        x, u = self(np.array([t]))
+        x, u = x[0], u[0]
+        x.flags.writeable = u.flags.writeable = False
+        self._last = (t, (x, u))
+        return x, u
 
     def __call__(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """States (n, nx) and controls (n, nu) at times ``t`` (clipped to the first/last node)."""

@@ -433,8 +433,7 @@ class Flight:
             return hold_after(self.model, p)
         if self.reference[0] is not p:
             self.reference = (p, Interpolant(self.model, p.times, p.states, p.controls))
-        x_ref, u_ref = self.reference[1](np.array([self.t - self.current.start]))
-        return x_ref[0], u_ref[0]
+        return self.reference[1].at(self.t - self.current.start)  # the tracker's, then the guard's
 
     def act_follow(self) -> np.ndarray:
         """Line 3: track the plan."""

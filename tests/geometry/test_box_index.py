@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from secure3d.errors import GeometryError
 from secure3d.geometry.box_index import BoxIndex
 from secure3d.geometry.polytope import (
     cones_blocked,
@@ -61,6 +62,23 @@ def test_index_queries_equal_brute_force(rng, m):
     # only rounding may add a box: every extra one is within 1e-6 of the radius
     extra = np.setdiff1d(near, np.flatnonzero((d <= radius[:, None]).any(axis=0)))
     assert np.all((d[:, extra] - radius[:, None]).min(axis=0) <= 1e-6) if len(extra) else True
+
+
+@pytest.mark.parametrize("m", [1, 50, 2000])
+def test_overlapping_boxes_equal_the_scan(rng, m):
+    """overlapping(a, b) is the scan's sorted indices, ties (shared faces, zero-size query boxes)
+    included; extended trees too; a misshapen corner raises."""
+    lo, hi = _voxel_boxes(rng, m)
+    index = BoxIndex(lo, hi).extended(lo[:7] + 0.05, hi[:7] + 0.05)
+    all_lo, all_hi = index.lo, index.hi
+    pts = _queries(rng, all_lo, 600)
+    size = rng.uniform(0.0, 1.5, pts.shape) * (rng.random((len(pts), 1)) < 0.8)  # some points
+    for a, b in zip(pts, pts + size, strict=True):
+        want = np.flatnonzero(np.all((all_lo <= b) & (all_hi >= a), axis=1))
+        np.testing.assert_array_equal(index.overlapping(a, b), want)
+    with pytest.raises(GeometryError, match="overlapping"):
+        index.overlapping(np.zeros(6), np.ones(3))
+    assert len(BoxIndex(np.zeros((0, 3)), np.zeros((0, 3))).overlapping(pts[0], pts[0])) == 0
 
 
 def test_empty_index(rng):

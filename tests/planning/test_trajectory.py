@@ -43,3 +43,22 @@ def test_node_times_must_increase():
     t, X, U = _straight(model)
     with pytest.raises(PlanningError, match="node times must be increasing"):
         interpolate(model, t[::-1], X, U, t)
+
+
+def test_interpolant_at_one_time_is_row_zero_read_only_and_kept(rng):
+    """``at(t)`` is ``self([t])``'s row, read-only (the tracker and the guard share it), and the
+    same arrays again for the same t."""
+    from secure3d.dynamics import make_model
+
+    model = make_model("quadrotor")
+    t = np.cumsum(rng.uniform(0.05, 0.2, 12)) - 0.05
+    X = np.tile(model.initial_state((0.0, 0.0, 1.0)), (12, 1)) + rng.normal(size=(12, 10)) * 0.01
+    U = np.tile(model.nominal_control(X[0]), (12, 1))
+    ref = Interpolant(model, t, X, U)
+    for q in rng.uniform(t[0] - 0.1, t[-1] + 0.1, 20):
+        x, u = ref.at(q)
+        x0, u0 = ref(np.array([q]))
+        np.testing.assert_array_equal(x, x0[0])
+        np.testing.assert_array_equal(u, u0[0])
+        assert not x.flags.writeable and not u.flags.writeable
+        assert ref.at(q)[0] is x

@@ -97,6 +97,7 @@ def test_state_margin_passes_every_sampled_state_of_a_certified_plan(maps_dir):
 
 
 def test_the_quick_ellipsoid_test_never_passes_an_ellipsoid_that_meets_a_box(rng):
+    from secure3d.geometry.box_index import BoxIndex
     from secure3d.geometry.polytope import inside_any_box
     from secure3d.simulation.guard import _clear_of_boxes
 
@@ -110,10 +111,50 @@ def test_the_quick_ellipsoid_test_never_passes_an_ellipsoid_that_meets_a_box(rng
         z = rng.normal(size=(4000, 3))
         z *= (rng.uniform(0, 1, 4000) ** (1 / 3) / np.linalg.norm(z, axis=1))[:, None]
         hit = inside_any_box(c + z @ M.T, lo, hi).any()
+        assert _clear_of_boxes(c, M, lo, hi) == _clear_of_boxes(c, M, lo, hi, BoxIndex(lo, hi))
         if _clear_of_boxes(c, M, lo, hi):
             passed += 1
             assert not hit
     assert passed > 30  # the test is not vacuous
+
+
+def test_the_guard_computes_each_frames_faces_once_with_the_stacked_values(maps_dir, rng):
+    """The guard's field-of-view faces of its frames are one frustum_halfspaces call over all of
+    them, bit for bit, however the frames arrive; each frame's faces are computed once, and a new
+    frustum starts over."""
+    from scipy.spatial.transform import Rotation
+
+    import secure3d.simulation.guard as guard_module
+    from secure3d.geometry.frustum import frustum_halfspaces
+    from secure3d.planning import problem_from_scenario
+    from secure3d.simulation.guard import TrackingGuard
+
+    frustum = problem_from_scenario(secure3d.load_scenario(maps_dir / "beam_3d.yaml")).frustum
+    other = problem_from_scenario(secure3d.load_scenario(maps_dir / "forest.yaml")).frustum
+    guard = TrackingGuard(loop=None)
+    calls = []
+    real = guard_module.frustum_halfspaces
+
+    def counted(R, o, f):
+        calls.append(len(R))
+        return real(R, o, f)
+
+    guard_module.frustum_halfspaces = counted
+    try:
+        for n in (1, 3, 1, 7):
+            for R in Rotation.random(n, random_state=int(rng.integers(1 << 30))).as_matrix():
+                guard.add_view(R, rng.normal(size=3) * 4.0)
+            for i, f in enumerate((frustum, frustum, other, frustum)):
+                before = len(calls)
+                A, b = guard._frame_faces(f)
+                if i == 1:
+                    assert len(calls) == before  # nothing new: the stacked faces are kept
+                A0, b0 = frustum_halfspaces(np.array(guard._R), np.array(guard._o), f)
+                np.testing.assert_array_equal(A, A0)
+                np.testing.assert_array_equal(b, b0)
+    finally:
+        guard_module.frustum_halfspaces = real
+    assert set(calls) == {1}  # one frame at a time
 
 
 def test_a_replan_that_detours_too_far_is_refused():
