@@ -10,6 +10,8 @@ versions broadcast over leading batch dimensions.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from secure3d.errors import GeometryError
@@ -103,27 +105,18 @@ def quat_to_matrix(q: ArrayOrSym) -> ArrayOrSym:
             raise GeometryError("quaternion: must be finite and non-zero")
         q = q / n
         if q.ndim == 1:  # one rotation: the same products on floats, without the batch machinery
-            return _one_quat_matrix(*q.tolist())
-    w, x, y, z = (B.component(q, i) for i in range(4))
-    return B.block(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+            return np.array(_quat_entries(*q.tolist()))
+    return B.block(_quat_entries(*(B.component(q, i) for i in range(4))))
 
 
-def _one_quat_matrix(w: float, x: float, y: float, z: float) -> np.ndarray:
-    """(3, 3) rotation of the unit quaternion (w, x, y, z): :func:`quat_to_matrix`'s entries,
-    term for term (the same values bit for bit)."""
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+def _quat_entries(w: Any, x: Any, y: Any, z: Any) -> list[list[Any]]:
+    """The rotation matrix of the unit quaternion (w, x, y, z), row by row, in whatever the
+    components are (floats, numpy arrays of a batch, CasADi scalars)."""
+    return [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
 
 
 def check_rotation(R: object, tol: float = ROTATION_TOL) -> np.ndarray:

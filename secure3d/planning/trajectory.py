@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from secure3d.errors import PlanningError
+from secure3d.validation import is_real
 
 
 def node_derivatives(model: object, states: np.ndarray, controls: np.ndarray) -> np.ndarray:
@@ -60,6 +61,8 @@ class Interpolant:
         the tracker, then the tracking guard)."""
         if self._last is not None and self._last[0] == t:
             return self._last[1]
+        if not is_real(t, numpy=True) or not np.isfinite(t):
+            raise PlanningError(f"Interpolant.at: t must be a finite number, got {t!r}")
         x, u = self(np.array([t]))
         x, u = x[0], u[0]
         x.flags.writeable = u.flags.writeable = False

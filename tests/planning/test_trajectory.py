@@ -62,3 +62,6 @@ def test_interpolant_at_one_time_is_row_zero_read_only_and_kept(rng):
         np.testing.assert_array_equal(u, u0[0])
         assert not x.flags.writeable and not u.flags.writeable
         assert ref.at(q)[0] is x
+    for bad in (np.nan, np.inf, "1.0", None):
+        with pytest.raises(PlanningError, match="Interpolant.at: t must be a finite number"):
+            ref.at(bad)
