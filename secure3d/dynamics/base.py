@@ -203,9 +203,10 @@ class VehicleModel(ABC):
         if type(x) is np.ndarray and type(u) is np.ndarray and x.dtype == u.dtype == np.float64:
             # numbers (every simulation step): the same values without the CasADi dispatch; one
             # state's components as floats (the same double arithmetic as numpy's scalars, faster)
-            xs, us = sym.split_numbers(x, self.nx, "x"), sym.split_numbers(u, self.nu, "u")
-            if x.ndim == 1 and u.ndim == 1:
+            if x.shape == (self.nx,) and u.shape == (self.nu,):
                 xs, us = x.tolist(), u.tolist()
+            else:
+                xs, us = sym.split_numbers(x, self.nx, "x"), sym.split_numbers(u, self.nu, "u")
             return sym.stack(self._f(xs, us, np), False)
         cas = sym.is_casadi(x, u)
         m = sym.math_of(x, u)
