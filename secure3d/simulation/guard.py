@@ -125,6 +125,8 @@ def ellipsoid_shown_safe(
     then runs the exact test. ``halfspaces``: ``frustum_halfspaces(rotations, origins, frustum)``
     when the caller has them (the guard keeps them per set of frames); ``index``: the boxes'
     :class:`~secure3d.geometry.box_index.BoxIndex` (the same answer, without a scan of them all)."""
+    if index is not None and not isinstance(index, BoxIndex):
+        raise SimulationError(f"index: expected the boxes' BoxIndex, got {type(index).__name__}")
     s = _support(M, np.eye(3))  # half extents of E's bounding box
     if np.any(c - s < bounds[0]) or np.any(c + s > bounds[1]):
         return False

@@ -117,6 +117,15 @@ def test_the_quick_ellipsoid_test_never_passes_an_ellipsoid_that_meets_a_box(rng
             assert not hit
     assert passed > 30  # the test is not vacuous
 
+    from secure3d.errors import SimulationError
+    from secure3d.simulation.guard import ellipsoid_shown_safe
+
+    with pytest.raises(SimulationError, match="index: expected the boxes' BoxIndex, got tuple"):
+        box = (np.zeros(3), np.ones(3))
+        ellipsoid_shown_safe(
+            c, M, lo, hi, box, box, np.zeros((0, 3, 3)), np.zeros((0, 3)), None, None, (lo, hi)
+        )
+
 
 def test_the_guard_computes_each_frames_faces_once_with_the_stacked_values(maps_dir, rng):
     """The guard's field-of-view faces of its frames are one frustum_halfspaces call over all of
