@@ -13,15 +13,16 @@ $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[dev,ray]'
-	$(MAKE) --no-print-directory warm || echo "secure3d: warming numba's kernels failed; they compile on first use"
+	$(MAKE) --no-print-directory warm || echo "secure3d: warming the kernels failed; they compile on first use"
 	touch $(STAMP)
 
 venv: $(STAMP)
 
-# Compile numba's kernels once into the user's cache (~/.cache/secure3d/numba), so that the first
-# plan or flight does not pay 10-20 s of compilation (issue 17); a no-op once they are cached.
+# Compile numba's kernels and the NLP's node kernels (C, if there is a compiler) once into the
+# user's cache (~/.cache/secure3d), so that the first plan or flight does not pay for compilation
+# (issue 17); a no-op once they are cached.
 warm:
-	$(PY) -c "from secure3d.warm import warm; print(f'secure3d: numba kernels ready ({warm():.1f} s)')"
+	$(PY) -c "from secure3d.warm import warm; print(f'secure3d: kernels ready ({warm():.1f} s)')"
 
 demo: $(STAMP)
 	$(PY) -m secure3d demo

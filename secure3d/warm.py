@@ -1,5 +1,5 @@
-"""Compile numba's kernels once into the user's cache (``make warm``, issue 17), so that the first
-plan or flight does not pay 10-20 s of compilation.
+"""Compile numba's kernels and the NLP's node kernels once into the user's cache (``make warm``,
+issue 17), so that the first plan or flight does not pay for compilation.
 
 An edge of the package, like the CLI: it runs a plan and a flight, so it imports the planner and
 the simulator. (It lived in :mod:`secure3d._numba_cache`, which every kernel module imports: an
@@ -15,7 +15,26 @@ __all__ = ["warm"]
 
 def warm() -> float:
     """Compile (or load) the kernels of a secure plan, its certificate and a short closed-loop
-    flight over a voxel map, so that the first real run does not pay for it. Returns seconds."""
+    flight over a voxel map, so that the first real run does not pay for it: numba's, and the NLP
+    node kernels' C libraries (:mod:`secure3d.planning.compiled_kernels`, unless
+    ``$SECURE3D_KERNEL_COMPILE`` is ``off``). Returns seconds."""
+    import os
+
+    from secure3d.planning import compiled_kernels
+
+    before = os.environ.get(compiled_kernels.MODE_ENV)
+    if compiled_kernels.mode() != "off":
+        os.environ[compiled_kernels.MODE_ENV] = "now"  # compile before use, and wait
+    try:
+        return _warm()
+    finally:
+        if before is None:
+            os.environ.pop(compiled_kernels.MODE_ENV, None)
+        else:
+            os.environ[compiled_kernels.MODE_ENV] = before
+
+
+def _warm() -> float:
     import time
 
     import numpy as np

@@ -14,6 +14,10 @@ ORIGINAL_ENV = dict(os.environ)
 from secure3d._numba_cache import cache_root  # noqa: E402
 
 os.environ.setdefault("SECURE3D_NUMBA_CACHE_DIR", str(cache_root()))
+# The kernels' derivatives run in CasADi's VM unless a test asks for compiled ones
+# (tests/planning/test_compiled_kernels.py): the values are the same bit for bit, and a sandboxed
+# cache would compile every kernel shape of the suite again in every session.
+os.environ.setdefault("SECURE3D_KERNEL_COMPILE", "off")
 _SANDBOX_HOME = Path(tempfile.mkdtemp(prefix="secure3d-test-home-"))
 for _var in ("HOME", "XDG_CONFIG_HOME", "XDG_DATA_HOME", "XDG_CACHE_HOME", "MPLCONFIGDIR"):
     os.environ[_var] = str(_SANDBOX_HOME / _var.lower())

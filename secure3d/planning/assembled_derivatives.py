@@ -31,6 +31,9 @@ from dataclasses import dataclass
 
 import casadi as ca
 
+from secure3d.planning import compiled_kernels
+from secure3d.planning.compiled_kernels import KernelTag
+
 
 @dataclass
 class KernelCall:
@@ -60,7 +63,8 @@ class AssembledNLP:
 
 def _kernel_derivatives(fn: ca.Function, dec: tuple[int, ...], cache: dict) -> tuple:
     """(rows-and-Jacobian, Hessian-of-mu'G) Functions of kernel ``fn`` with respect to its inputs
-    ``dec``. The first returns the kernel's rows too, so g and its Jacobian share one call."""
+    ``dec``. The first returns the kernel's rows too, so g and its Jacobian share one call. Each is
+    its compiled library when there is one (:mod:`secure3d.planning.compiled_kernels`)."""
     key = (id(fn), dec)
     if key not in cache:
         ins = [ca.SX.sym(f"in{i}", fn.sparsity_in(i)) for i in range(fn.n_in())]
@@ -69,8 +73,11 @@ def _kernel_derivatives(fn: ca.Function, dec: tuple[int, ...], cache: dict) -> t
         mu = ca.SX.sym("mu", out.numel())
         jac = ca.Function(f"{fn.name()}_jac", ins, [out, ca.jacobian(out, z)])
         hess = ca.Function(f"{fn.name()}_hess", [*ins, mu], [ca.hessian(ca.dot(mu, out), z)[0]])
-        cache[key] = (fn, jac, hess)  # fn kept alive so its id stays unique
-    return cache[key][1], cache[key][2]
+        tags = (KernelTag.of(fn, dec, "jac"), KernelTag.of(fn, dec, "hess"))
+        cache[key] = (fn, jac, hess, tags)  # fn kept alive so its id stays unique
+    _, jac, hess, tags = cache[key]
+    # compiled to C when a library is there (the same values bit for bit), else CasADi's VM
+    return compiled_kernels.best(jac, tags[0]), compiled_kernels.best(hess, tags[1])
 
 
 def _block_diagonal(mapped: ca.MX, block: ca.Sparsity, n: int) -> ca.MX:

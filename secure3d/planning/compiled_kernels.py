@@ -1,0 +1,423 @@
+"""The node kernels' derivative Functions compiled to C, cached in the user's cache directory.
+
+CasADi evaluates an SX Function in its virtual machine, a few nanoseconds an instruction. The
+Lagrangian Hessian of a quadrotor's node has 16,000-26,000 of them, so evaluating the kernels was
+a third of a closed-loop IPOPT iteration (forest, 12 obstacle slots: Hessian 12.5 ms, Jacobian
+3.1 ms, of ~30-40 ms an iteration). The same instructions compiled by the system's C compiler run
+2-5x faster (Hessian 6.4 ms, Jacobian 1.8 ms), with the same values bit for bit: CasADi's generated
+code performs the same IEEE operations in the same order, and ``-ffp-contract=off`` keeps the
+compiler from fusing a product and a sum into one rounding. Every library loaded is checked
+against the virtual machine on random inputs before it is used.
+
+A kernel is compiled once per machine. Its library is named by a digest of the kernel (its
+serialised SX graph), the inputs it is differentiated in, CasADi's version, the compiler's version
+and the flags, and kept under
+
+    $SECURE3D_KERNEL_CACHE_DIR, else $SECURE3D_CACHE_DIR/kernels,
+    else $XDG_CACHE_HOME/secure3d/kernels, else ~/.cache/secure3d/kernels
+
+``$SECURE3D_KERNEL_COMPILE`` chooses when:
+
+- ``background`` (the default): a kernel without a library is used in the virtual machine, and
+  compiled by a background thread at a low priority, first quickly (``-O0``, ~1 s for the largest
+  kernel: ready for the next NLP built, usually the next plan call), then well (``-O1``, ~6 s);
+  each NLP built afterwards picks the best library there is;
+- ``now``: compile (``-O1``) before the first use and wait (benchmarks, ``make warm``);
+- ``off``: never compile.
+
+Without a C compiler (``$CC``, else ``cc``, ``gcc`` or ``clang`` on the PATH) every kernel runs in
+the virtual machine, with the same results. A compiler that fails is not asked again in the
+process. A compile that outlives the process still finishes and moves its library into place (the
+move is part of the command); a lock file per library keeps processes that share the cache from
+compiling the same kernel at once.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import logging
+import os
+import platform
+import queue
+import shlex
+import shutil
+import subprocess
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from secure3d.errors import ConfigError
+
+__all__ = [
+    "MODE_ENV",
+    "MODES",
+    "KernelTag",
+    "best",
+    "cache_root",
+    "mode",
+    "status",
+    "wait",
+]
+
+log = logging.getLogger(__name__)
+
+MODE_ENV = "SECURE3D_KERNEL_COMPILE"
+MODES = ("background", "now", "off")
+#: Optimisation levels, quickest to compile first: the background thread compiles every kernel at
+#: the first level before any at the second, and a lookup takes the last level present.
+LEVELS = ("-O0", "-O1")
+#: Flags of every compile: no contraction of a product and a sum into one rounding (an FMA), which
+#: would change values in the last bit.
+FLAGS = ("-fPIC", "-shared", "-ffp-contract=off")
+#: A lock older than this (s) belongs to a compile that died: it no longer blocks.
+STALE_LOCK = 900.0
+#: The longest a compile may take (s).
+COMPILE_TIMEOUT = 900.0
+#: Random inputs a loaded library is checked on against the virtual machine.
+CHECK_DRAWS = 3
+
+
+def mode() -> str:
+    """The compile mode from ``$SECURE3D_KERNEL_COMPILE`` (see the module)."""
+    value = os.environ.get(MODE_ENV, "background").strip().lower() or "background"
+    if value not in MODES:
+        raise ConfigError(
+            f"environment variable {MODE_ENV}: must be one of {', '.join(MODES)}, got {value!r}"
+        )
+    return value
+
+
+def cache_root() -> Path:
+    """The folder of compiled kernels (see the module)."""
+    explicit = os.environ.get("SECURE3D_KERNEL_CACHE_DIR")
+    if explicit:
+        return Path(explicit).expanduser()
+    shared = os.environ.get("SECURE3D_CACHE_DIR")
+    if shared:
+        return Path(shared).expanduser() / "kernels"
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    base = Path(xdg) if xdg else Path.home() / ".cache"
+    return base / "secure3d" / "kernels"
+
+
+@functools.cache
+def _compiler() -> tuple[str, str] | None:
+    """(path, first line of ``--version``) of the C compiler, or None (also on a system without a
+    POSIX shell, which the compile command needs)."""
+    if os.name != "posix" or not Path("/bin/sh").exists():
+        return None
+    names = [os.environ["CC"]] if os.environ.get("CC") else ["cc", "gcc", "clang"]
+    for name in names:
+        path = shutil.which(name)
+        if path is None:
+            continue
+        try:
+            out = subprocess.run(
+                [path, "--version"], capture_output=True, text=True, timeout=30, check=False
+            )
+        except (OSError, subprocess.SubprocessError):
+            continue
+        if out.returncode == 0:
+            return path, (out.stdout.splitlines() or [""])[0]
+    return None
+
+
+@dataclass(frozen=True)
+class KernelTag:
+    """What names a derivative Function of a node kernel: a digest of the kernel's SX graph, the
+    inputs it is differentiated in and the derivative (``jac`` or ``hess``)."""
+
+    kernel_digest: str
+    dec: tuple[int, ...]
+    role: str
+
+    @staticmethod
+    def of(kernel: ca.Function, dec: tuple[int, ...], role: str) -> KernelTag:
+        """The tag of ``kernel``'s derivative ``role`` in inputs ``dec``."""
+        digest = hashlib.sha256(kernel.serialize().encode()).hexdigest()
+        return KernelTag(digest, tuple(int(d) for d in dec), str(role))
+
+    def digest(self, compiler_version: str) -> str:
+        """The library's file name stem for this compiler."""
+        h = hashlib.sha256()
+        for part in (
+            self.kernel_digest,
+            repr(self.dec),
+            self.role,
+            ca.__version__,
+            platform.machine(),
+            compiler_version,
+            " ".join(FLAGS),
+        ):
+            h.update(part.encode())
+            h.update(b"\0")
+        return h.hexdigest()[:24]
+
+
+class _State:
+    """What this process knows: loaded libraries, failures, the background queue."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.loaded: dict[str, tuple[int, ca.Function]] = {}  # stem -> (level index, Function)
+        self.bad: set[str] = set()  # stems whose library failed the check or would not load
+        self.failed: set[tuple[str, int]] = set()  # (stem, level) the compiler failed on
+        self.queued: set[tuple[str, int]] = set()
+        self.jobs: queue.PriorityQueue = queue.PriorityQueue()
+        self.worker: threading.Thread | None = None
+        self.order = 0
+        self.pid = os.getpid()
+
+
+_STATE = _State()
+
+
+def _state() -> _State:
+    """This process's state: a child forked from a process with a background thread starts anew
+    (the thread and its queue stayed in the parent)."""
+    global _STATE
+    if _STATE.pid != os.getpid():
+        _STATE = _State()
+    return _STATE
+
+
+def _paths(stem: str, level: int) -> tuple[Path, Path, Path]:
+    root = cache_root()
+    return (
+        root / f"{stem}.c",
+        root / f"{stem}{LEVELS[level]}.so",
+        root / f"{stem}{LEVELS[level]}.lock",
+    )
+
+
+def _present_level(stem: str) -> int:
+    """The highest level whose library exists, or -1."""
+    for level in range(len(LEVELS) - 1, -1, -1):
+        if _paths(stem, level)[1].exists():
+            return level
+    return -1
+
+
+def _random_inputs(fn: ca.Function, rng: np.random.Generator) -> list[np.ndarray]:
+    return [rng.normal(size=fn.sparsity_in(i).shape) for i in range(fn.n_in())]
+
+
+def _same_outputs(a: ca.Function, b: ca.Function) -> bool:
+    """Whether ``a`` and ``b`` give the same outputs, bit for bit, on :data:`CHECK_DRAWS` draws of
+    random inputs."""
+    rng = np.random.default_rng(20261127)
+    for _ in range(CHECK_DRAWS):
+        args = _random_inputs(a, rng)
+        out_a, out_b = a.call(args), b.call(args)
+        for x, y in zip(out_a, out_b, strict=True):
+            xa, ya = np.asarray(ca.DM(x).nonzeros()), np.asarray(ca.DM(y).nonzeros())
+            if xa.shape != ya.shape or not np.array_equal(xa, ya, equal_nan=True):
+                return False
+    return True
+
+
+def _load(fn: ca.Function, stem: str, level: int) -> ca.Function | None:
+    """The library of ``stem`` at ``level`` as a Function, if it loads and matches ``fn``."""
+    so = _paths(stem, level)[1]
+    try:
+        ext = ca.external(fn.name(), str(so))
+        ok = (
+            ext.n_in() == fn.n_in()
+            and ext.n_out() == fn.n_out()
+            and all(ext.sparsity_in(i) == fn.sparsity_in(i) for i in range(fn.n_in()))
+            and all(ext.sparsity_out(i) == fn.sparsity_out(i) for i in range(fn.n_out()))
+            and _same_outputs(fn, ext)
+        )
+    except RuntimeError as exc:
+        log.warning("compiled kernel %s does not load (%s); using CasADi's VM", so, exc)
+        return None
+    if not ok:
+        log.warning("compiled kernel %s differs from CasADi's VM; not used", so)
+        return None
+    return ext
+
+
+def _write_source(fn: ca.Function, source: Path) -> None:
+    """``fn``'s C code into ``source``, atomically (a reader never sees half a file)."""
+    gen = ca.CodeGenerator(fn.name(), {"with_header": False})
+    gen.add(fn)
+    source.parent.mkdir(parents=True, exist_ok=True)
+    tmp = source.with_name(f"{source.name}.{os.getpid()}.tmp")
+    tmp.write_text(gen.dump())
+    os.replace(tmp, source)
+
+
+def _command(cc: str, stem: str, level: int, background: bool) -> str:
+    """The shell command compiling ``stem`` at ``level``: into a temporary file, moved into place,
+    then the lock (and after the last level the source) removed, even when the process that
+    started it has exited. In the background at a low priority (``nice``)."""
+    source, so, lock = _paths(stem, level)
+    tmp = so.with_name(f"{so.name}.{os.getpid()}.tmp")
+    q = shlex.quote
+    args = (cc, LEVELS[level], *FLAGS, str(source), "-o", str(tmp))
+    nice = shutil.which("nice") if background else None
+    compile_ = " ".join(q(a) for a in ((nice, "-n", "10", *args) if nice else args))
+    last = level == len(LEVELS) - 1
+    tail = f"rm -f {q(str(lock))}" + (f" {q(str(source))}" if last else "")
+    return (
+        f"{compile_} && mv -f {q(str(tmp))} {q(str(so))}; rc=$?; rm -f {q(str(tmp))}; {tail}; "
+        "exit $rc"
+    )
+
+
+def _take_lock(lock: Path) -> bool:
+    """Create ``lock`` exclusively (a stale one is replaced); False if another process holds it."""
+    try:
+        if lock.exists() and time.time() - lock.stat().st_mtime > STALE_LOCK:
+            lock.unlink(missing_ok=True)
+        fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+    except FileExistsError:
+        return False
+    except OSError as exc:
+        log.warning("cannot lock %s (%s); not compiling", lock, exc)
+        return False
+    os.write(fd, str(os.getpid()).encode())
+    os.close(fd)
+    return True
+
+
+def _compile(st: _State, cc: str, stem: str, level: int, background: bool) -> bool:
+    """Compile ``stem``'s source at ``level`` unless another process is at it (its lock is held).
+    Returns whether the library is there afterwards; a failure is remembered in ``st``."""
+    source, so, lock = _paths(stem, level)
+    if so.exists():
+        return True
+    if not source.exists() or not _take_lock(lock):
+        return False
+    with subprocess.Popen(
+        ["/bin/sh", "-c", _command(cc, stem, level, background)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        start_new_session=True,  # a Ctrl-C of the planner does not kill the compile
+    ) as proc:
+        try:
+            _, err = proc.communicate(timeout=COMPILE_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+    if proc.returncode != 0:
+        st.failed.add((stem, level))
+        log.warning("compiling kernel %s (%s) failed: %s", stem, LEVELS[level], err.decode()[-500:])
+        return False
+    return so.exists()
+
+
+def _work(st: _State) -> None:
+    """The background thread: compile the queued (level, order, stem) jobs, lowest level first."""
+    found = _compiler()
+    while True:
+        level, _, stem = st.jobs.get()
+        try:
+            if found is not None and (stem, level) not in st.failed:
+                _compile(st, found[0], stem, level, background=True)
+        except Exception as exc:  # never let the thread die on one kernel
+            log.warning("compiling kernel %s failed: %s", stem, exc)
+        finally:
+            with st.lock:
+                st.queued.discard((stem, level))
+            st.jobs.task_done()
+
+
+def _enqueue(st: _State, fn: ca.Function, stem: str) -> None:
+    """Queue ``stem``'s missing levels for the background thread (writing its source first)."""
+    missing = [lv for lv in range(len(LEVELS)) if not _paths(stem, lv)[1].exists()]
+    with st.lock:
+        missing = [lv for lv in missing if (stem, lv) not in st.queued | st.failed]
+        if not missing:
+            return
+        source = _paths(stem, 0)[0]
+        if not source.exists():
+            _write_source(fn, source)
+        for lv in missing:
+            st.queued.add((stem, lv))
+            st.order += 1
+            st.jobs.put((lv, st.order, stem))
+        if st.worker is None:
+            st.worker = threading.Thread(
+                target=_work, args=(st,), name="secure3d-kernel-cc", daemon=True
+            )
+            st.worker.start()
+
+
+def _compile_now(st: _State, fn: ca.Function, cc: str, stem: str) -> int:
+    """Compile ``stem`` at the last level and wait (also for another process compiling it); the
+    level present afterwards (-1: none)."""
+    top = len(LEVELS) - 1
+    source, so, lock = _paths(stem, top)
+    if not source.exists():
+        _write_source(fn, source)
+    deadline = time.monotonic() + COMPILE_TIMEOUT
+    while (stem, top) not in st.failed and not _compile(st, cc, stem, top, background=False):
+        if so.exists() or not lock.exists() or time.monotonic() > deadline:
+            break  # done elsewhere, or that compile gave up (its lock is gone)
+        time.sleep(0.1)
+    return _present_level(stem)
+
+
+def best(fn: ca.Function, tag: KernelTag) -> ca.Function:
+    """The fastest Function with ``fn``'s values: its compiled library if there is one (loaded and
+    checked once per process), else ``fn`` itself, compiling it as the mode says."""
+    how = mode()
+    found = _compiler() if how != "off" else None
+    if found is None:
+        return fn
+    st = _state()
+    stem = tag.digest(found[1])
+    if stem in st.bad:
+        return fn
+    top = len(LEVELS) - 1
+    level = _present_level(stem)
+    try:
+        if how == "now" and level < top:
+            level = _compile_now(st, fn, found[0], stem)
+        if how == "background" and level < top:
+            _enqueue(st, fn, stem)
+    except OSError as exc:  # an unwritable cache: the VM, and no second try
+        log.warning("cannot compile kernel %s (%s); using CasADi's VM", stem, exc)
+        st.bad.add(stem)
+    have = st.loaded.get(stem)
+    if level >= 0 and (have is None or have[0] < level):
+        ext = _load(fn, stem, level)
+        if ext is None:
+            st.bad.add(stem)
+            return fn
+        have = (level, ext)
+        st.loaded[stem] = have
+    return have[1] if have is not None else fn
+
+
+def wait(timeout: float | None = None) -> bool:
+    """Wait for the background compiles queued so far; False if ``timeout`` (s) ran out first."""
+    st = _state()
+    deadline = None if timeout is None else time.monotonic() + timeout
+    while True:
+        with st.lock:
+            busy = bool(st.queued)
+        if not busy:
+            return True
+        if deadline is not None and time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+
+
+def status() -> dict[str, int]:
+    """Counts for this process: libraries loaded, compiles queued or running, failures, libraries
+    rejected (they would not load or gave other values)."""
+    st = _state()
+    with st.lock:
+        return {
+            "loaded": len(st.loaded),
+            "queued": len(st.queued),
+            "failed": len(st.failed),
+            "rejected": len(st.bad),
+        }
