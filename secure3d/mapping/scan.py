@@ -14,6 +14,8 @@ as codes (:class:`ScanUpdate`). ``discretize`` reproduces OctoMap's
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numba
@@ -109,7 +111,33 @@ def _discretize_kernel(points: np.ndarray, resolution: float) -> tuple[np.ndarra
 
 
 @numba.njit(cache=True)
-def _dense_trace(
+def _dense_occupied(
+    end_keys: np.ndarray, status: np.ndarray, lo: np.ndarray, dims: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The hit rays' end voxels of :func:`_dense_trace`: (their linear indices, each once in order
+    of first appearance, the occupied bitmap)."""
+    nxy = dims[0] * dims[1]
+    total = nxy * dims[2]
+    n = end_keys.shape[0]
+    one = np.uint64(1)
+    occ_bits = np.zeros((total + 63) >> 6, np.uint64)
+    occ_idx = np.empty(min(total, n), np.int64)
+    nocc = 0
+    for i in range(n):
+        if status[i] == 0:
+            end_idx = (end_keys[i, 0] - lo[0]) + dims[0] * (end_keys[i, 1] - lo[1])
+            end_idx += nxy * (end_keys[i, 2] - lo[2])
+            w = end_idx >> 6
+            m = one << np.uint64(end_idx & 63)
+            if (occ_bits[w] & m) == 0:
+                occ_bits[w] |= m
+                occ_idx[nocc] = end_idx
+                nocc += 1
+    return occ_idx[:nocc], occ_bits
+
+
+@numba.njit(cache=True, nogil=True)
+def _dense_free(
     ends: np.ndarray,
     end_keys: np.ndarray,
     status: np.ndarray,
@@ -117,14 +145,12 @@ def _dense_trace(
     resolution: float,
     lo: np.ndarray,
     dims: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """OctoMap's ``computeUpdate`` over all rays into dense bitmaps of the key box.
-
-    Voxel ``k`` of the box ``lo``/``dims`` has linear index
-    ``(kx - lo_x) + dims_x ((ky - lo_y) + dims_y (kz - lo_z))``; a DDA step is one addition to it.
-    Returns (linear indices of the occupied voxels, each once in order of first appearance, the
-    free bitmap, the occupied bitmap).
-    """
+    start: int,
+    stop: int,
+    bits: np.ndarray,
+) -> None:
+    """The free voxels of rays ``start:stop`` (status 0 or 1) into ``bits``, the dense bitmap of
+    :func:`_dense_trace`. Runs without the GIL, so that parts of a scan trace in threads."""
     res_factor = 1.0 / resolution
     ox = origin[0]
     oy = origin[1]
@@ -134,51 +160,120 @@ def _dense_trace(
     koz = _key_of(np.float64(oz), res_factor)
     nx = dims[0]
     nxy = dims[0] * dims[1]
-    total = nxy * dims[2]
-    free_bits = np.zeros((total + 63) >> 6, np.uint64)
-    occ_bits = np.zeros((total + 63) >> 6, np.uint64)
-    occ_idx = np.empty(min(total, ends.shape[0]), np.int64)
-    nocc = 0
+    utotal = np.uint64(nxy * dims[2])
     origin_idx = (kox - lo[0]) + nx * (koy - lo[1]) + nxy * (koz - lo[2])
     one = np.uint64(1)
-    utotal = np.uint64(total)
-
-    for i in range(ends.shape[0]):
-        ray_status = status[i]
-        if ray_status >= 2:
+    for i in range(start, stop):
+        if status[i] >= 2:
             continue
         ekx = end_keys[i, 0]
         eky = end_keys[i, 1]
         ekz = end_keys[i, 2]
         end_idx = (ekx - lo[0]) + nx * (eky - lo[1]) + nxy * (ekz - lo[2])
-        if end_idx != origin_idx:
-            # Every DDA step changes one key by one: a bound on this ray's steps.
-            bound = abs(ekx - kox) + abs(eky - koy) + abs(ekz - koz) + 2
-            length, sx, sy, sz, tmx, tmy, tmz, tdx, tdy, tdz = _dda_setup(
-                ox, oy, oz, ends[i, 0], ends[i, 1], ends[i, 2], kox, koy, koz, resolution
+        if end_idx == origin_idx:
+            continue
+        # Every DDA step changes one key by one: a bound on this ray's steps.
+        bound = abs(ekx - kox) + abs(eky - koy) + abs(ekz - koz) + 2
+        length, sx, sy, sz, tmx, tmy, tmz, tdx, tdy, tdz = _dda_setup(
+            ox, oy, oz, ends[i, 0], ends[i, 1], ends[i, 2], kox, koy, koz, resolution
+        )
+        stx = sx
+        sty = sy * nx
+        stz = sz * nxy
+        idx = origin_idx
+        bits[idx >> 6] |= one << np.uint64(idx & 63)
+        for _ in range(bound):
+            axis, tmx, tmy, tmz = _dda_step(tmx, tmy, tmz, tdx, tdy, tdz)
+            idx += stx if axis == 0 else (sty if axis == 1 else stz)
+            # Accumulated rounding can pass the end voxel without hitting it: stop there.
+            if idx == end_idx or min(tmx, min(tmy, tmz)) > length:
+                break
+            if np.uint64(idx) >= utotal:
+                break  # impossible inside the padded box; never write outside it
+            bits[idx >> 6] |= one << np.uint64(idx & 63)
+
+
+#: Rays a thread of :func:`_dense_trace` takes at least (fewer rays are traced by one thread).
+_RAYS_PER_PART = 2048
+#: Threads a scan's trace may use: ``$SECURE3D_SCAN_THREADS``, else the cores this process may run
+#: on, at most this many.
+_MAX_SCAN_THREADS = 4
+_POOL: list = [None, 0, 0]  # [ThreadPoolExecutor, the pid that made it, its threads]
+
+
+def scan_threads() -> int:
+    """Threads a scan's trace may use (``$SECURE3D_SCAN_THREADS``, else the available cores, at most
+    :data:`_MAX_SCAN_THREADS`)."""
+    value = os.environ.get("SECURE3D_SCAN_THREADS", "").strip()
+    if value:
+        try:
+            n = int(value)
+        except ValueError:
+            n = 0
+        if n < 1:
+            raise GeometryError(
+                f"environment variable SECURE3D_SCAN_THREADS: must be a whole number >= 1, "
+                f"got {value!r}"
             )
-            stx = sx
-            sty = sy * nx
-            stz = sz * nxy
-            idx = origin_idx
-            free_bits[idx >> 6] |= one << np.uint64(idx & 63)
-            for _ in range(bound):
-                axis, tmx, tmy, tmz = _dda_step(tmx, tmy, tmz, tdx, tdy, tdz)
-                idx += stx if axis == 0 else (sty if axis == 1 else stz)
-                # Accumulated rounding can pass the end voxel without hitting it: stop there.
-                if idx == end_idx or min(tmx, min(tmy, tmz)) > length:
-                    break
-                if np.uint64(idx) >= utotal:
-                    break  # impossible inside the padded box; never write outside it
-                free_bits[idx >> 6] |= one << np.uint64(idx & 63)
-        if ray_status == 0:
-            w = end_idx >> 6
-            m = one << np.uint64(end_idx & 63)
-            if (occ_bits[w] & m) == 0:
-                occ_bits[w] |= m
-                occ_idx[nocc] = end_idx
-                nocc += 1
-    return occ_idx[:nocc], free_bits, occ_bits
+        return n
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(_MAX_SCAN_THREADS, cores))
+
+
+def _trace_parts(rays: int) -> int:
+    """How many threads :func:`_dense_trace` traces ``rays`` rays in."""
+    return max(1, min(scan_threads(), rays // _RAYS_PER_PART))
+
+
+def _pool(workers: int) -> ThreadPoolExecutor:
+    """The threads the parts of a trace run in (made again in a forked child, and when more are
+    needed)."""
+    pool, pid, size = _POOL
+    if pool is None or pid != os.getpid() or size < workers:
+        pool = ThreadPoolExecutor(workers, thread_name_prefix="secure3d-scan")
+        _POOL[:] = [pool, os.getpid(), workers]
+    return pool
+
+
+def _dense_trace(
+    ends: np.ndarray,
+    end_keys: np.ndarray,
+    status: np.ndarray,
+    origin: np.ndarray,
+    resolution: float,
+    lo: np.ndarray,
+    dims: np.ndarray,
+    parts: int = 1,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """OctoMap's ``computeUpdate`` over all rays into dense bitmaps of the key box.
+
+    Voxel ``k`` of the box ``lo``/``dims`` has linear index
+    ``(kx - lo_x) + dims_x ((ky - lo_y) + dims_y (kz - lo_z))``; a DDA step is one addition to it.
+    The rays are traced in ``parts`` contiguous parts, in threads, each into a bitmap of its own
+    (the first into the result), the others then or-ed into it: the same bits for any ``parts``
+    >= 1. Returns (linear indices of the occupied voxels, each once in order of
+    first appearance, the free bitmap, the occupied bitmap).
+    """
+    occ_idx, occ_bits = _dense_occupied(end_keys, status, lo, dims)
+    n = ends.shape[0]
+    parts = max(1, min(int(parts), n))
+    free_bits = np.zeros(occ_bits.shape[0], np.uint64)  # calloc: pages zeroed when touched
+    bounds = [c * n // parts for c in range(parts + 1)]
+    args = (ends, end_keys, status, origin, resolution, lo, dims)
+    others = []
+    if parts > 1:
+        pool = _pool(parts - 1)
+        for c in range(1, parts):
+            bits = np.zeros(occ_bits.shape[0], np.uint64)
+            others.append((bits, pool.submit(_dense_free, *args, bounds[c], bounds[c + 1], bits)))
+    _dense_free(*args, bounds[0], bounds[1], free_bits)
+    for bits, job in others:
+        job.result()
+        np.bitwise_or(free_bits, bits, out=free_bits)
+    return occ_idx, free_bits, occ_bits
 
 
 def _tile_inner() -> np.ndarray:
@@ -288,7 +383,10 @@ def _scan_dense(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(free tiles' block codes, their masks, occupied codes) of a scan whose key box fits dense
     bitmaps."""
-    occ, free_bits, occ_bits = _dense_trace(ends, end_keys, status, origin, resolution, lo, dims)
+    parts = _trace_parts(len(ends))
+    occ, free_bits, occ_bits = _dense_trace(
+        ends, end_keys, status, origin, resolution, lo, dims, parts
+    )
     blocks, masks = _dense_tiles(free_bits, occ_bits, lo, dims)
     return blocks, masks, _idx_to_codes(occ, lo, dims)
 

@@ -158,15 +158,26 @@ def _die_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="secure3d-parent-watchdog", daemon=True).start()
 
 
+def one_thread_each(scan_too: bool = True) -> None:
+    """Threads of a worker among others that fill the cores: one for IPOPT's OpenBLAS (set before
+    CasADi loads it) and, with ``scan_too``, one for a scan's trace
+    (:func:`secure3d.mapping.scan.scan_threads`)."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    if scan_too:
+        os.environ.setdefault("SECURE3D_SCAN_THREADS", "1")
+
+
 def _worker_main(
     conn: multiprocessing.connection.Connection,
     parent: int,
     fly: Callable[[_Job], RunRecord] = fly_job,
+    among_others: bool = True,
 ) -> None:
-    """A worker process: fly the jobs received on ``conn`` until it closes."""
+    """A worker process: fly the jobs received on ``conn`` until it closes (a scan traced in one
+    thread when it is ``among_others``)."""
     _die_with_parent(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    one_thread_each(scan_too=among_others)
     while True:
         try:
             job = conn.recv()
@@ -200,7 +211,9 @@ class ProcessPool:
                 self.kill(slot)
             parent, child = self._context.Pipe()
             process = self._context.Process(
-                target=_worker_main, args=(child, os.getpid(), self._fly), daemon=True
+                target=_worker_main,
+                args=(child, os.getpid(), self._fly, self.size > 1),
+                daemon=True,
             )
             process.start()
             child.close()

@@ -19,7 +19,7 @@ from collections.abc import Collection
 from typing import Any
 
 from secure3d.errors import ConfigError
-from secure3d.simulation.campaign_pool import Crash, fly_safely
+from secure3d.simulation.campaign_pool import Crash, fly_safely, one_thread_each
 from secure3d.simulation.campaign_records import RunRecord, _Job
 
 __all__ = ["RayPool"]
@@ -33,7 +33,7 @@ class _Flier:
 
     def __init__(self) -> None:
         # Before CasADi loads IPOPT's OpenBLAS: the actors already fill the cores.
-        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+        one_thread_each()
 
     def pid(self) -> int:
         """This actor's process id."""

@@ -19,7 +19,7 @@ from secure3d.mapping.keys import (
     scan_update,
 )
 from secure3d.mapping.octomap_io import read_scan_dat
-from secure3d.mapping.raycast import _clipped_ends
+from secure3d.mapping.raycast import _clipped_ends, check_origin
 
 
 @pytest.fixture(scope="module")
@@ -169,6 +169,39 @@ def test_chunked_kernel_equals_dense_kernel(scan):
     free, occ = _scan_chunked_kernel(ends, keys, status, o, res)
     np.testing.assert_array_equal(np.sort(free), np.sort(dense.free))
     np.testing.assert_array_equal(np.sort(occ), np.sort(dense.occupied))
+
+
+@pytest.mark.parametrize("resolution", [0.1, 0.05])
+def test_the_dense_kernel_gives_the_same_bits_in_any_number_of_parts(scan, resolution):
+    """The rays are traced in threads, each into a bitmap of its own, or-ed together: the free and
+    occupied bitmaps and the occupied voxels' order do not depend on how many parts there are."""
+    from secure3d.mapping import scan as scan_module
+
+    o = check_origin([0.1, -0.2, 0.3], resolution)
+    ends, keys, status, lo, hi = _clipped_ends(scan, o, resolution, 6.0, 6.0)
+    lo, dims = scan_module._dense_box(lo, hi)
+    args = (ends, keys, status, o, resolution, lo, dims)
+    one = scan_module._dense_trace(*args, 1)
+    assert one[0].size > 1000 and np.count_nonzero(one[1]) > 1000
+    for parts in (2, 3, 7):
+        for got, want in zip(scan_module._dense_trace(*args, parts), one, strict=True):
+            np.testing.assert_array_equal(got, want)
+    assert scan_module._trace_parts(100) == 1
+
+
+def test_scan_threads_follow_the_environment(monkeypatch):
+    from secure3d.mapping import scan as scan_module
+
+    monkeypatch.setenv("SECURE3D_SCAN_THREADS", "3")
+    assert scan_module.scan_threads() == 3
+    assert scan_module._trace_parts(3 * scan_module._RAYS_PER_PART) == 3
+    assert scan_module._trace_parts(2 * scan_module._RAYS_PER_PART) == 2
+    for bad in ("0", "two", "-1"):
+        monkeypatch.setenv("SECURE3D_SCAN_THREADS", bad)
+        with pytest.raises(GeometryError, match="SECURE3D_SCAN_THREADS.*>= 1"):
+            scan_module.scan_threads()
+    monkeypatch.delenv("SECURE3D_SCAN_THREADS")
+    assert 1 <= scan_module.scan_threads() <= scan_module._MAX_SCAN_THREADS
 
 
 def test_scan_tiles_hold_the_scan_updates_voxels(scan, monkeypatch):
