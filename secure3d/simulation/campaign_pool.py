@@ -83,13 +83,16 @@ def _process_cache() -> NLPCache:
 
 def fly_job(job: _Job) -> RunRecord:
     """Fly one job (in a worker process or in-process). secure3d errors become an error row."""
+    from secure3d.planning import compiled_kernels
     from secure3d.simulation.closed_loop import simulate
 
     t0 = time.perf_counter()
     try:
-        result = simulate(
-            job.scenario, job.planner, seed=job.seed, cache=_process_cache(), **job.options
-        )
+        # many runs of the same kernels: compile them at first sight (unless the user said)
+        with compiled_kernels.default_mode("background"):
+            result = simulate(
+                job.scenario, job.planner, seed=job.seed, cache=_process_cache(), **job.options
+            )
     except Secure3DError as exc:
         return error_record(job, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
     return RunRecord.from_result(job.variant, result)

@@ -165,7 +165,7 @@ def test_no_compiler_or_mode_off_means_the_vm(maps_dir, kernel_cache, monkeypatc
 def test_a_bad_mode_is_named(monkeypatch):
     monkeypatch.setenv(compiled_kernels.MODE_ENV, "sometimes")
     with pytest.raises(
-        ConfigError, match="SECURE3D_KERNEL_COMPILE.*background, now, off.*sometimes"
+        ConfigError, match="SECURE3D_KERNEL_COMPILE.*auto, background, now, off.*sometimes"
     ):
         compiled_kernels.mode()
 
@@ -234,3 +234,36 @@ def test_an_unwritable_cache_leaves_the_vm_and_warns_once(maps_dir, tmp_path, mo
             for _ in range(3):
                 assert _kernel_derivatives(kern.vis, (0, 1), {})[1].class_name() == "SXFunction"
     assert caplog.text.count("cannot compile kernel") == 2  # the Jacobian's and the Hessian's
+
+
+def test_auto_compiles_only_what_an_earlier_process_met(maps_dir, kernel_cache, monkeypatch):
+    """A one-off run is not slowed by compiling beside it; the second process to meet a kernel
+    compiles it."""
+    monkeypatch.setenv(compiled_kernels.MODE_ENV, "auto")
+    kern = _point_mass_kernels(maps_dir)
+    jac, hess = _kernel_derivatives(kern.vis, (0, 1), {})
+    assert hess.class_name() == "SXFunction" and compiled_kernels.status()["queued"] == 0
+    marks = sorted(kernel_cache.glob("*.seen"))
+    assert len(marks) == 2 and marks[0].read_text() == str(os.getpid())
+    assert not list(kernel_cache.glob("*.so"))
+    for mark in marks:  # as if an earlier process had met them
+        mark.write_text("1")
+    monkeypatch.setattr(compiled_kernels, "_STATE", compiled_kernels._State())
+    _kernel_derivatives(kern.vis, (0, 1), {})
+    assert compiled_kernels.status()["queued"] >= 1
+    assert compiled_kernels.wait(timeout=300)
+    assert len(list(kernel_cache.glob("*.so"))) == 4  # two kernels at two levels
+
+
+def test_the_default_mode_yields_to_the_environment(monkeypatch):
+    monkeypatch.delenv(compiled_kernels.MODE_ENV, raising=False)
+    assert compiled_kernels.mode() == "auto"
+    with compiled_kernels.default_mode("background"):
+        assert compiled_kernels.mode() == "background"
+        monkeypatch.setenv(compiled_kernels.MODE_ENV, "off")
+        assert compiled_kernels.mode() == "off"
+    monkeypatch.delenv(compiled_kernels.MODE_ENV)
+    assert compiled_kernels.mode() == "auto"
+    with pytest.raises(ConfigError, match="compile mode.*auto, background, now, off.*soon"):
+        with compiled_kernels.default_mode("soon"):
+            pass
