@@ -174,6 +174,25 @@ def atomic_write_json(path: str | os.PathLike[str], data: object) -> Path:
     )
 
 
+def python_json(code: str, args: Sequence[str], cwd: Path, env: dict[str, str]) -> dict:
+    """Run ``code`` (``python -c``) with ``args`` in a new process and read the JSON object on its
+    last line of output; ``{"error": last line of stderr}`` if it failed."""
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-c", code, *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        env=env,
+        check=False,
+    )
+    if done.returncode:
+        return {"error": done.stderr.strip().splitlines()[-1] if done.stderr else "failed"}
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 def machine_info() -> dict[str, object]:
     """What the numbers depend on: host, CPU count, load, versions, and the commit benchmarked."""
     import casadi

@@ -25,13 +25,12 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from _common import REPO, atomic_write_text, fmt, machine_info, markdown_table
+from _common import REPO, atomic_write_text, fmt, machine_info, markdown_table, python_json
 
 _FLY = """
 import json, sys, time
@@ -97,17 +96,7 @@ def _run(code: str, scenario: Path, how: str, cache: Path) -> dict:
         SECURE3D_KERNEL_COMPILE=how,
         SECURE3D_KERNEL_CACHE_DIR=str(cache),
     )
-    done = subprocess.run(
-        [sys.executable, "-c", code, str(scenario.resolve())],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        env=env,
-        check=False,
-    )
-    if done.returncode:
-        return {"error": done.stderr.strip().splitlines()[-1] if done.stderr else "failed"}
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    return python_json(code, [str(scenario.resolve())], REPO, env)
 
 
 def _libraries(cache: Path) -> int:

@@ -19,12 +19,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
 
-from _common import REPO, atomic_write_text, fmt, machine_info, markdown_table
+from _common import REPO, atomic_write_text, fmt, machine_info, markdown_table, python_json
 
 _FLY = """
 import json, sys
@@ -44,17 +43,8 @@ print(json.dumps(out))
 def fly(tree: Path, scenario: Path, planners: str) -> dict:
     """Every planner's flight of ``scenario`` with the package of ``tree``, in a new process."""
     env = dict(os.environ, PYTHONPATH=str(tree))
-    done = subprocess.run(  # run in the tree: ``-c`` puts the working folder first on sys.path
-        [sys.executable, "-c", _FLY, str(scenario.resolve()), planners, str(tree)],
-        cwd=tree,
-        capture_output=True,
-        text=True,
-        env=env,
-        check=False,
-    )
-    if done.returncode:
-        return {"error": done.stderr.strip().splitlines()[-1] if done.stderr else "failed"}
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    # run in the tree: ``-c`` puts the working folder first on sys.path
+    return python_json(_FLY, [str(scenario.resolve()), planners, str(tree)], tree, env)
 
 
 def rows(results: dict, planner: str) -> list[list[str]]:
