@@ -160,6 +160,13 @@ class KernelTag:
     @staticmethod
     def of(kernel: ca.Function, dec: tuple[int, ...], role: str) -> KernelTag:
         """The tag of ``kernel``'s derivative ``role`` in inputs ``dec``."""
+        if not isinstance(kernel, ca.Function):
+            raise ConfigError(f"KernelTag.of: kernel must be a casadi.Function, got {kernel!r}")
+        if not all(isinstance(d, (int, np.integer)) and 0 <= d < kernel.n_in() for d in dec):
+            raise ConfigError(
+                f"KernelTag.of: dec must be input indices of {kernel.name()} "
+                f"(0..{kernel.n_in() - 1}), got {dec!r}"
+            )
         digest = hashlib.sha256(kernel.serialize().encode()).hexdigest()
         return KernelTag(digest, tuple(int(d) for d in dec), str(role))
 
@@ -403,6 +410,8 @@ def _compile_now(st: _State, fn: ca.Function, cc: str, stem: str) -> int:
 def best(fn: ca.Function, tag: KernelTag) -> ca.Function:
     """The fastest Function with ``fn``'s values: its compiled library if there is one (loaded and
     checked once per process), else ``fn`` itself, compiling it as the mode says."""
+    if not isinstance(fn, ca.Function) or not isinstance(tag, KernelTag):
+        raise ConfigError(f"best: expected a casadi.Function and a KernelTag, got {fn!r}, {tag!r}")
     how = mode()
     found = _compiler() if how != "off" else None
     if found is None:

@@ -267,3 +267,13 @@ def test_the_default_mode_yields_to_the_environment(monkeypatch):
     with pytest.raises(ConfigError, match="compile mode.*auto, background, now, off.*soon"):
         with compiled_kernels.default_mode("soon"):
             pass
+
+
+def test_bad_arguments_are_named(maps_dir):
+    kern = _point_mass_kernels(maps_dir)
+    with pytest.raises(ConfigError, match="dec must be input indices of vis.*got \\(0, 9\\)"):
+        KernelTag.of(kern.vis, (0, 9), "hess")
+    with pytest.raises(ConfigError, match="kernel must be a casadi.Function"):
+        KernelTag.of("vis", (0,), "hess")
+    with pytest.raises(ConfigError, match="expected a casadi.Function and a KernelTag"):
+        compiled_kernels.best(kern.vis, "tag")
