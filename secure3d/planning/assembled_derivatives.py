@@ -73,7 +73,8 @@ def _kernel_derivatives(fn: ca.Function, dec: tuple[int, ...], cache: dict) -> t
         mu = ca.SX.sym("mu", out.numel())
         jac = ca.Function(f"{fn.name()}_jac", ins, [out, ca.jacobian(out, z)])
         hess = ca.Function(f"{fn.name()}_hess", [*ins, mu], [ca.hessian(ca.dot(mu, out), z)[0]])
-        tags = (KernelTag.of(fn, dec, "jac"), KernelTag.of(fn, dec, "hess"))
+        jac_tag = KernelTag.of(fn, dec, "jac")  # one serialisation of the kernel for both
+        tags = (jac_tag, jac_tag.with_role("hess"))
         cache[key] = (fn, jac, hess, tags)  # fn kept alive so its id stays unique
     _, jac, hess, tags = cache[key]
     # compiled to C when a library is there (the same values bit for bit), else CasADi's VM

@@ -170,6 +170,10 @@ class KernelTag:
         digest = hashlib.sha256(kernel.serialize().encode()).hexdigest()
         return KernelTag(digest, tuple(int(d) for d in dec), str(role))
 
+    def with_role(self, role: str) -> KernelTag:
+        """The tag of the same kernel's derivative ``role`` (no second serialisation)."""
+        return KernelTag(self.kernel_digest, self.dec, str(role))
+
     def digest(self, compiler_version: str) -> str:
         """The library's file name stem for this compiler."""
         h = hashlib.sha256()

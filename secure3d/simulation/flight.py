@@ -24,7 +24,6 @@ against the truth.
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from typing import TYPE_CHECKING
 
@@ -37,7 +36,6 @@ from secure3d.simulation.loop import (
     SCAN_TOLERANCE,
     heading_error,
     new_obstacle_voxels,
-    observed_box,
     scan_control,
     scan_headings,
 )
@@ -346,26 +344,9 @@ class Flight:
         camera has observed around the robot. None (and an event) if no certified plan was found."""
         from secure3d.planning.solve import plan_problem
 
-        loop, model = self.loop, self.model
-        loop.refresh_obstacles()
-        if self.t == 0.0:
-            problem = loop.problem  # premise: the start region was observed before take-off
-        else:
-            # In flight only what the camera has actually seen counts as observed around the robot.
-            p = np.asarray(model.position(x), dtype=float).ravel()
-            first = loop.first_problem
-            box = observed_box(
-                loop.belief,
-                p,
-                loop.problem.options.start_region_radius,
-                assumed=(first.start_region_lo, first.start_region_hi),
-            )
-            problem = loop.problem.with_start(x, region=box if box is not None else (p, p))
-        if self.failures:
-            speed = RETRY_SPEEDS[self.failures % len(RETRY_SPEEDS)]
-            problem = problem.with_options(guess_speed_fraction=speed)
-        if goal is not None:
-            problem = dataclasses.replace(problem, goal=np.asarray(goal, dtype=float))
+        loop = self.loop
+        speed = RETRY_SPEEDS[self.failures % len(RETRY_SPEEDS)] if self.failures else None
+        problem = loop.plan_problem_from(x, in_flight=self.t != 0.0, speed=speed, goal=goal)
         loop.start_problem = problem
         t0 = time.perf_counter()
         result = plan_problem(problem, loop.planner, cache=loop.cache)

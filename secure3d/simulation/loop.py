@@ -18,6 +18,7 @@ import numpy as np
 from secure3d.errors import SimulationError
 
 if TYPE_CHECKING:  # pragma: no cover
+    from secure3d.planning.problem import PlanningProblem
     from secure3d.simulation.recheck import Recheck
     from secure3d.simulation.recording import Recorder
     from secure3d.world.spec import Scenario
@@ -98,6 +99,35 @@ class Loop:
     def refresh_obstacles(self) -> None:
         lo, hi = self.belief.known_obstacle_boxes(close_gaps=self.problem.options.close_gaps)
         self.problem = dataclasses.replace(self.problem, boxes_lo=lo, boxes_hi=hi)
+
+    def plan_problem_from(
+        self,
+        x: np.ndarray,
+        in_flight: bool,
+        speed: float | None = None,
+        goal: np.ndarray | None = None,
+    ) -> PlanningProblem:
+        """The problem of a plan from state ``x`` (Algorithm 1, line 1) on the current obstacle
+        boxes. Before take-off the start region is the one observed then (the paper's premise); in
+        flight it is the box the camera has actually seen around the robot (:func:`observed_box`).
+        ``speed``: the guess's speed fraction after failed plans; ``goal``: another goal."""
+        self.refresh_obstacles()
+        problem = self.problem
+        if in_flight:
+            p = np.asarray(self.model.position(x), dtype=float).ravel()
+            first = self.first_problem
+            box = observed_box(
+                self.belief,
+                p,
+                problem.options.start_region_radius,
+                assumed=(first.start_region_lo, first.start_region_hi),
+            )
+            problem = problem.with_start(x, region=box if box is not None else (p, p))
+        if speed is not None:
+            problem = problem.with_options(guess_speed_fraction=speed)
+        if goal is not None:
+            problem = dataclasses.replace(problem, goal=np.asarray(goal, dtype=float))
+        return problem
 
     def way_off(self, model: object, x: np.ndarray) -> float | None:
         """For a vehicle whose heading is its direction of motion, at rest in state ``x`` within

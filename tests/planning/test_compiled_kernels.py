@@ -277,3 +277,11 @@ def test_bad_arguments_are_named(maps_dir):
         KernelTag.of("vis", (0,), "hess")
     with pytest.raises(ConfigError, match="expected a casadi.Function and a KernelTag"):
         compiled_kernels.best(kern.vis, "tag")
+
+
+def test_a_tags_role_changes_without_a_second_serialisation(maps_dir):
+    kern = _point_mass_kernels(maps_dir)
+    jac = KernelTag.of(kern.vis, (0, 1), "jac")
+    hess = jac.with_role("hess")
+    assert hess == KernelTag.of(kern.vis, (0, 1), "hess")
+    assert hess != jac and hess.digest("cc 1") != jac.digest("cc 1")
