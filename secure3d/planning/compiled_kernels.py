@@ -16,6 +16,9 @@ and the flags, and kept under
     $SECURE3D_KERNEL_CACHE_DIR, else $SECURE3D_CACHE_DIR/kernels,
     else $XDG_CACHE_HOME/secure3d/kernels, else ~/.cache/secure3d/kernels
 
+The libraries stay within ``$SECURE3D_KERNEL_CACHE_MB`` (default 256 MB, a few thousand kernel
+shapes): when a compile lands beyond it, the least recently loaded go (:func:`prune`).
+
 ``$SECURE3D_KERNEL_COMPILE`` chooses when (a kernel without a library runs in the VM meanwhile):
 
 - ``auto`` (the default): a kernel some earlier process met too (a mark in the cache says so) is
@@ -61,12 +64,15 @@ import numpy as np
 from secure3d.errors import ConfigError
 
 __all__ = [
+    "CACHE_MB_ENV",
     "MODE_ENV",
     "MODES",
     "KernelTag",
     "best",
+    "cache_cap_bytes",
     "cache_root",
     "mode",
+    "prune",
     "status",
     "wait",
 ]
@@ -88,6 +94,12 @@ STALE_LOCK = 900.0
 COMPILE_TIMEOUT = 900.0
 #: Random inputs a loaded library is checked on against the virtual machine.
 CHECK_DRAWS = 3
+#: The environment variable capping the cache's libraries (MB), and the cap without it. When a
+#: compile lands and the libraries exceed it, the least recently used go (:func:`prune`).
+CACHE_MB_ENV = "SECURE3D_KERNEL_CACHE_MB"
+DEFAULT_CACHE_MB = 256.0
+#: A mark of a kernel met (mode ``auto``) with no library is dropped after this many days unseen.
+SEEN_MARK_DAYS = 30.0
 
 
 def mode() -> str:
@@ -272,7 +284,57 @@ def _load(fn: ca.Function, stem: str, level: int) -> ca.Function | None:
     if not ok:
         log.warning("compiled kernel %s differs from CasADi's VM; not used", so)
         return None
+    with contextlib.suppress(OSError):  # its time of last use, for :func:`prune`
+        os.utime(so)
     return ext
+
+
+def cache_cap_bytes() -> float:
+    """The cap on the cache's libraries: ``$SECURE3D_KERNEL_CACHE_MB`` (MB), else the default."""
+    raw = os.environ.get(CACHE_MB_ENV, "").strip()
+    try:
+        mb = float(raw) if raw else DEFAULT_CACHE_MB
+    except ValueError:
+        mb = -1.0
+    if not mb > 0:
+        raise ConfigError(
+            f"environment variable {CACHE_MB_ENV}: must be a positive number of MB, got {raw!r}"
+        )
+    return mb * 1e6
+
+
+def prune(cap_bytes: float | None = None, spare: str | None = None) -> list[Path]:
+    """Remove the least recently used libraries (by their time of last load) until the rest fit in
+    ``cap_bytes`` (default :func:`cache_cap_bytes`), never one this process has loaded nor those of
+    kernel ``spare`` (a digest stem: the one just compiled), and marks
+    of kernels met with no library that were not met for :data:`SEEN_MARK_DAYS`. Returns what it
+    removed."""
+    cap = cache_cap_bytes() if cap_bytes is None else float(cap_bytes)
+    root = cache_root()
+    keep = set(_state().loaded) | ({spare} if spare else set())
+    removed: list[Path] = []
+    try:
+        libs = sorted(
+            ((p.stat().st_mtime, p.stat().st_size, p) for p in root.glob("*.so")),
+            key=lambda t: t[0],
+        )
+        total = sum(size for _, size, _ in libs)
+        for _, size, path in libs:
+            if total <= cap:
+                break
+            if path.name[:24] in keep:
+                continue
+            path.unlink(missing_ok=True)
+            removed.append(path)
+            total -= size
+        stale = time.time() - SEEN_MARK_DAYS * 86400.0
+        for mark in root.glob("*.seen"):
+            if mark.stat().st_mtime < stale and not any(root.glob(f"{mark.stem}*.so")):
+                mark.unlink(missing_ok=True)
+                removed.append(mark)
+    except OSError as exc:  # another process pruning at once, or an unreadable cache
+        log.warning("pruning the kernel cache %s: %s", root, exc)
+    return removed
 
 
 def _write_source(fn: ca.Function, source: Path) -> None:
@@ -342,6 +404,7 @@ def _compile(st: _State, cc: str, stem: str, level: int, background: bool) -> bo
         st.failed.add((stem, level))
         log.warning("compiling kernel %s (%s) failed: %s", stem, LEVELS[level], err.decode()[-500:])
         return False
+    prune(spare=stem)  # the cache stays within its cap
     return so.exists()
 
 

@@ -285,3 +285,53 @@ def test_a_tags_role_changes_without_a_second_serialisation(maps_dir):
     hess = jac.with_role("hess")
     assert hess == KernelTag.of(kern.vis, (0, 1), "hess")
     assert hess != jac and hess.digest("cc 1") != jac.digest("cc 1")
+
+
+def _fake_library(folder: Path, stem: str, level: str, size: int, age_days: float) -> Path:
+    path = folder / f"{stem}{level}.so"
+    path.write_bytes(b"\0" * size)
+    t = time.time() - age_days * 86400.0
+    os.utime(path, (t, t))
+    return path
+
+
+def test_prune_drops_the_least_recently_used_libraries_beyond_the_cap(kernel_cache, monkeypatch):
+    kernel_cache.mkdir(parents=True)
+    stems = [f"{i:024x}" for i in range(5)]
+    libs = [
+        _fake_library(kernel_cache, s, "-O1", 1000, age_days=10 - i) for i, s in enumerate(stems)
+    ]
+    compiled_kernels._state().loaded[stems[0]] = (1, None)  # the oldest is loaded here: kept
+    old_mark, fresh_mark, kept_mark = (
+        kernel_cache / f"{s}.seen" for s in ("f" * 24, "e" * 24, stems[4])
+    )
+    for mark, age in ((old_mark, 40.0), (fresh_mark, 1.0), (kept_mark, 40.0)):
+        mark.write_text("1")
+        os.utime(mark, (time.time() - age * 86400.0,) * 2)
+    removed = compiled_kernels.prune(cap_bytes=3000, spare=stems[1])
+    assert sorted(removed) == sorted([libs[2], libs[3], old_mark]), removed
+    assert all(p.exists() for p in (libs[0], libs[1], libs[4], fresh_mark, kept_mark))
+    monkeypatch.setenv(compiled_kernels.CACHE_MB_ENV, "0.004")
+    assert compiled_kernels.prune() == [] and compiled_kernels.cache_cap_bytes() == 4000.0
+    monkeypatch.setenv(compiled_kernels.CACHE_MB_ENV, "lots")
+    with pytest.raises(ConfigError, match="SECURE3D_KERNEL_CACHE_MB.*positive.*'lots'"):
+        compiled_kernels.prune()
+
+
+def test_a_compile_keeps_the_cache_within_its_cap_and_loads_mark_use(
+    maps_dir, kernel_cache, monkeypatch
+):
+    kernel_cache.mkdir(parents=True)
+    stale = _fake_library(kernel_cache, "0" * 24, "-O1", 200_000, age_days=30)
+    monkeypatch.setenv(compiled_kernels.CACHE_MB_ENV, "0.15")  # below the stale one alone
+    monkeypatch.setenv(compiled_kernels.MODE_ENV, "now")
+    kern = _point_mass_kernels(maps_dir)
+    jac, _ = _kernel_derivatives(kern.vis, (0, 1), {})
+    assert jac.class_name() != "SXFunction" and not stale.exists()
+    libs = sorted(kernel_cache.glob("*.so"))
+    assert len(libs) == 2, libs  # the Jacobian's and the Hessian's: each loaded, so kept
+    for lib in libs:
+        os.utime(lib, (1.0e9, 1.0e9))
+    monkeypatch.setattr(compiled_kernels, "_STATE", compiled_kernels._State())
+    _kernel_derivatives(kern.vis, (0, 1), {})
+    assert all(lib.stat().st_mtime > time.time() - 60 for lib in libs), "a load marks its use"
