@@ -34,6 +34,7 @@ from secure3d.simulation.flight import Flight
 from secure3d.simulation.guard import TrackingGuard
 from secure3d.simulation.loop import (
     CERT_STEP,
+    CLOSED_LOOP_MAX_ITER,
     CLOSED_LOOP_OBSTACLE_SLOTS,
     SCAN_RATE_FRACTION,
     SCAN_TOLERANCE,
@@ -64,6 +65,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "ARRIVAL_SPEED",
     "CERT_STEP",
+    "CLOSED_LOOP_MAX_ITER",
     "CLOSED_LOOP_OBSTACLE_SLOTS",
     "CONTACT_SAMPLES",
     "DEFAULT_REPLAN_DEFER",

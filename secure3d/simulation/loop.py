@@ -34,6 +34,13 @@ CERT_STEP = 0.02
 
 #: Obstacle slots per node in closed loop (the planner's default is 8; see ``Loop``).
 CLOSED_LOOP_OBSTACLE_SLOTS = 12
+#: IPOPT's iteration limit per solve in closed loop (``plan()`` keeps ``planner.max_iter``, 500 by
+#: default, where a scenario asks for less this). On every scenario in maps/ each solve of a flight
+#: converges in 12-90 iterations. A quadrotor replanning at 4.6 m/s towards a hidden thin obstacle
+#: (campaign family ``thin``) ran 500-iteration solves that failed, 7-21 s each, before a slower
+#: guess converged (plan calls of 10-41 s); the robot brakes safely when a replan fails and plans
+#: from rest instead (Algorithm 1, lines 4-7).
+CLOSED_LOOP_MAX_ITER = 200
 
 
 class Loop:
@@ -71,6 +78,7 @@ class Loop:
         # replans in flight re-selected slots and re-solved 3 times (8 hidden-obstacle variants:
         # 0.44x real time with 8 slots, 0.52x with 10, 0.54x with 12, 0.26x with 16).
         options.setdefault("obstacle_slots", CLOSED_LOOP_OBSTACLE_SLOTS)
+        options.setdefault("max_iter", min(scenario.planner.max_iter, CLOSED_LOOP_MAX_ITER))
         # no obstacle boxes yet: the first frame goes into the map before the first plan, which
         # merges them (:meth:`refresh_obstacles`)
         no_boxes = (np.empty((0, 3)), np.empty((0, 3)))

@@ -388,3 +388,23 @@ def test_a_flight_logs_a_heartbeat_and_its_events(maps_dir, monkeypatch, caplog)
     assert len(beats) >= steps // 2, (len(beats), steps)
     logged = [r.message for r in caplog.records if r.levelno == logging.DEBUG]
     assert any("goal reached" in m for m in logged) == run.reached_goal
+
+
+@pytest.mark.parametrize(
+    ("spec_limit", "option", "want"), [(500, None, "cap"), (50, None, 50), (500, 300, 300)]
+)
+def test_closed_loop_solves_stop_at_their_own_iteration_limit(maps_dir, spec_limit, option, want):
+    """A replan that has not converged in CLOSED_LOOP_MAX_ITER iterations is given up (the robot
+    brakes and plans from rest) unless the scenario asks for fewer or the caller for another."""
+    import dataclasses
+
+    from secure3d.simulation.loop import CLOSED_LOOP_MAX_ITER, Loop
+
+    sc = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    sc = dataclasses.replace(sc, planner=dataclasses.replace(sc.planner, max_iter=spec_limit))
+    options = {} if option is None else {"max_iter": option}
+    loop = Loop(sc, "secure", 0, options, NLPCache())
+    want = CLOSED_LOOP_MAX_ITER if want == "cap" else want
+    assert loop.problem.options.max_iter == want
+    x0 = loop.problem.x0
+    assert loop.plan_problem_from(x0, in_flight=False).options.max_iter == want
