@@ -76,10 +76,26 @@ class _Grid:
         return free
 
 
-def _make_grid(scenario: Scenario, lo: np.ndarray, hi: np.ndarray, cell: float) -> _Grid:
+def plane_height(scenario: Scenario) -> float | None:
+    """The height a planar vehicle (one that moves at a fixed height, like the diff drive) lives
+    at (its start's z, which the scenario's checks tie to ``vehicle.limits.height``); None for a
+    vehicle that moves in 3D."""
+    from secure3d.dynamics import model_from_spec
+
+    model = model_from_spec(scenario.vehicle, scenario.camera)
+    return float(scenario.start.position[2]) if model.planar else None
+
+
+def _make_grid(
+    scenario: Scenario, lo: np.ndarray, hi: np.ndarray, cell: float, height: float | None = None
+) -> _Grid:
+    """The free cells for the body: a 3D grid, or with ``height`` one layer of cells at that height
+    (a planar vehicle cannot pass over or under an obstacle)."""
     b = scenario.world.bounds
     r = scenario.vehicle.body_radius
     blo, bhi = np.add(b.lo, r), np.subtract(b.hi, r)
+    if height is not None:
+        blo[2] = bhi[2] = height
     shape = np.maximum(np.floor((bhi - blo) / cell).astype(int) + 1, 1)
     origin = blo + 0.5 * ((bhi - blo) - (shape - 1) * cell)
     grid = _Grid(np.ones(tuple(shape), dtype=bool), origin, cell, r)
@@ -168,8 +184,9 @@ def _placement_grid(scenario: Scenario, obstacles: TrueObstacles) -> tuple[_Grid
     volume = float(np.prod(np.subtract(b.extent, 2 * r)))
     cell = float(np.clip((volume / _GRID_CELLS) ** (1 / 3), 0.05, 0.5))
     start, goal = np.array(scenario.start.position), np.array(scenario.goal.position)
+    height = plane_height(scenario)
     while True:
-        grid = _make_grid(scenario, lo, hi, cell)
+        grid = _make_grid(scenario, lo, hi, cell, height)
         a = _nearest_free(grid, start, grid.free)
         g = _nearest_free(grid, goal, grid.free)
         path = None

@@ -11,6 +11,10 @@ shortest start-goal path of the body in the true world (the placement grid of
   under it) or a step rising from below (the route must climb over it), with the camera's vertical
   field of view narrowed to 30-60 deg in half of the variants: obstacles only a 3D view reveals.
 
+A planar vehicle (the diff drive) is placed on one layer of cells at its height: it cannot pass
+over or under an obstacle, so its thin variants are poles or leave it a way round, and
+:data:`OCCLUSION_3D` refuses it.
+
 Variant ``i`` is a pure function of ``(base, rng)``; the campaign draws ``rng`` as
 ``np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(i,)))``. Every variant keeps the
 goal reachable for the body (checked on the placement grid) and keeps the start and goal clear.
@@ -225,6 +229,19 @@ def thin_variant(prep: Placement, base: Scenario, rng: np.random.Generator, i: i
     return hidden_variant(base, kind, box, i, "thin")
 
 
+def prepare_occlusion(base: Scenario) -> Placement:
+    """:func:`prepare_placement`, for a vehicle that moves in 3D: a beam, ledge or step spans the
+    route, so a planar vehicle (on one layer of cells) could never pass it."""
+    prep = prepare_placement(base)
+    if prep.grid.free.shape[2] == 1:
+        raise ScenarioError(
+            f"{base.name}: family occlusion3d needs a vehicle that moves in 3D (its beams, ledges"
+            f" and steps span the route, which a planar {base.vehicle.model} cannot pass over or"
+            " under); try --kind thin"
+        )
+    return prep
+
+
 def occlusion_variant(
     prep: Placement, base: Scenario, rng: np.random.Generator, i: int
 ) -> Scenario:
@@ -255,6 +272,6 @@ OCCLUSION_3D = Family(
         "one hidden beam, ledge (from above) or step (from below) across the route; half the"
         " variants with a 30-60 deg vertical field of view"
     ),
-    prepare=prepare_placement,
+    prepare=prepare_occlusion,
     variant=occlusion_variant,
 )

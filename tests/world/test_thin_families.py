@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import secure3d
+from secure3d.errors import ScenarioError
 from secure3d.world.attacks import server_claim
 from secure3d.world.families import variant_rng
 from secure3d.world.spec import box_distance
@@ -48,3 +49,46 @@ def test_variants_hide_one_obstacle_across_the_route_and_are_pure(maps_dir, fami
     other = family.variant(prep, base, _rng(8, 0), 0)
     first = family.variant(prep, base, _rng(7, 0), 0)
     assert other.world.boxes[-1] != first.world.boxes[-1], "the seed matters"
+
+
+def _passable_in_plane(sc, height: float, cell: float = 0.025) -> bool:
+    """Whether the body can go from start to goal in the horizontal plane at ``height``: a 2D
+    raster of the true boxes that cut that plane, grown by the body radius, flood-filled."""
+    from scipy import ndimage
+
+    from secure3d.world.truth import true_obstacles
+
+    lo, hi = true_obstacles(sc).aabbs()
+    r = sc.vehicle.body_radius
+    cut = (lo[:, 2] - r < height) & (hi[:, 2] + r > height)
+    b = sc.world.bounds
+    xs = np.arange(b.lo[0] + r, b.hi[0] - r, cell)
+    ys = np.arange(b.lo[1] + r, b.hi[1] - r, cell)
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    free = np.ones(X.shape, bool)
+    for a, c in zip(lo[cut], hi[cut], strict=True):
+        dx = np.maximum(np.maximum(a[0] - X, X - c[0]), 0.0)
+        dy = np.maximum(np.maximum(a[1] - Y, Y - c[1]), 0.0)
+        free &= np.hypot(dx, dy) > r
+    labels, _ = ndimage.label(free)
+    cell_of = [
+        tuple(np.round((np.array(p[:2]) - [xs[0], ys[0]]) / cell).astype(int))
+        for p in (sc.start.position, sc.goal.position)
+    ]
+    return labels[cell_of[0]] != 0 and labels[cell_of[0]] == labels[cell_of[1]]
+
+
+def test_a_planar_vehicles_variants_leave_it_a_way_in_its_plane(maps_dir):
+    """A diff drive cannot pass over or under a plank: its variants are placed on a grid of its
+    plane. (On a 3D grid, 4 of 6 thin variants of planar_blind_corner closed the corridor and the
+    robot never took off.)"""
+    base = secure3d.load_scenario(maps_dir / "planar_blind_corner.yaml")
+    height = base.start.position[2]
+    assert _passable_in_plane(base, height)
+    prep = THIN_OBSTACLES.prepare(base)
+    for i in range(8):
+        v = THIN_OBSTACLES.variant(prep, base, _rng(2611, i), i)
+        assert _passable_in_plane(v, height), (i, v.world.boxes[-1])
+    assert prep.grid.free.shape[2] == 1
+    with pytest.raises(ScenarioError, match="occlusion3d needs a vehicle that moves in 3D"):
+        OCCLUSION_3D.prepare(base)
