@@ -121,6 +121,9 @@ class PlannerOptions:
     guess_speed_fraction : cruise speed of the initial guess, as a fraction of the speed limit.
     extra_starts : further cruise-speed fractions to start from (cold plans only); the fastest
         plan that succeeds (and, secure, certifies) is returned. Each costs a solve.
+    slower_guesses : when the solve from a cold plan's first guess fails, start again from slower
+        guesses (``solve.RETRY_GUESS_SPEEDS``); off, the plan call fails then. The closed loop turns
+        it off for replans from a moving state, whose fallback is braking.
     verbose : print solver output.
     """
 
@@ -148,6 +151,7 @@ class PlannerOptions:
     grid_resolution: float = 0.2
     guess_speed_fraction: float = 0.8
     extra_starts: tuple[float, ...] = ()
+    slower_guesses: bool = True
     verbose: bool = False
 
     @property
@@ -223,6 +227,10 @@ class PlannerOptions:
                 f" {self.extra_starts!r}"
             )
         object.__setattr__(self, "extra_starts", starts)
+        if not isinstance(self.slower_guesses, bool):
+            raise ConfigError(
+                f"planner option slower_guesses: must be true or false, got {self.slower_guesses!r}"
+            )
         if not 0 < self.guess_speed_fraction <= 1:
             raise ConfigError(
                 f"planner option guess_speed_fraction: must be in (0, 1], got {self.guess_speed_fraction!r}"

@@ -426,7 +426,8 @@ def _plan_within_budget(
         # guess with 12 obstacle slots (the closed loop's) and solves from the next in 0.2 s.
         attempts = [(guess, True)]
         first = o.guess_speed_fraction if planner == Planner.SECURE else 1.0
-        attempts += [(frac * first, True) for frac in RETRY_GUESS_SPEEDS]
+        if o.slower_guesses:
+            attempts += [(frac * first, True) for frac in RETRY_GUESS_SPEEDS]
     s = None
     cost = SolveCost()
     for g, dual_start in attempts:

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from secure3d.errors import SimulationError
+from secure3d.simulation.modes import STOP_SPEED
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.problem import PlanningProblem
@@ -117,10 +118,15 @@ class Loop:
     ) -> PlanningProblem:
         """The problem of a plan from state ``x`` (Algorithm 1, line 1) on the current obstacle
         boxes. Before take-off the start region is the one observed then (the paper's premise); in
-        flight it is the box the camera has actually seen around the robot (:func:`observed_box`).
-        ``speed``: the guess's speed fraction after failed plans; ``goal``: another goal."""
+        flight it is the box the camera has actually seen around the robot (:func:`observed_box`),
+        and a moving robot's plan call fails when the first guess's solve does (no slower
+        guesses). ``speed``: the guess's speed fraction after failed plans; ``goal``: another goal."""
         self.refresh_obstacles()
         problem = self.problem
+        if in_flight and float(np.linalg.norm(self.model.velocity(x))) >= STOP_SPEED:
+            # moving: if the first guess fails the robot brakes and plans from rest (lines 4-7),
+            # sooner than slower guesses, which converged to plans 2-2.5x as long
+            problem = problem.with_options(slower_guesses=False)
         if in_flight:
             p = np.asarray(self.model.position(x), dtype=float).ravel()
             first = self.first_problem
