@@ -283,3 +283,23 @@ def test_failed_cold_solves_fall_back_to_slower_guesses(corner_problem):
     # each fallback flies the same path slower: a longer guess
     assert finals[0] < finals[1] < finals[2]
     assert result.ok and result.certificate.ok
+
+
+def test_without_slower_guesses_a_failed_first_solve_ends_the_call(corner_problem):
+    """``slower_guesses=False`` (the closed loop's replans from a moving state, which brake
+    instead): one start, and the call reports the first solve's failure."""
+    from secure3d.planning import solve as solve_mod
+
+    real = solve_mod._solve_rounds
+    starts = []
+
+    def failing(problem, planner, guess, *args, **kwargs):
+        starts.append(guess.final_time)
+        s, cost = real(problem, planner, guess, *args, **kwargs)
+        return dataclasses.replace(s, status=PlanStatus.ITERATION_LIMIT), cost
+
+    problem = corner_problem.with_options(slower_guesses=False)
+    result = plan_problem(problem, "secure", cache=NLPCache(), solve_rounds=failing)
+    assert len(starts) == 1 and result.status is PlanStatus.ITERATION_LIMIT
+    with pytest.raises(secure3d.errors.ConfigError, match="slower_guesses: must be true or false"):
+        corner_problem.with_options(slower_guesses="no")

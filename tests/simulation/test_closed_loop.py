@@ -408,3 +408,19 @@ def test_closed_loop_solves_stop_at_their_own_iteration_limit(maps_dir, spec_lim
     assert loop.problem.options.max_iter == want
     x0 = loop.problem.x0
     assert loop.plan_problem_from(x0, in_flight=False).options.max_iter == want
+
+
+def test_a_moving_robots_replan_tries_no_slower_guesses(maps_dir):
+    """In flight and moving, a failed first solve hands over to the brakes (Algorithm 1, lines
+    4-7); at rest, or before take-off, slower guesses are still tried."""
+    from secure3d.simulation.loop import Loop
+    from secure3d.simulation.modes import STOP_SPEED
+
+    sc = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    loop = Loop(sc, "secure", 0, {}, NLPCache())
+    model, x0 = loop.model, loop.problem.x0
+    moving = model.initial_state(model.position(x0), (2.0 * STOP_SPEED, 0.0, 0.0), 0.0)
+    crawling = model.initial_state(model.position(x0), (0.5 * STOP_SPEED, 0.0, 0.0), 0.0)
+    assert not loop.plan_problem_from(moving, in_flight=True).options.slower_guesses
+    assert loop.plan_problem_from(crawling, in_flight=True).options.slower_guesses
+    assert loop.plan_problem_from(moving, in_flight=False).options.slower_guesses
