@@ -310,14 +310,14 @@ def prune(cap_bytes: float | None = None, spare: str | None = None) -> list[Path
     of kernels met with no library that were not met for :data:`SEEN_MARK_DAYS`. Returns what it
     removed."""
     cap = cache_cap_bytes() if cap_bytes is None else float(cap_bytes)
+    if not cap >= 0.0:
+        raise ConfigError(f"prune: cap_bytes must be a number >= 0, got {cap_bytes!r}")
     root = cache_root()
     keep = set(_state().loaded) | ({spare} if spare else set())
     removed: list[Path] = []
     try:
-        libs = sorted(
-            ((p.stat().st_mtime, p.stat().st_size, p) for p in root.glob("*.so")),
-            key=lambda t: t[0],
-        )
+        stats = [(p, p.stat()) for p in root.glob("*.so")]
+        libs = sorted(((st.st_mtime, st.st_size, p) for p, st in stats), key=lambda t: t[0])
         total = sum(size for _, size, _ in libs)
         for _, size, path in libs:
             if total <= cap:

@@ -35,8 +35,8 @@ CERT_STEP = 0.02
 
 #: Obstacle slots per node in closed loop (the planner's default is 8; see ``Loop``).
 CLOSED_LOOP_OBSTACLE_SLOTS = 12
-#: IPOPT's iteration limit per solve in closed loop (``plan()`` keeps ``planner.max_iter``, 500 by
-#: default, where a scenario asks for less this). On every scenario in maps/ each solve of a flight
+#: IPOPT's iteration limit per solve in closed loop, unless the scenario's ``planner.max_iter`` is
+#: lower or the caller sets ``max_iter`` (``plan()`` keeps ``planner.max_iter``, 500 by default). On every scenario in maps/ each solve of a flight
 #: converges in 12-90 iterations. A quadrotor replanning at 4.6 m/s towards a hidden thin obstacle
 #: (campaign family ``thin``) ran 500-iteration solves that failed, 7-21 s each, before a slower
 #: guess converged (plan calls of 10-41 s); the robot brakes safely when a replan fails and plans

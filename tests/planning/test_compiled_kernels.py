@@ -313,6 +313,8 @@ def test_prune_drops_the_least_recently_used_libraries_beyond_the_cap(kernel_cac
     assert all(p.exists() for p in (libs[0], libs[1], libs[4], fresh_mark, kept_mark))
     monkeypatch.setenv(compiled_kernels.CACHE_MB_ENV, "0.004")
     assert compiled_kernels.prune() == [] and compiled_kernels.cache_cap_bytes() == 4000.0
+    with pytest.raises(ConfigError, match="cap_bytes must be a number >= 0, got -1"):
+        compiled_kernels.prune(cap_bytes=-1)
     monkeypatch.setenv(compiled_kernels.CACHE_MB_ENV, "lots")
     with pytest.raises(ConfigError, match="SECURE3D_KERNEL_CACHE_MB.*positive.*'lots'"):
         compiled_kernels.prune()
