@@ -328,8 +328,9 @@ def prune(cap_bytes: float | None = None, spare: str | None = None) -> list[Path
             removed.append(path)
             total -= size
         stale = time.time() - SEEN_MARK_DAYS * 86400.0
+        with_library = {p.name[:24] for _, _, p in libs if p not in removed}
         for mark in root.glob("*.seen"):
-            if mark.stat().st_mtime < stale and not any(root.glob(f"{mark.stem}*.so")):
+            if mark.stem not in with_library and mark.stat().st_mtime < stale:
                 mark.unlink(missing_ok=True)
                 removed.append(mark)
     except OSError as exc:  # another process pruning at once, or an unreadable cache
@@ -451,6 +452,7 @@ def _seen_elsewhere(stem: str) -> bool:
     mark = cache_root() / f"{stem}.seen"
     try:
         if mark.exists():
+            os.utime(mark)  # met again: :func:`prune` keeps marks met in the last days
             return mark.read_text().strip() != str(os.getpid())
         mark.parent.mkdir(parents=True, exist_ok=True)
         mark.write_text(str(os.getpid()))

@@ -123,11 +123,11 @@ class Loop:
         guesses). ``speed``: the guess's speed fraction after failed plans; ``goal``: another goal."""
         self.refresh_obstacles()
         problem = self.problem
-        if in_flight and float(np.linalg.norm(self.model.velocity(x))) >= STOP_SPEED:
-            # moving: if the first guess fails the robot brakes and plans from rest (lines 4-7),
-            # sooner than slower guesses, which converged to plans 2-2.5x as long
-            problem = problem.with_options(slower_guesses=False)
         if in_flight:
+            if float(np.linalg.norm(self.model.velocity(x))) >= STOP_SPEED:
+                # moving: if the first guess fails the robot brakes and plans from rest (lines
+                # 4-7), sooner than slower guesses, which converged to plans 2-2.5x as long
+                problem = problem.with_options(slower_guesses=False)
             p = np.asarray(self.model.position(x), dtype=float).ravel()
             first = self.first_problem
             box = observed_box(
