@@ -98,3 +98,60 @@ def test_empty_slots_names_a_misshapen_slot_array():
     assert lb.empty_slots(problem, far).tolist() == [[True, False, True], [True, True, True]]
     with pytest.raises(PlanningError, match=r"shape \(K, S, 6\), got \(2, 3\)"):
         lb.empty_slots(problem, far[..., 0])
+
+
+def test_the_least_violating_face_is_the_best_face_and_beats_the_middle_normal(rng, hull_box_pairs):
+    """Pairs whose sets meet their box: the chosen face leaves the rows less short than every
+    other face (brute force over the six), and a centre just inside a long box (a wall, a plank
+    across the line of sight) starts at the depth of its nearest face, not along the box."""
+    origins, centres, shapes, lo, hi, los = hull_box_pairs(rng, 3000, 0.6)
+    hi = lo + rng.uniform(0.05, 6.0, lo.shape)  # long boxes too
+    centres = rng.uniform(lo - 0.2, hi + 0.2)  # most centres inside or beside their box
+    origins = np.where(los[:, None], origins, centres)
+    pairs = (origins, centres, shapes, lo, hi, los)
+    meet = box_pair_distances(*pairs) <= 0
+    assert meet.sum() > 1000
+    sub = tuple(a[meet] for a in pairs)
+    lam = sd.least_violating_faces(*sub)
+    assert np.all(lam.sum(axis=1) == 1) and np.all((lam == 0) | (lam == 1))  # one face each
+    chosen = sd.dual_row_margins(lam, *sub)
+    for f in range(6):
+        face = np.zeros_like(lam)
+        face[:, f] = 1.0
+        assert np.all(chosen >= sd.dual_row_margins(face, *sub))
+    # a point-like set 0.1 m inside the -y face of a wall 8 m long and 3 m high
+    wall_lo, wall_hi = np.array([[0.0, 0.0, 0.0]]), np.array([[8.0, 0.3, 3.0]])
+    c = np.array([[1.0, 0.1, 1.5]])
+    one = (c, c, 1e-3 * np.eye(3)[None], wall_lo, wall_hi, np.array([False]))
+    assert np.array_equal(sd.least_violating_faces(*one), [[0, 0, 0, 0, 1, 0]])  # the -y face
+    assert sd.dual_row_margins(sd.least_violating_faces(*one), *one) == pytest.approx(-0.101)
+    middle = sd._normal_duals(c, wall_lo[:, None], wall_hi[:, None])[:, 0]
+    assert sd.dual_row_margins(middle, *one) < -0.99  # along the wall, 1 m to its end
+
+
+def test_initial_duals_start_meeting_pairs_no_shorter_than_the_normals():
+    """Where a guess's set meets a slot's box, the start dual is the normal or a face, whichever
+    leaves the rows less short; pairs that do not meet are untouched by that choice."""
+    import secure3d
+    from secure3d.planning import problem_from_scenario
+    from secure3d.planning.guess import initial_guess
+
+    problem = problem_from_scenario(secure3d.load_scenario("blind_corner_quadrotor"))
+    X = initial_guess(problem, "secure").states
+    assignment, _ = lb.adaptive_assignment(problem, X)
+    slots = lb.select_slots(problem, "secure", X, assignment)
+    # the states shifted 0.6 m sideways: many sets now meet the boxes (a solution that left its slots)
+    shifted = X.copy()
+    shifted[:, 1] += 0.6
+    lam = sd.initial_duals(problem, "secure", shifted, slots, assignment)
+    o, c, M, los = lb.constrained_sets(problem, "secure", shifted, assignment)
+    k, s = np.nonzero(~lb.empty_slots(problem, slots))
+    sets = (o[k], c[k], M[k], slots[k, s, 0:3], slots[k, s, 3:6], los[k])
+    meet = box_pair_distances(*sets) <= 0
+    assert meet.sum() >= 5
+    normal = sd._normal_duals(c, slots[..., 0:3], slots[..., 3:6])[k, s]
+    now = sd.dual_row_margins(lam[k, s], *sets)
+    assert np.all(now[meet] >= sd.dual_row_margins(normal, *sets)[meet])
+    faced = meet & ~np.all(lam[k, s] == normal, axis=1)
+    assert faced.sum() >= 1  # some meeting pairs start at a face
+    assert np.all(np.linalg.norm(lam[..., 0:3] - lam[..., 3:6], axis=-1) <= 1 + 1e-9)
