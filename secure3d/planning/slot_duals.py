@@ -21,7 +21,7 @@ from secure3d.geometry.polytope import box_pair_distances
 from secure3d.planning.lookback import constrained_sets, empty_slots, node_geometry
 from secure3d.planning.problem import Planner, PlanningProblem
 
-__all__ = ["dual_row_margins", "initial_duals", "least_violating_faces", "slot_sides"]
+__all__ = ["dual_row_margins", "initial_duals", "slot_sides"]
 
 
 def dual_row_margins(
@@ -101,11 +101,7 @@ def initial_duals(
     started two of every three occlusion rows violated by up to 2 m on geb079_hidden_crate, which
     the solver then spent tens of iterations repairing. Duals that already satisfy the rows stay
     (the exact one can lead the solver to another local optimum: thin_pole's 12.27 s plan became
-    12.72 s with exact duals everywhere). Where the set or its hull meets the box (no dual
-    satisfies the rows), the box face that leaves the rows least short
-    (:func:`least_violating_faces`) if it beats the normal: the normal from the box's middle runs
-    along a wall the set has entered, starting a slot refresh's rows 5-6 m short where the nearest
-    face leaves 0.1-2 m. The baseline keeps the normals.
+    12.72 s with exact duals everywhere). The baseline keeps the normals.
     """
     lo, hi = slots[:, :, 0:3], slots[:, :, 3:6]
     if planner != Planner.SECURE:
@@ -122,48 +118,10 @@ def initial_duals(
     if not short.any():
         return lam
     k_idx, s_idx = k_idx[short], s_idx[short]
-    short_sets = tuple(a[short] for a in sets)
-    dist, exact = box_pair_distances(*short_sets, with_duals=True)
+    dist, exact = box_pair_distances(*(a[short] for a in sets), with_duals=True)
     clear = (dist > 0) & (np.abs(exact[:, 0:3] - exact[:, 3:6]).sum(axis=1) > 1e-9)
     lam[k_idx[clear], s_idx[clear]] = exact[clear]
-    # where the sets meet no dual satisfies the rows: the best face if it leaves them less short
-    meet = tuple(a[~clear] for a in short_sets)
-    k_idx, s_idx = k_idx[~clear], s_idx[~clear]
-    face = least_violating_faces(*meet)
-    better = dual_row_margins(face, *meet) > dual_row_margins(lam[k_idx, s_idx], *meet)
-    lam[k_idx[better], s_idx[better]] = face[better]
     return lam
-
-
-def least_violating_faces(
-    origins: np.ndarray,
-    centres: np.ndarray,
-    shapes: np.ndarray,
-    lo: np.ndarray,
-    hi: np.ndarray,
-    los: np.ndarray,
-) -> np.ndarray:
-    """(n, 6) duals for ``n`` pairs whose constrained set meets its box: each the box face whose
-    outward normal leaves the slot's rows (:func:`dual_row_margins`) least violated.
-
-    No dual satisfies the rows of such a pair, so the start dual only sets how far from feasible the
-    solve starts. The normal from the box's middle can point along the box's long axis (a wall, a
-    plank across the line of sight), starting the rows 5-6 m short where the nearest face (the edge
-    the set or its line of sight has to move round) leaves a few centimetres.
-
-    Parameters are :func:`dual_row_margins`' (without ``lam``). Returns one-hot rows over the faces
-    ``+x, +y, +z, -x, -y, -z`` (so ``|A^T lam| = 1``).
-    """
-    n = len(centres)
-    faces = np.eye(6)
-    margins = np.stack(
-        [
-            dual_row_margins(np.broadcast_to(faces[f], (n, 6)), origins, centres, shapes, lo, hi, los)
-            for f in range(6)
-        ],
-        axis=1,
-    )  # (n, 6)
-    return faces[np.argmax(margins, axis=1)]
 
 
 def slot_sides(
