@@ -57,6 +57,7 @@ from secure3d.simulation.modes import (
     Trigger,
     detour_reason,
     hold_after,
+    slow_replan_reason,
     log,
 )
 from secure3d.simulation.recheck import plan_unsafe
@@ -352,17 +353,7 @@ class Flight:
         result = plan_problem(problem, loop.planner, cache=loop.cache)
         self.solve_times.append(time.perf_counter() - t0)
         self.log_certificates(result)
-        why = (
-            None
-            if not result.ok or self.t == 0.0
-            else detour_reason(
-                np.asarray(self.model.position(result.states), dtype=float),
-                result.final_time,
-                np.asarray(self.model.position(x), dtype=float).ravel(),
-                problem.goal,
-                self.model.limits.max_speed,
-            )
-        )
+        why = None if not result.ok or self.t == 0.0 else self.refusal(x, result, problem.goal)
         if not result.ok or why is not None:
             self.failures += 1
             what = why or f"{result.status.value}: {result.message}"
@@ -374,6 +365,18 @@ class Flight:
         self.rec.log_plan(self.t, result, label=loop.planner)
         self.rec.log_scalar(self.t, "solve_time_ms", 1e3 * self.solve_times[-1])
         return result
+
+    def refusal(self, x: np.ndarray, result: PlanResult, goal: np.ndarray) -> str | None:
+        """Why a certified replan from state ``x`` is not flown, or None: too long a detour, or
+        (a moving robot replanning its way to the goal) slower than braking and planning from rest."""
+        p0 = np.asarray(self.model.position(x), dtype=float).ravel()
+        positions = np.asarray(self.model.position(result.states), dtype=float)
+        why = detour_reason(positions, result.final_time, p0, goal, self.model.limits.max_speed)
+        cur, speed = self.current, float(np.linalg.norm(self.model.velocity(x)))
+        if why is None and cur is not None and self.aim() is None and speed >= STOP_SPEED:
+            left = cur.plan.final_time - (self.t - cur.start)
+            why = slow_replan_reason(result.final_time, self.loop.stop_time(x), left)
+        return why
 
     def log_certificates(self, result: PlanResult) -> None:
         """Count the certificate's verdicts on this plan call (issue 16's first-try rate) and say

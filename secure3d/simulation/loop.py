@@ -143,6 +143,13 @@ class Loop:
             problem = dataclasses.replace(problem, goal=np.asarray(goal, dtype=float))
         return problem
 
+    def stop_time(self, x: np.ndarray) -> float:
+        """Seconds the braking manoeuvre takes from state ``x`` to below STOP_SPEED."""
+        t, X = self.brake.rollout(np.asarray(x, dtype=float), dt=0.01)
+        moving = np.linalg.norm(np.asarray(self.model.velocity(X), dtype=float), axis=-1)
+        slow = np.flatnonzero(moving < STOP_SPEED)
+        return float(t[slow[0]] if len(slow) else t[-1])
+
     def way_off(self, model: object, x: np.ndarray) -> float | None:
         """For a vehicle whose heading is its direction of motion, at rest in state ``x`` within
         the planner's margin of a known obstacle: the heading to turn to before replanning

@@ -50,6 +50,13 @@ DETOUR_FACTOR = 4.0
 DETOUR_SLACK_M = 3.0
 DETOUR_SLOWEST = 0.1
 DETOUR_SLACK_S = 10.0
+#: A replan from a moving robot is refused too (it brakes and plans from rest, Algorithm 1's lines
+#: 4-7) when it would reach the goal later than braking to rest, plus SLOW_REPLAN_FACTOR times the
+#: time the plan it replaces had left, plus SLOW_REPLAN_SLACK_S. A forest campaign's quadrotor,
+#: replanning at 5 m/s round a tree it had just seen, took a plan that swung 4.7 m wide (8.56 s,
+#: where the old plan had 2.16 s left); braking (1.07 s) and planning from rest took 4.56 s.
+SLOW_REPLAN_FACTOR = 2.5
+SLOW_REPLAN_SLACK_S = 1.0
 
 
 class Mode(enum.Enum):
@@ -188,4 +195,17 @@ def detour_reason(
     top = DETOUR_FACTOR * line / (DETOUR_SLOWEST * max_speed) + DETOUR_SLACK_S
     if final_time > top:
         return f"replan refused: {final_time:.1f} s for {line:.1f} m (at most {top:.1f} s)"
+    return None
+
+
+def slow_replan_reason(final_time: float, stop_time: float, time_left: float) -> str | None:
+    """Why a moving robot's replan is slower to fly than braking and planning from rest (see
+    SLOW_REPLAN_FACTOR), or None. ``final_time``: the replan's duration (s); ``stop_time``: the
+    braking manoeuvre's from the replan's start (s); ``time_left``: what the replaced plan had left."""
+    top = stop_time + SLOW_REPLAN_FACTOR * max(time_left, 0.0) + SLOW_REPLAN_SLACK_S
+    if final_time > top:
+        return (
+            f"replan refused: {final_time:.1f} s in flight, against {stop_time:.1f} s of braking "
+            f"and {max(time_left, 0.0):.1f} s left on the old plan (at most {top:.1f} s)"
+        )
     return None

@@ -179,6 +179,44 @@ def test_a_replan_that_detours_too_far_is_refused():
     assert "120.0 s for 5.0 m" in detour_reason(straight, 120.0, p0, goal, 2.0)
 
 
+def test_a_moving_robots_replan_slower_than_stopping_is_refused():
+    from secure3d.simulation.modes import (
+        SLOW_REPLAN_FACTOR,
+        SLOW_REPLAN_SLACK_S,
+        slow_replan_reason,
+    )
+
+    # the forest campaign's case: 8.56 s in flight, 1.07 s of braking, 2.16 s left on the old plan
+    why = slow_replan_reason(8.56, 1.07, 2.16)
+    assert why is not None and "8.6 s in flight" in why and "at most 7.5 s" in why
+    assert slow_replan_reason(4.5, 1.07, 2.16) is None  # a detour round the tree: flown
+    top = 1.0 + SLOW_REPLAN_FACTOR * 2.0 + SLOW_REPLAN_SLACK_S
+    assert slow_replan_reason(top, 1.0, 2.0) is None
+    assert slow_replan_reason(top + 1e-6, 1.0, 2.0) is not None
+    # a plan already past its end has nothing left: braking plus the slack only
+    assert slow_replan_reason(1.0 + SLOW_REPLAN_SLACK_S, 1.0, -0.5) is None
+    assert slow_replan_reason(1.1 + SLOW_REPLAN_SLACK_S, 1.0, -0.5) is not None
+
+
+def test_stop_time_is_the_braking_manoeuvres_length(maps_dir):
+    """Loop.stop_time: 0 at rest; from speed the real braking controller's stop, longer from a
+    higher speed and within the controller's manoeuvre horizon."""
+    import secure3d
+    from secure3d.simulation.loop import Loop
+
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner_quadrotor.yaml")
+    loop = Loop(scenario, "secure", 0, {}, None)
+    x = np.asarray(loop.problem.x0, dtype=float)
+    assert loop.stop_time(x) == 0.0
+    times = []
+    for speed in (1.0, 3.0):
+        moving = x.copy()
+        moving[3:6] = [speed, 0.0, 0.0]  # the quadrotor's state: position, velocity, ...
+        assert np.allclose(loop.model.velocity(moving), [speed, 0, 0])
+        times.append(loop.stop_time(moving))
+    assert 0.0 < times[0] < times[1] < 8.0
+
+
 def test_escape_heading_points_off_the_walls_the_body_rests_against():
     from secure3d.simulation.loop import escape_heading
 
@@ -214,10 +252,35 @@ def test_escape_heading_points_off_the_walls_the_body_rests_against():
 
 
 @pytest.mark.slow
-def test_a_diff_drive_braked_against_a_wall_turns_away_and_goes_on(maps_dir):
-    """planar_dead_end: the turn-round replan is lost to tracking error beside a wall; the robot
-    brakes to rest 1.6 mm from the wall's voxels, turns on the spot to face away from it and
-    replans from there, instead of creeping closer with every replan until it holds touching it."""
+def test_a_moving_robot_brakes_rather_than_fly_a_slow_replan(maps_dir, monkeypatch):
+    """planar_dead_end: the diff drive sees the dead end at speed; its replan in flight turns round
+    in 16.5 s, where the old plan had 2.5 s left. It is refused: the robot brakes, plans from rest
+    and arrives sooner than flying it (as it did before the rule, turning round beside the wall)."""
+    from secure3d.simulation import modes
+
+    scenario = secure3d.load_scenario(maps_dir / "planar_dead_end.yaml")
+    run = simulate(scenario, "secure", seed=0, plan_budget=10.0, replan_defer=0.5)
+    refused = [e for e in run.events if "replan refused" in e.detail and "in flight" in e.detail]
+    assert refused, [str(e) for e in run.events]
+    kinds = [e.kind for e in run.events]
+    i = kinds.index("plan failed")
+    assert kinds[i + 1] == "take-over" and "stopped" in kinds[i + 2 :]  # brakes, then plans
+    assert run.reached_goal and not run.collided, run.summary()
+    monkeypatch.setattr(modes, "SLOW_REPLAN_FACTOR", np.inf)  # the rule off: the replan is flown
+    flown = simulate(scenario, "secure", seed=0, plan_budget=10.0, replan_defer=0.5)
+    assert not any("replan refused" in e.detail for e in flown.events)
+    assert flown.reached_goal and run.time_to_goal < flown.time_to_goal - 2.0
+
+
+@pytest.mark.slow
+def test_a_diff_drive_braked_against_a_wall_turns_away_and_goes_on(maps_dir, monkeypatch):
+    """planar_dead_end with its slow turn-round replan flown (the rule of the test above off):
+    the replan is lost to tracking error beside a wall; the robot brakes to rest 1.6 mm from the
+    wall's voxels, turns on the spot to face away from it and replans from there, instead of
+    creeping closer with every replan until it holds touching it."""
+    from secure3d.simulation import modes
+
+    monkeypatch.setattr(modes, "SLOW_REPLAN_FACTOR", np.inf)
     scenario = secure3d.load_scenario(maps_dir / "planar_dead_end.yaml")
     run = simulate(scenario, "secure", seed=0, plan_budget=10.0, replan_defer=0.5)
     assert not run.collided, run.summary()
