@@ -57,8 +57,8 @@ from secure3d.simulation.modes import (
     Trigger,
     detour_reason,
     hold_after,
-    slow_replan_reason,
     log,
+    slow_replan_reason,
 )
 from secure3d.simulation.recheck import plan_unsafe
 from secure3d.simulation.recording import Recorder
