@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from secure3d.errors import ScenarioError
 from secure3d.world.families import Family
 from secure3d.world.spec import Scenario
 from secure3d.world.thin_families import (
@@ -51,7 +52,13 @@ def _wall(
 
 def dead_end_variant(prep: Placement, base: Scenario, rng: np.random.Generator, i: int) -> Scenario:
     """Variant ``i`` of :data:`DEAD_END` (pure in its inputs)."""
-    kind, box = place_hidden(prep, base, rng, _wall)
+    try:
+        kind, box = place_hidden(prep, base, rng, _wall)
+    except ScenarioError as exc:
+        raise ScenarioError(
+            f"{exc}: every wall across the middle of its shortest route cut the goal off; the "
+            "deadend family needs a base with a second route round the wall"
+        ) from exc
     return hidden_variant(base, kind, box, i, "deadend")
 
 

@@ -46,5 +46,7 @@ def test_walls_close_the_route_keep_another_and_are_pure(maps_dir):
 def test_a_base_with_one_route_is_refused_by_name(maps_dir):
     base = secure3d.load_scenario(maps_dir / "planar_blind_corner.yaml")
     prep = DEAD_END.prepare(base)
-    with pytest.raises(ScenarioError, match="planar_blind_corner"):
+    with pytest.raises(
+        ScenarioError, match="planar_blind_corner.*needs a base with a second route"
+    ):
         DEAD_END.variant(prep, base, variant_rng(0, 0), 0)
