@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from secure3d.errors import SimulationError
+
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.result import PlanResult
 
@@ -202,6 +204,15 @@ def slow_replan_reason(final_time: float, stop_time: float, time_left: float) ->
     """Why a moving robot's replan is slower to fly than braking and planning from rest (see
     SLOW_REPLAN_FACTOR), or None. ``final_time``: the replan's duration (s); ``stop_time``: the
     braking manoeuvre's from the replan's start (s); ``time_left``: what the replaced plan had left."""
+    for name, value in (
+        ("final_time", final_time),
+        ("stop_time", stop_time),
+        ("time_left", time_left),
+    ):
+        if not np.isfinite(value) or (name != "time_left" and value < 0.0):
+            raise SimulationError(
+                f"slow_replan_reason: {name} must be a finite time (s), got {value!r}"
+            )
     top = stop_time + SLOW_REPLAN_FACTOR * max(time_left, 0.0) + SLOW_REPLAN_SLACK_S
     if final_time > top:
         return (

@@ -196,6 +196,9 @@ def test_a_moving_robots_replan_slower_than_stopping_is_refused():
     # a plan already past its end has nothing left: braking plus the slack only
     assert slow_replan_reason(1.0 + SLOW_REPLAN_SLACK_S, 1.0, -0.5) is None
     assert slow_replan_reason(1.1 + SLOW_REPLAN_SLACK_S, 1.0, -0.5) is not None
+    for args, what in (((np.nan, 1.0, 2.0), "final_time"), ((3.0, -1.0, 2.0), "stop_time")):
+        with pytest.raises(SimulationError, match=what):
+            slow_replan_reason(*args)
 
 
 def test_stop_time_is_the_braking_manoeuvres_length(maps_dir):
