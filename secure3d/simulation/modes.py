@@ -213,10 +213,11 @@ def slow_replan_reason(final_time: float, stop_time: float, time_left: float) ->
             raise SimulationError(
                 f"slow_replan_reason: {name} must be a finite time (s), got {value!r}"
             )
-    top = stop_time + SLOW_REPLAN_FACTOR * max(time_left, 0.0) + SLOW_REPLAN_SLACK_S
+    left = max(time_left, 0.0)  # a plan past its end has nothing left
+    top = stop_time + SLOW_REPLAN_FACTOR * left + SLOW_REPLAN_SLACK_S
     if final_time > top:
         return (
             f"replan refused: {final_time:.1f} s in flight, against {stop_time:.1f} s of braking "
-            f"and {max(time_left, 0.0):.1f} s left on the old plan (at most {top:.1f} s)"
+            f"and {left:.1f} s left on the old plan (at most {top:.1f} s)"
         )
     return None
