@@ -8,10 +8,16 @@ almost everywhere. Three places are not clean, all measured with ``secure3d simu
   later with exit status 0);
 - raised while a numba kernel or CasADi's ``__array__`` returns, it surfaces as
   ``SystemError: ... returned a result with an exception set``;
-- raised while a pybind11 module initialises, as ``ImportError("initialization failed")``.
+- raised while a pybind11 module initialises, as ``ImportError("initialization failed")``;
+- raised inside a Python function that C calls through ctypes (llvmlite's object-cache hooks,
+  which run whenever numba compiles or loads a kernel), ctypes prints "Exception ignored" and
+  returns to C with the hook half done: the compile carries on, or the process dies of SIGSEGV
+  (seen once in CI, a Ctrl-C 2.5 s into ``secure3d simulate``).
 
 So :func:`cli_interrupts` installs a handler that, on the first Ctrl-C, records the request,
-starts a watchdog and raises :class:`KeyboardInterrupt` as usual. The command line reports any
+starts a watchdog and raises :class:`KeyboardInterrupt` as usual, unless the interrupted code is
+a ctypes callback (:func:`inside_c_callback`): then it ends the process at once, as the watchdog
+would. The command line reports any
 exception that ends a requested stop as "interrupted" (:func:`requested`). If the command has not
 returned ``grace`` seconds later (the exception was swallowed), the watchdog removes the
 temporary files of unfinished writes (:func:`secure3d.outputs.remove_temporaries`), prints the
@@ -30,7 +36,14 @@ from types import FrameType
 
 from secure3d.outputs import remove_temporaries
 
-__all__ = ["EXIT_INTERRUPTED", "cli_interrupts", "held_sigint", "requested"]
+__all__ = [
+    "C_CALLBACK_PACKAGES",
+    "EXIT_INTERRUPTED",
+    "cli_interrupts",
+    "held_sigint",
+    "inside_c_callback",
+    "requested",
+]
 
 #: Exit status after Ctrl-C (128 + SIGINT, as a shell reports it).
 EXIT_INTERRUPTED = 130
@@ -41,6 +54,24 @@ _requested = threading.Event()
 def requested() -> bool:
     """True once Ctrl-C was pressed inside :func:`cli_interrupts`."""
     return _requested.is_set()
+
+
+#: Packages whose Python functions C calls through ctypes, where an exception cannot unwind.
+C_CALLBACK_PACKAGES = ("llvmlite",)
+
+
+def inside_c_callback(frame: FrameType | None) -> bool:
+    """True if ``frame`` or a frame it was called from belongs to :data:`C_CALLBACK_PACKAGES`.
+
+    The chain of a ctypes callback's frames leads back through the package's Python frame that
+    made the foreign call, so checking the file names of the chain finds it.
+    """
+    parts = tuple(f"{os.sep}{name}{os.sep}" for name in C_CALLBACK_PACKAGES)
+    while frame is not None:
+        if any(part in frame.f_code.co_filename for part in parts):
+            return True
+        frame = frame.f_back
+    return False
 
 
 def _exit_now(message: str) -> None:
@@ -64,7 +95,7 @@ def cli_interrupts(message: str, grace: float = 0.7) -> Iterator[None]:
     watchdog: list[threading.Timer] = []
 
     def on_sigint(signum: int, frame: FrameType | None) -> None:
-        if _requested.is_set():
+        if _requested.is_set() or inside_c_callback(frame):
             _exit_now(message)
         _requested.set()
         timer = threading.Timer(grace, _exit_now, args=(message,))

@@ -99,3 +99,44 @@ def test_a_second_ctrl_c_ends_the_process_at_once(tmp_path):
     out, err = child.communicate(timeout=30)
     assert child.returncode == 130 and "finished" not in out, (child.returncode, err)
     assert not list(tmp_path.iterdir())
+
+
+_IN_NUMBA_HOOK = """
+import os, signal, sys, time
+import numba
+from numba.core import codegen
+from secure3d.outputs import temporary_path
+from secure3d.sigint import cli_interrupts
+tmp = temporary_path(sys.argv[1])
+tmp.write_text("half")
+hook = codegen.JITCodeLibrary._object_getbuffer_hook.__func__
+sent = []
+
+def interrupting_hook(cls, ll_module):  # llvmlite calls this through ctypes on every compile
+    if not sent:
+        sent.append(time.perf_counter())
+        os.kill(os.getpid(), signal.SIGINT)
+        while time.perf_counter() - sent[0] < 0.2:  # the handler runs in this frame
+            pass
+    return hook(cls, ll_module)
+
+codegen.JITCodeLibrary._object_getbuffer_hook = classmethod(interrupting_hook)
+with cli_interrupts("stopped inside the hook", grace=20):
+    numba.njit(lambda x: x + 1)(1)
+    print("compiled", flush=True)
+    time.sleep(20)
+"""
+
+
+def test_ctrl_c_inside_a_ctypes_callback_of_a_numba_compile_ends_the_process_at_once(tmp_path):
+    """Raised there, the exception would be ignored by ctypes (the compile carries on) or leave
+    llvmlite's buffer half set (CI once saw SIGSEGV); so the handler ends the process instead."""
+    program = [sys.executable, "-c", _IN_NUMBA_HOOK, str(tmp_path / "out.png")]
+    started = time.perf_counter()
+    done = subprocess.run(program, capture_output=True, text=True, timeout=60)
+    took = time.perf_counter() - started
+    assert done.returncode == 130, (done.returncode, done.stderr[-1500:])
+    assert done.stderr.strip() == "stopped inside the hook", done.stderr[-1500:]
+    assert "compiled" not in done.stdout
+    assert took < 15.0, took  # the 20 s watchdog did not do it
+    assert not list(tmp_path.iterdir())
