@@ -174,6 +174,10 @@ class DepthCamera:
         self._scene = o3d.t.geometry.RaycastingScene()
         if len(faces):
             self._scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(faces))
+            # Embree builds the scene's BVH on the first query: 0.28-0.37 s for a laser-scanned
+            # office (geb079's voxels), which would land in the first frame of the flight. One
+            # ray here builds it with the world, in the set-up.
+            self._scene.cast_rays(o3d.core.Tensor(np.array([[0, 0, 0, 0, 0, 1]], np.float32)))
         self.fx, self.fy, self.cx, self.cy = intrinsics(camera_spec)
         self._K = o3d.core.Tensor(self.intrinsic_matrix)
         rays = pixel_rays(camera_spec.width, camera_spec.height, self.fx, self.fy, self.cx, self.cy)

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from secure3d._kernel_manifest import preload
 from secure3d.errors import SimulationError
 from secure3d.simulation.modes import STOP_SPEED
 
@@ -61,6 +62,8 @@ class Loop:
 
         self.scenario = scenario
         self.planner = planner
+        # the kernels earlier flights called, loaded (or compiled) now rather than in the flight
+        self.kernels_preloaded = preload()
         self.truth = true_obstacles(scenario)
         try:
             mesh = world_trimesh(self.truth.boxes, self.truth.meshes, self.truth.voxel_boxes)
