@@ -146,20 +146,28 @@ def test_one_compiled_nlp_serves_every_lookback_assignment(corner_problem, plans
 
 def test_an_nlp_is_compiled_ahead_when_the_assignment_is_not_structure(corner_problem):
     """``NLPCache.prepare`` (the closed loop's set-up) builds exactly the NLP the first plan then
-    finds in the cache; with the assignment compiled into the structure it declines."""
+    finds in the cache; with the assignment compiled into the structure it says so, and builds
+    what every assignment's NLP shares (node kernels and their derivatives)."""
     cache = NLPCache()
     structural = corner_problem.with_options(lookback_encoding="structure")
-    assert not cache.prepare(structural, "secure") and cache.misses == 0
+    assert not cache.prepare(structural, "secure") and cache.misses == 1
+    (kernels, _, _), = cache._kernels.values()
+    derivatives = dict(kernels.derivatives)
+    assert len(derivatives) >= 3  # the dynamics, the start region's and the frustum's rows
+    r = plan_problem(structural, "secure", cache=cache)
+    assert r.ok and r.build_time > 0.0, r.message  # its own assignment: built in the plan
+    assert len(cache._kernels) == 1 and kernels.derivatives == derivatives  # nothing new shared
     parametric = corner_problem.with_options(lookback_encoding="parameter")
-    assert cache.prepare(parametric, "secure") and cache.misses == 1
-    assert cache.prepare(corner_problem, "baseline") and cache.misses == 2
+    misses = cache.misses
+    assert cache.prepare(parametric, "secure") and cache.misses == misses + 1
+    assert cache.prepare(corner_problem, "baseline") and cache.misses == misses + 2
     with pytest.raises(secure3d.errors.ConfigError, match="planner"):
         cache.prepare(corner_problem, "fastest")
     for problem, planner in ((parametric, "secure"), (corner_problem, "baseline")):
         r = plan_problem(problem, planner, cache=cache)
         assert r.ok, r.message
         assert r.build_time == 0.0
-    assert cache.misses == 2
+    assert cache.misses == misses + 2
     # no multipliers of the parameters are computed, so nlpsol builds no nlp_grad Function
     for nlp, _, _ in cache._items.values():
         assert not nlp.solver.has_function("nlp_grad")
