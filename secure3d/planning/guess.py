@@ -10,7 +10,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from secure3d.errors import PlanningError
@@ -105,7 +105,7 @@ def _graph_path(problem: PlanningProblem, resolution: float, clearance_pad: floa
 
     flat_clear = clearance.ravel()
 
-    def cost(src: np.ndarray, dst: np.ndarray, length: float) -> np.ndarray:
+    def cost(src: np.ndarray, dst: np.ndarray, length: np.ndarray) -> np.ndarray:
         near = np.minimum(flat_clear[src], flat_clear[dst])
         return length * (1.0 + 1.0 / (0.25 + np.maximum(near - r, 0.0) / max(clearance_pad, 1e-3)))
 
@@ -118,7 +118,7 @@ def grid_route(
     lo: np.ndarray,
     res: float,
     free: np.ndarray,
-    edge_cost: Callable[[np.ndarray, np.ndarray, float], np.ndarray],
+    edge_cost: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray],
     start: np.ndarray,
     goal: np.ndarray,
 ) -> np.ndarray:
@@ -131,7 +131,7 @@ def grid_route(
         ``lo``, spaced ``res``.
     free : (a, b, c) bool, the cells a route may use (the start's and goal's cells always may).
     edge_cost : ``(src, dst, length) -> (k,)`` cost of the edges between flat cells ``src`` and
-        ``dst`` (k,), ``length`` metres long.
+        ``dst`` (k,), ``length`` (k,) metres long.
 
     Raises
     ------
@@ -149,28 +149,7 @@ def grid_route(
     # The start/goal cells may be blocked by discretisation: free them.
     for c in (s_cell, g_cell):
         flat_free[c] = True
-    idx = np.arange(flat_free.size).reshape(shape)
-    strides = np.array([shape[1] * shape[2], shape[2], 1])  # linear index steps per axis
-    rows, cols, weights = [], [], []
-    offsets = [np.array(o) for o in np.ndindex(3, 3, 3) if o != (1, 1, 1)]
-    for off in offsets:
-        o = off - 1
-        if any(o[d] != 0 and shape[d] == 1 for d in range(3)):
-            continue
-        src = idx[
-            max(0, -o[0]) : shape[0] - max(0, o[0]),
-            max(0, -o[1]) : shape[1] - max(0, o[1]),
-            max(0, -o[2]) : shape[2] - max(0, o[2]),
-        ].ravel()
-        dst = src + int(o @ strides)  # the neighbour's cell: the slices keep it inside the grid
-        ok = flat_free[src] & flat_free[dst]
-        rows.append(src[ok])
-        cols.append(dst[ok])
-        weights.append(edge_cost(src[ok], dst[ok], res * float(np.linalg.norm(o))))
-    graph = coo_matrix(
-        (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))),
-        shape=(flat_free.size, flat_free.size),
-    ).tocsr()
+    graph = grid_graph(flat_free, shape, res, edge_cost)
     dist, pred = dijkstra(graph, indices=s_cell, return_predecessors=True)
     if not np.isfinite(dist[g_cell]):
         raise NoPathError(
@@ -182,6 +161,31 @@ def grid_route(
     pts = centres[np.array(cells[::-1])]
     pts[0], pts[-1] = start, goal
     return pts
+
+
+#: The 26 neighbour offsets of a grid cell, in increasing order of their flat step.
+GRID_OFFSETS = np.array([o for o in np.ndindex(3, 3, 3) if o != (1, 1, 1)], np.int64) - 1
+
+
+def grid_graph(
+    free: np.ndarray,
+    shape: tuple[int, int, int],
+    res: float,
+    edge_cost: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+) -> csr_matrix:
+    """The 26-connected graph of a grid's free cells as a canonical CSR matrix (rows sorted,
+    no duplicates): ``free`` (N,) bool flat cells of ``shape``, spaced ``res``; edge weights
+    ``edge_cost(src, dst, length)`` with arrays (E,). Its edges are listed by a compiled kernel
+    (:func:`secure3d.planning._grid_kernel.grid_edges`)."""
+    from secure3d.planning._grid_kernel import grid_edges
+
+    if free.size * len(GRID_OFFSETS) >= 2**31:  # int32 edge indices (MAX_GRID_CELLS keeps below)
+        raise PlanningError(f"grid of {free.size} cells: too large for a graph search")
+    indptr, src, dst, kind = grid_edges(free, np.asarray(shape, np.int64), GRID_OFFSETS)
+    lengths = res * np.sqrt((GRID_OFFSETS**2).sum(axis=1).astype(float))
+    graph = csr_matrix((edge_cost(src, dst, lengths[kind]), dst, indptr), shape=(free.size,) * 2)
+    graph.sort_indices()  # already sorted when every axis has 3 or more cells
+    return graph
 
 
 def _clear_at(points: np.ndarray, clearance: np.ndarray, lo: np.ndarray, res: float) -> np.ndarray:

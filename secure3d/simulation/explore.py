@@ -64,7 +64,7 @@ def _least_claimed_route(
     if height is not None:
         lo[2] = height
 
-    def cost(src: np.ndarray, dst: np.ndarray, length: float) -> np.ndarray:
+    def cost(src: np.ndarray, dst: np.ndarray, length: np.ndarray) -> np.ndarray:
         return length * np.where(in_claim[src] | in_claim[dst], CLAIM_COST, 1.0)
 
     try:
