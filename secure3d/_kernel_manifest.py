@@ -7,9 +7,11 @@ flight: 31-35 loads, 0.13-0.19 s of every shipped scenario's flight, most of it 
 and with an empty cache, compilation: ``blind_corner``'s first plan took 23 s of wall time, over a
 campaign's 10 s plan budget, so the outcome of a run could depend on the state of the cache.
 
-So :func:`record` keeps, after each flight, which kernels (module and name) were called with which
-argument types (numba signatures) in a manifest beside the compiled kernels, and :func:`preload`
-loads (or compiles) every one of them in the set-up of the next flight, before the clock starts.
+So :func:`record` keeps, after each flight, which kernels (module and name) the flight called for
+the first time in its process, with which argument types (numba signatures), in a manifest beside
+the compiled kernels, and :func:`preload` loads (or compiles) every one of them in the set-up of
+the next flight, before the clock starts. Kernels a set-up calls anyway (an OctoMap file's parser)
+are left out: preloading them for every scenario would cost more than it saves.
 A signature the kernels no longer accept (an edited kernel) is skipped. The manifest is a pickle
 in the user's cache directory, trusted as numba's own cache files there are.
 
@@ -79,15 +81,17 @@ def _read(path: Path) -> dict[tuple[str, str], set]:
     return {k: set(v) for k, v in data.items() if isinstance(k, tuple) and isinstance(v, set)}
 
 
-def record(path: Path | None = None) -> int:
-    """Add the signatures loaded in this process to the manifest (written whole, atomically, and
-    only when something is new). Returns how many signatures were new; 0 if the file cannot be
+def record(path: Path | None = None, since: dict[tuple[str, str], set] | None = None) -> int:
+    """Add the signatures loaded in this process (after ``since``, a :func:`loaded_signatures`
+    snapshot: the flight's, not its set-up's) to the manifest, written whole, atomically, and
+    only when something is new. Returns how many signatures were new; 0 if the file cannot be
     written (the next set-up then loads less, nothing else changes)."""
     path = manifest_path() if path is None else Path(path)
+    since = {} if since is None else since
     known = _read(path)
     new = 0
     for key, sigs in loaded_signatures().items():
-        fresh = sigs - known.get(key, set())
+        fresh = sigs - known.get(key, set()) - since.get(key, set())
         if fresh:
             known.setdefault(key, set()).update(fresh)
             new += len(fresh)

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from secure3d._kernel_manifest import loaded_signatures as loaded_kernels
 from secure3d._kernel_manifest import record as record_kernels
 from secure3d.errors import SimulationError
 from secure3d.planning.problem import Planner
@@ -197,8 +198,9 @@ def simulate(
     )
     setup_time = time.perf_counter() - wall0  # take-off: the NLP compiled
     guarded = tracking_guard and planner == Planner.SECURE
+    loaded = loaded_kernels()
     result = _fly(loop, NULL_RECORDER if recorder is None else recorder, settings, tracker, guarded)
-    record_kernels()  # what this flight called, for the next set-up's preload
+    record_kernels(since=loaded)  # what the flight first called, for the next set-up's preload
     return dataclasses.replace(result, setup_time=setup_time)
 
 
