@@ -198,9 +198,7 @@ def simulate(
     )
     setup_time = time.perf_counter() - wall0  # take-off: the NLP compiled
     guarded = tracking_guard and planner == Planner.SECURE
-    loaded = loaded_kernels()
     result = _fly(loop, NULL_RECORDER if recorder is None else recorder, settings, tracker, guarded)
-    record_kernels(since=loaded)  # what the flight first called, for the next set-up's preload
     return dataclasses.replace(result, setup_time=setup_time)
 
 
@@ -229,12 +227,16 @@ def _fly(
     loop: Loop, recorder: Recorder, settings: RunSettings, tracker: object | None, guarded: bool
 ) -> SimResult:
     """Fly the loop (with ``tracker`` instead of the vehicle's, and the tracking guard if
-    ``guarded``); the recording is aborted if the flight raises."""
+    ``guarded``); the recording is aborted if the flight raises. The kernels the flight called
+    first go to the manifest the next set-up preloads (:mod:`secure3d._kernel_manifest`)."""
     try:
         if tracker is not None:
             loop.tracker = tracker
         guard = TrackingGuard(loop) if guarded else None
-        return Flight(loop, recorder, settings, guard).run()
+        loaded = loaded_kernels()
+        result = Flight(loop, recorder, settings, guard).run()
+        record_kernels(since=loaded)  # what the flight first called, for the next set-up's preload
+        return result
     except BaseException:
         recorder.abort()
         raise
