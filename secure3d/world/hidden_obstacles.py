@@ -447,19 +447,26 @@ def _clear(
     touchable: np.ndarray,
     ends: np.ndarray,
     keep: float,
+    closed: float = 0.0,
 ) -> bool:
     """Whether ``box`` keeps ``keep`` from the start/goal ``ends`` (2, 3) and from the obstacles
     beside it (those it neither stands on nor reaches up to). It may also touch a ``touchable``
     one (a named obstacle: a crate against a wall), but leaves no gap narrower than ``keep``.
 
     Voxels are never touchable: a wall made of many voxel boxes would show a sliver gap to the
-    voxels next to the one the box touches."""
+    voxels next to the one the box touches. A gap to a voxel narrower than ``closed`` is accepted
+    as part of the wall's roughness: a beam wedged between the walls of a scanned corridor touches
+    their nearest voxels and leaves gaps of one to a few voxels (0.08-0.48 m on geb079) to the
+    voxels set back from them; with ``closed`` 0 no beam, plank or ledge spans a scanned corridor.
+    The caller's check on the placement grid still keeps a route for the body."""
     if np.any(box_distance(box[0], box[1], ends, ends) < keep):
         return False
     eps = 1e-9
     beside = (lo[:, 2] < box[1][2] - eps) & (hi[:, 2] > box[0][2] + eps)
     gap = box_distance(box[0], box[1], lo[beside], hi[beside])
-    return bool(np.all((gap >= keep) | ((gap == 0) & touchable[beside])))
+    named = touchable[beside]
+    shut = np.where(named, gap == 0, gap < closed)
+    return bool(np.all((gap >= keep) | shut))
 
 
 def _fresh_name(world: World, added: list[Box], stem: str) -> str:

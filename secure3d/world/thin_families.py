@@ -190,7 +190,7 @@ def place_hidden(
             continue
         kind, (lo, hi) = cand
         if not np.all(hi > lo) or not _clear(
-            (lo, hi), prep.lo, prep.hi, prep.touchable, ends, keep
+            (lo, hi), prep.lo, prep.hi, prep.touchable, ends, keep, closed=keep
         ):
             continue
         trial = prep.grid.blocked_by(lo[None], hi[None]) & prep.grid.free
