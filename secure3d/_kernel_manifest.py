@@ -107,7 +107,7 @@ def record(path: Path | None = None, since: dict[tuple[str, str], set] | None = 
         finally:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
-    except OSError:
+    except Exception:  # noqa: BLE001 - a cache that cannot be written must not fail a flight
         return 0
     return new
 
@@ -124,7 +124,7 @@ def preload(path: Path | None = None) -> int:
             continue
         try:
             kernel = getattr(importlib.import_module(modname), name, None)
-        except ImportError:
+        except Exception:  # noqa: BLE001 - a module renamed or gone since the manifest was written
             continue
         if not isinstance(kernel, CPUDispatcher):
             continue

@@ -1,7 +1,7 @@
 """Ctrl-C for the command line: a clean stop within a second, whatever is running.
 
 Python turns SIGINT into :class:`KeyboardInterrupt` at the next bytecode, which is a clean stop
-almost everywhere. Three places are not clean, all measured with ``secure3d simulate``:
+almost everywhere. Four places are not clean, all measured with ``secure3d simulate``:
 
 - CasADi catches the exception while it builds or evaluates a function, logs
   ``KeyboardInterruptException`` and carries on (a flight interrupted at 0.6 s finished 6.8 s
@@ -17,8 +17,8 @@ almost everywhere. Three places are not clean, all measured with ``secure3d simu
 So :func:`cli_interrupts` installs a handler that, on the first Ctrl-C, records the request,
 starts a watchdog and raises :class:`KeyboardInterrupt` as usual, unless the interrupted code is
 a ctypes callback (:func:`inside_c_callback`): then it ends the process at once, as the watchdog
-would. The command line reports any
-exception that ends a requested stop as "interrupted" (:func:`requested`). If the command has not
+would. The command line reports any exception that ends a requested stop as "interrupted"
+(:func:`requested`). If the command has not
 returned ``grace`` seconds later (the exception was swallowed), the watchdog removes the
 temporary files of unfinished writes (:func:`secure3d.outputs.remove_temporaries`), prints the
 same line and ends the process with status 130. A second Ctrl-C does that at once.

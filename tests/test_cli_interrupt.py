@@ -140,3 +140,13 @@ def test_ctrl_c_inside_a_ctypes_callback_of_a_numba_compile_ends_the_process_at_
     assert "compiled" not in done.stdout
     assert took < 15.0, took  # the 20 s watchdog did not do it
     assert not list(tmp_path.iterdir())
+
+
+def test_only_frames_under_a_ctypes_callback_package_count_as_inside_one():
+    from secure3d.sigint import inside_c_callback
+
+    assert not inside_c_callback(sys._getframe()) and not inside_c_callback(None)
+    code = compile("import sys\nframe = sys._getframe()", "/x/llvmlite/binding/hook.py", "exec")
+    scope: dict = {}
+    exec(code, scope)
+    assert inside_c_callback(scope["frame"])
