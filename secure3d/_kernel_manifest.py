@@ -15,21 +15,20 @@ are left out: preloading them for every scenario would cost more than it saves.
 A signature the kernels no longer accept (an edited kernel) is skipped. The manifest is a pickle
 in the user's cache directory, trusted as numba's own cache files there are.
 
-This module imports no other part of secure3d except the cache location, so the simulator (which
-calls both functions) may import it from any layer.
+This module imports no other part of secure3d than the cache location and the atomic file writer,
+so the simulator (which calls both functions) may import it from any layer.
 """
 
 from __future__ import annotations
 
-import contextlib
 import importlib
 import os
 import pickle
 import sys
-import tempfile
 from pathlib import Path
 
 from secure3d._numba_cache import cache_root
+from secure3d.outputs import atomic_write_bytes
 
 __all__ = ["MANIFEST_ENV", "loaded_signatures", "manifest_path", "preload", "record"]
 
@@ -99,14 +98,7 @@ def record(path: Path | None = None, since: dict[tuple[str, str], set] | None = 
         return 0
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                pickle.dump(known, f)
-            os.replace(tmp, path)
-        finally:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
+        atomic_write_bytes(path, pickle.dumps(known))
     except Exception:  # noqa: BLE001 - a cache that cannot be written must not fail a flight
         return 0
     return new
