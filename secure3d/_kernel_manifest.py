@@ -38,6 +38,11 @@ MANIFEST_ENV = "SECURE3D_KERNEL_MANIFEST"
 _PACKAGE = "secure3d"
 
 
+def _ours(modname: str) -> bool:
+    """Whether ``modname`` is secure3d or one of its modules."""
+    return modname == _PACKAGE or modname.startswith(_PACKAGE + ".")
+
+
 def manifest_path() -> Path:
     """``$SECURE3D_KERNEL_MANIFEST``, else ``<kernel cache root>/flight-kernels-<python>-<numba>
     .pickle`` (signatures name numba's types, so one manifest per numba version)."""
@@ -56,7 +61,7 @@ def _dispatchers() -> dict[tuple[str, str], object]:
 
     found = {}
     for modname, module in list(sys.modules.items()):
-        if module is None or not (modname == _PACKAGE or modname.startswith(_PACKAGE + ".")):
+        if module is None or not _ours(modname):
             continue
         for name, value in list(vars(module).items()):
             if isinstance(value, CPUDispatcher) and value.py_func.__module__ == modname:
@@ -85,12 +90,16 @@ def record(path: Path | None = None, since: dict[tuple[str, str], set] | None = 
     snapshot: the flight's, not its set-up's) to the manifest, written whole, atomically, and
     only when something is new. Returns how many signatures were new; 0 if the file cannot be
     written (the next set-up then loads less, nothing else changes)."""
-    path = manifest_path() if path is None else Path(path)
     since = {} if since is None else since
+    called = {k: sigs - since.get(k, set()) for k, sigs in loaded_signatures().items()}
+    called = {k: sigs for k, sigs in called.items() if sigs}
+    if not called:  # a flight that loaded nothing new (every flight after a preload): no I/O
+        return 0
+    path = manifest_path() if path is None else Path(path)
     known = _read(path)
     new = 0
-    for key, sigs in loaded_signatures().items():
-        fresh = sigs - known.get(key, set()) - since.get(key, set())
+    for key, sigs in called.items():
+        fresh = sigs - known.get(key, set())
         if fresh:
             known.setdefault(key, set()).update(fresh)
             new += len(fresh)
@@ -112,7 +121,7 @@ def preload(path: Path | None = None) -> int:
 
     loaded = 0
     for (modname, name), sigs in _read(manifest_path() if path is None else Path(path)).items():
-        if not (modname == _PACKAGE or modname.startswith(_PACKAGE + ".")):
+        if not _ours(modname):
             continue
         try:
             kernel = getattr(importlib.import_module(modname), name, None)

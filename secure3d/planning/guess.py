@@ -163,8 +163,10 @@ def grid_route(
     return pts
 
 
-#: The 26 neighbour offsets of a grid cell, in increasing order of their flat step.
+#: The 26 neighbour offsets of a grid cell, in increasing order of their flat step, and their
+#: lengths in cells.
 GRID_OFFSETS = np.array([o for o in np.ndindex(3, 3, 3) if o != (1, 1, 1)], np.int64) - 1
+_OFFSET_LENGTHS = np.sqrt((GRID_OFFSETS**2).sum(axis=1).astype(float))
 
 
 def grid_graph(
@@ -179,10 +181,19 @@ def grid_graph(
     (:func:`secure3d.planning._grid_kernel.grid_edges`)."""
     from secure3d.planning._grid_kernel import grid_edges
 
+    dims = np.asarray(shape, np.int64)
+    free = np.asarray(free)
+    if dims.shape != (3,) or np.any(dims < 1):
+        raise PlanningError(f"grid_graph: shape must be 3 positive cell counts, got {shape!r}")
+    if free.dtype != bool or free.shape != (int(np.prod(dims)),):
+        raise PlanningError(
+            f"grid_graph: free must be {int(np.prod(dims))} flat bools for shape {tuple(dims)},"
+            f" got {free.dtype} array of shape {free.shape}"
+        )
     if free.size * len(GRID_OFFSETS) >= 2**31:  # int32 edge indices (MAX_GRID_CELLS keeps below)
         raise PlanningError(f"grid of {free.size} cells: too large for a graph search")
-    indptr, src, dst, kind = grid_edges(free, np.asarray(shape, np.int64), GRID_OFFSETS)
-    lengths = res * np.sqrt((GRID_OFFSETS**2).sum(axis=1).astype(float))
+    indptr, src, dst, kind = grid_edges(free, dims, GRID_OFFSETS)
+    lengths = res * _OFFSET_LENGTHS
     graph = csr_matrix((edge_cost(src, dst, lengths[kind]), dst, indptr), shape=(free.size,) * 2)
     graph.sort_indices()  # already sorted when every axis has 3 or more cells
     return graph

@@ -127,3 +127,18 @@ def test_the_compiled_grid_graph_is_the_numpy_one_bit_for_bit(shape):
     np.testing.assert_array_equal(new.indices, old.indices)
     assert np.array_equal(new.data, old.data)  # the same floats, not merely close
     assert new.nnz > 0
+
+
+def test_the_grid_graph_names_a_free_mask_that_does_not_fit_its_shape():
+    from secure3d.errors import PlanningError
+    from secure3d.planning.guess import grid_graph
+
+    def cost(src, dst, length):
+        return length
+
+    with pytest.raises(PlanningError, match="free must be 24 flat bools"):
+        grid_graph(np.ones(23, bool), (2, 3, 4), 0.1, cost)
+    with pytest.raises(PlanningError, match="free must be"):
+        grid_graph(np.ones(24, int), (2, 3, 4), 0.1, cost)
+    with pytest.raises(PlanningError, match="shape must be 3 positive"):
+        grid_graph(np.ones(0, bool), (0, 3, 4), 0.1, cost)
