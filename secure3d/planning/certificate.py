@@ -514,3 +514,20 @@ def views_after_adding(
     out = views.copy()
     out[blocked] = view
     return out
+
+
+def failing_nodes(cert: Certificate, times: np.ndarray) -> np.ndarray:
+    """(K,) 1.0 at the nodes at either end of every interval of node ``times`` (K,) in which the
+    certificate ``cert`` found a failing manoeuvre point (the node itself for a point at a node),
+    else 0.0. A certificate without its sampled plan marks every node."""
+    K = len(times)
+    sampled = cert.sampled
+    if cert.views is None or sampled is None or len(cert.views) != len(sampled.points):
+        return np.ones(K)
+    t = np.unique(sampled.times[sampled.owner[cert.views == -2]])
+    out = np.zeros(K)
+    i = np.clip(np.searchsorted(times, t, side="right") - 1, 0, K - 1)
+    out[i] = 1.0
+    between = ~np.isclose(times[i], t, rtol=0.0, atol=1e-9)
+    out[np.minimum(i[between] + 1, K - 1)] = 1.0
+    return out

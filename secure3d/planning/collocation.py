@@ -355,11 +355,13 @@ def _structure_visibility_rows(
             KernelCall(kern.vis, [Xi, Xj], len(view)),
             [("visibility", o.margin, ca.inf)] * problem.frustum.n_faces,
             len(view),
+            view,
         )
         add(
             KernelCall(kern.obs_view, [Xi, Xj, Boxes[:, view], Lam[:, view]], len(view)),
             kern.obs_view_rows,
             len(view),
+            view,
         )
     if start:
         Xs = X[:, start]
@@ -370,11 +372,13 @@ def _structure_visibility_rows(
             ),
             [("start_region", o.margin, ca.inf)] * 6,
             n_s,
+            start,
         )
         add(
             KernelCall(kern.obs_start, [Xs, Boxes[:, start], Lam[:, start]], n_s),
             kern.obs_start_rows,
             n_s,
+            start,
         )
     if o.interval_rows:
         structure_interval_rows(add, kern, problem, X, Boxes, Lam, assignment)

@@ -8,13 +8,18 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from secure3d.errors import PlanningError
-from secure3d.planning.problem import PlanningProblem
+from secure3d.planning.problem import Planner, PlanningProblem, Solver
+from secure3d.planning.trajectory import remainder_keeping_nodes, resample
+
+if TYPE_CHECKING:  # pragma: no cover
+    from secure3d.planning.result import PlanResult
 
 #: Largest number of grid cells the graph search uses; the grid is coarsened to stay below it.
 MAX_GRID_CELLS = 120_000
@@ -510,3 +515,24 @@ __all__ = [
     "initial_guess",
     "profile_guess",
 ]
+
+
+def guess_from_plan(problem: PlanningProblem, warm: PlanResult, t_offset: float) -> Guess:
+    """The previous plan from ``t_offset`` on: its later nodes kept as they are where the NLP takes
+    a time grid (IPOPT) and they fit, else resampled on evenly spaced nodes."""
+    args = (problem.model, warm.times, warm.states, warm.controls, t_offset)
+    kept = remainder_keeping_nodes(*args) if problem.options.solver == Solver.IPOPT else None
+    times, X, U = kept if kept is not None else resample(*args, problem.options.nodes)
+    X[0] = problem.x0
+    return Guess(times=times, states=X, controls=U, path=X[:, :3])
+
+
+def guess_along_plan(
+    problem: PlanningProblem, planner: str, other: PlanResult, t_offset: float
+) -> Guess:
+    """Another plan's path from ``t_offset`` on (its node positions after that time, from the
+    problem's start), time-scaled as the graph-search guess is (:func:`profile_guess`)."""
+    later = other.positions[other.times > t_offset + 1e-9]
+    path = np.vstack([problem.start_position[None], later if len(later) else problem.goal[None]])
+    frac = 1.0 if planner == Planner.BASELINE else problem.options.guess_speed_fraction
+    return profile_guess(problem, path, frac, planner == Planner.SECURE)

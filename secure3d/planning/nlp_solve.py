@@ -131,7 +131,7 @@ def _solve_once(
     L: np.ndarray | None = None,
     multipliers: tuple[tuple, np.ndarray, np.ndarray] | None = None,
     prev_slots: np.ndarray | None = None,
-    extra_margin: float = 0.0,
+    extra_margin: float | np.ndarray = 0.0,
     grid: np.ndarray | None = None,
     left_out_limit: float | None = None,
 ) -> _Solve:
@@ -243,7 +243,7 @@ def _start_point(
     U: np.ndarray,
     L: np.ndarray | None,
     prev_slots: np.ndarray | None,
-    extra_margin: float,
+    extra_margin: float | np.ndarray,
     grid: np.ndarray | None,
     left_out_limit: float | None = None,
 ) -> _StartPoint:
@@ -270,13 +270,30 @@ def _start_point(
     p = nlp.parameters(problem, slots, assignment, sides, grid)
     lbx, ubx = _variable_bounds(problem, nlp, T)
     lbg, ubg = nlp.bounds_for(assignment)
-    if extra_margin:
-        lbg = lbg.copy()
-        for name in MARGIN_FAMILIES:
-            idx = nlp.families.get(name, np.zeros(0, int))
-            lbg[idx] += extra_margin  # -inf rows (switched off) stay off
+    lbg = tightened_bounds(nlp, lbg, extra_margin)
     args = {"x0": w0, "p": p, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
     return _StartPoint(X, U, L, slots, sides, args)
+
+
+def tightened_bounds(nlp: TranscribedNLP, lbg: np.ndarray, extra: float | np.ndarray) -> np.ndarray:
+    """Lower row bounds ``lbg`` with the rows of :data:`MARGIN_FAMILIES` raised by ``extra``: one
+    margin (m) for every such row, or one per node ((K,): the rows of node k by ``extra[k]``).
+    Rows of no single node, and every row of an NLP that does not record its rows' nodes, take
+    the largest. Rows switched off (-inf) stay off; nothing is ever lowered."""
+    per_node = np.ndim(extra) > 0
+    extra_arr = np.maximum(np.asarray(extra, dtype=float), 0.0)
+    if not np.any(extra_arr):
+        return lbg
+    lbg = lbg.copy()
+    nodes = nlp.row_node if per_node and len(nlp.row_node) == len(lbg) else None
+    for name in MARGIN_FAMILIES:
+        idx = nlp.families.get(name, np.zeros(0, int))
+        if nodes is None:
+            lbg[idx] += extra_arr.max()
+        else:
+            k = nodes[idx]
+            lbg[idx] += np.where(k >= 0, extra_arr[np.maximum(k, 0)], extra_arr.max())
+    return lbg
 
 
 def _read_solution(run: _Run, sol: dict, stats: dict, solve_time: float) -> _Solve:

@@ -107,7 +107,8 @@ def test_warm_replan_along_the_plan_keeps_nodes_and_certifies(cold, corner_probl
 
 def test_warm_replan_without_multipliers_uses_the_cold_solver(corner_problem):
     """The fall-back of a failed warm start: the kept nodes, primal only, cold barrier schedule."""
-    from secure3d.planning.solve import _guess_from_warm, _solve_rounds
+    from secure3d.planning.guess import guess_from_plan
+    from secure3d.planning.solve import _solve_rounds
 
     cache = NLPCache()
     plan = plan_problem(corner_problem, "secure", cache=cache)
@@ -115,7 +116,7 @@ def test_warm_replan_without_multipliers_uses_the_cold_solver(corner_problem):
         corner_problem.model, plan.times, plan.states, plan.controls, np.array([0.1])
     )
     moved = corner_problem.with_start(x[0])
-    guess = _guess_from_warm(moved, plan, 0.1)
+    guess = guess_from_plan(moved, plan, 0.1)
     s, cost = _solve_rounds(moved, "secure", guess, plan, 0.1, cache, dual_start=False)
     assert s.status.ok and cost.iterations > 0 and cost.build == 0.0
     assert s.nlp.warm_solver is None, "primal-only: the warm-start solver is never compiled"
