@@ -520,6 +520,9 @@ def failing_nodes(cert: Certificate, times: np.ndarray) -> np.ndarray:
     """(K,) 1.0 at the nodes at either end of every interval of node ``times`` (K,) in which the
     certificate ``cert`` found a failing manoeuvre point (the node itself for a point at a node),
     else 0.0. A certificate without its sampled plan marks every node."""
+    times = np.asarray(times, dtype=float)
+    if times.ndim != 1 or len(times) < 2 or np.any(np.diff(times) <= 0.0):
+        raise PlanningError(f"failing_nodes: node times must increase, got {times!r}")
     K = len(times)
     sampled = cert.sampled
     if cert.views is None or sampled is None or len(cert.views) != len(sampled.points):

@@ -507,16 +507,6 @@ def clearance_field(problem: PlanningProblem) -> tuple[np.ndarray, np.ndarray, f
     return _clearance_grid(problem, problem.options.grid_resolution, _planar(problem))
 
 
-__all__ = [
-    "Guess",
-    "NoPathError",
-    "clearance_field",
-    "graph_path",
-    "initial_guess",
-    "profile_guess",
-]
-
-
 def guess_from_plan(problem: PlanningProblem, warm: PlanResult, t_offset: float) -> Guess:
     """The previous plan from ``t_offset`` on: its later nodes kept as they are where the NLP takes
     a time grid (IPOPT) and they fit, else resampled on evenly spaced nodes."""
@@ -536,3 +526,15 @@ def guess_along_plan(
     path = np.vstack([problem.start_position[None], later if len(later) else problem.goal[None]])
     frac = 1.0 if planner == Planner.BASELINE else problem.options.guess_speed_fraction
     return profile_guess(problem, path, frac, planner == Planner.SECURE)
+
+
+__all__ = [
+    "Guess",
+    "NoPathError",
+    "clearance_field",
+    "graph_path",
+    "guess_along_plan",
+    "guess_from_plan",
+    "initial_guess",
+    "profile_guess",
+]

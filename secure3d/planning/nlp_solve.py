@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from secure3d.errors import PlanningError
 from secure3d.planning import lookback as lb
 from secure3d.planning import slot_duals as sd
 from secure3d.planning.fatrop_transcription import fatrop_status
@@ -281,7 +282,15 @@ def tightened_bounds(nlp: TranscribedNLP, lbg: np.ndarray, extra: float | np.nda
     Rows of no single node, and every row of an NLP that does not record its rows' nodes, take
     the largest. Rows switched off (-inf) stay off; nothing is ever lowered."""
     per_node = np.ndim(extra) > 0
-    extra_arr = np.maximum(np.asarray(extra, dtype=float), 0.0)
+    extra_arr = np.asarray(extra, dtype=float)
+    K = nlp.layout.K
+    if per_node and extra_arr.shape != (K,):
+        raise PlanningError(
+            f"extra margin: one number or {K} (one per node), got shape {extra_arr.shape}"
+        )
+    if not np.all(np.isfinite(extra_arr)):
+        raise PlanningError(f"extra margin: must be finite (m), got {extra!r}")
+    extra_arr = np.maximum(extra_arr, 0.0)
     if not np.any(extra_arr):
         return lbg
     lbg = lbg.copy()

@@ -71,8 +71,8 @@ SLOT_REFRESHES = 3
 #: A secure solution the certificate rejects (it samples between the nodes and rolls out the real
 #: manoeuvres; the NLP sees ellipsoids at the nodes) is re-solved with the clearance and visibility
 #: rows of the nodes at either end of every failing interval
-#: (:func:`~secure3d.planning.certificate.failing_nodes`) tightened by
-#: this much more (m), up to this many times; a node keeps the tightening of earlier rounds.
+#: (:func:`~secure3d.planning.certificate.failing_nodes`) tightened by this much more (m), up to
+#: this many times; a node keeps the tightening of earlier rounds.
 #: Tightening every row instead lengthened 3D-occlusion replans (T 18.4 -> 21.0 -> 27.2 s), so the
 #: node spacing grew and new violations appeared between nodes further on.
 CERTIFY_TIGHTENING = (0.03, 0.08)
@@ -246,8 +246,9 @@ def _refresh_slots(
     the NLP whose rows for those boxes keep that part of the margin (the certificate judges every
     box either way). (A slack of 0.05 m cost a second solve on blind_corner: cold 0.47 s / 51
     iterations -> 0.31 s / 33 without; 8 hidden-obstacle flights: 0.63x -> 0.68x real time, same
-    outcomes.) The certificate's tightened re-solves (``extra_margin``) go through here too: without it a tightened solution
-    moved onto boxes outside its slots (issue 16: obstacle margins down to -0.8 m).
+    outcomes.) The certificate's tightened re-solves (``extra_margin``) go through here too:
+    without it a tightened solution moved onto boxes outside its slots (issue 16: obstacle
+    margins down to -0.8 m).
     """
     cost = SolveCost()
     for _ in range(SLOT_REFRESHES):

@@ -126,3 +126,21 @@ def test_a_tightened_re_solve_that_fails_warm_is_tried_again_cold(monkeypatch):
     )
     out, cost = solve._tightened_solve(None, "secure", rejected, None, extra)
     assert seen == [True] and cost.iterations == 9
+
+
+def test_bad_margins_and_node_times_are_refused_by_name(corner):
+    from secure3d.errors import PlanningError
+
+    problem, result = corner
+    K = problem.options.nodes
+    a = lb.fixed_assignment(K, problem.options.lookback_steps)
+    nlp = build_nlp(problem, "secure", a)
+    lbg, _ = nlp.bounds_for(a)
+    with pytest.raises(
+        PlanningError, match=rf"one number or {K} \(one per node\), got shape \(3,\)"
+    ):
+        tightened_bounds(nlp, lbg, np.zeros(3))
+    with pytest.raises(PlanningError, match="must be finite"):
+        tightened_bounds(nlp, lbg, float("nan"))
+    with pytest.raises(PlanningError, match="node times must increase"):
+        failing_nodes(result.certificate, result.times[::-1])
