@@ -1,4 +1,4 @@
-"""Regenerate the point-cloud and mesh server maps of cloud_server.yaml and mesh_server.yaml.
+"""Regenerate the file server maps of cloud_server.yaml, mesh_server.yaml and warehouse_survey.yaml.
 
 Run from the repository root::
 
@@ -13,6 +13,12 @@ Both scenarios are the blind corner (blind_corner.yaml) with the server map give
   float32 binary PLY;
 - ``meshes/blind_corner_building.obj``: the building's surfaces, every box minus the crate as a
   box mesh (open surfaces are fine for a server mesh).
+
+``clouds/warehouse_survey.graph`` is an OctoMap scan graph (the ``.graph`` of OctoMap's tools) of
+the warehouse of warehouse_survey.yaml surveyed *before* the barrel was put in aisle C and while shelf_3
+stood 0.6 m further north: four scans of a rotating lidar (360 degrees in azimuth every 0.6
+degrees, +-24 degrees in elevation every 2 degrees, 20 m range) at four poses, each yawed and
+tilted, its points in the sensor's frame as such files hold them.
 
 Everything is deterministic; the committed files are the output of this script.
 """
@@ -69,6 +75,54 @@ def scan(mesh: trimesh.Trimesh) -> np.ndarray:
     return (SCAN_ORIGIN + d[hit] * t[hit, None]).astype(np.float32)
 
 
+SURVEY_POSES = (  # (x, y, z), (roll, pitch, yaw) in degrees
+    ((1.5, 6.9, 1.0), (0.0, 0.0, 0.0)),
+    ((8.0, 6.9, 1.2), (2.0, 6.0, 90.0)),
+    ((14.8, 6.0, 1.0), (0.0, -4.0, 180.0)),
+    ((8.0, 3.9, 1.2), (-3.0, 0.0, -90.0)),
+)
+
+
+def survey_mesh() -> trimesh.Trimesh:
+    from secure3d.world import load_scenario
+
+    world = load_scenario(HERE / "warehouse_survey.yaml").world
+    parts = []
+    for b in world.boxes:
+        lo, hi = np.array(b.lo), np.array(b.hi)
+        if b.name == "shelf_3":  # where it stood when the survey was made
+            lo, hi = lo + [0.0, 0.6, 0.0], hi + [0.0, 0.6, 0.0]
+        box = trimesh.creation.box(extents=hi - lo)
+        box.apply_translation(0.5 * (lo + hi))
+        parts.append(box)
+    parts += [trimesh.Trimesh(m.vertices, m.faces) for m in world.meshes if m.name != "barrel"]
+    return trimesh.util.concatenate(parts)
+
+
+def survey_scans(mesh: trimesh.Trimesh) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    from scipy.spatial.transform import Rotation
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
+        o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)),
+    )
+    az = np.radians(np.arange(-180.0, 180.0, 0.6))
+    el = np.radians(np.arange(-24.0, 24.1, 2.0))
+    a, e = np.meshgrid(az, el, indexing="ij")
+    local = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], -1).reshape(-1, 3)
+    scans = []
+    for t, rpy in SURVEY_POSES:
+        rot = Rotation.from_euler("ZYX", np.radians(rpy[::-1]))
+        d = rot.apply(local)
+        rays = np.concatenate([np.broadcast_to(t, d.shape), d], axis=1).astype(np.float32)
+        hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        ok = np.isfinite(hit) & (hit <= 20.0)
+        quat = np.roll(rot.as_quat(), 1)  # (w, x, y, z)
+        scans.append((local[ok] * hit[ok, None], np.array(t), quat))
+    return scans
+
+
 def main() -> None:
     mesh = building_mesh()
     (HERE / "meshes").mkdir(exist_ok=True)
@@ -79,6 +133,12 @@ def main() -> None:
     out = HERE / "clouds" / "blind_corner_scan.ply"
     o3d.t.io.write_point_cloud(str(out), pcd, write_ascii=False)
     print(f"{out}: {len(points)} points; meshes/blind_corner_building.obj: {len(mesh.faces)} faces")
+    from secure3d.mapping.scan_graph import write_scan_graph_bytes
+
+    scans = survey_scans(survey_mesh())
+    graph = HERE / "clouds" / "warehouse_survey.graph"
+    graph.write_bytes(write_scan_graph_bytes(scans))
+    print(f"{graph}: {len(scans)} scans, {sum(len(s[0]) for s in scans)} points")
 
 
 if __name__ == "__main__":

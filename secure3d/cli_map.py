@@ -1,11 +1,13 @@
 """``secure3d map``: look into and convert the maps users bring.
 
 - ``secure3d map info FILE``: an OctoMap (``.bt``/``.ot``, any tree type OctoMap reads), a point
-  cloud (``.ply``/``.pcd``/``.xyz``) or a mesh: its type, resolution, leaves, bounds, occupied
-  volume, and whether it has colours.
-- ``secure3d map convert IN OUT``: a cloud (``--resolution``; OctoMap rays from its per-point
-  origins or ``--origin``, else its points only), a mesh (``--resolution``; its surface voxelised) or an OctoMap to ``.bt``/``.ot``; an
-  OctoMap back to a point cloud of its occupied voxel centres (in its colours for a colour tree).
+  cloud (``.ply``/``.pcd``/``.xyz``), an OctoMap scan graph (``.graph``/``.log``) or a mesh: its
+  type, resolution, leaves, scans, bounds, occupied volume, and whether it has colours.
+- ``secure3d map convert IN OUT``: a cloud or scan graph (``--resolution``; OctoMap rays from each
+  scan's pose, its per-point origins or ``--origin``, else its points only; a scan graph as
+  ``graph2tree`` builds it), a mesh (``--resolution``; its surface voxelised) or an OctoMap to
+  ``.bt``/``.ot``; an OctoMap back to a point cloud of its occupied voxel centres (in its colours
+  for a colour tree).
 
 Errors are one line (``secure3d: error: ...``, exit status 2), like every other command.
 """
@@ -25,12 +27,18 @@ OCTOMAP_SUFFIXES = (".bt", ".ot")
 def map_arguments(parser: argparse.ArgumentParser) -> None:
     """Add ``info`` and ``convert`` to the ``map`` command's parser."""
     sub = parser.add_subparsers(dest="map_command", metavar="ACTION", required=True)
-    info = sub.add_parser("info", help="describe a map file (OctoMap, point cloud or mesh)")
+    info = sub.add_parser(
+        "info", help="describe a map file (OctoMap, point cloud, scan graph or mesh)"
+    )
     info.add_argument("file", type=Path)
-    conv = sub.add_parser("convert", help="convert a cloud, mesh or OctoMap to .bt/.ot, or back")
+    conv = sub.add_parser(
+        "convert", help="convert a cloud, scan graph, mesh or OctoMap to .bt/.ot, or back"
+    )
     conv.add_argument("input", type=Path)
     conv.add_argument("output", type=Path, help=".bt, .ot, or .ply/.pcd/.xyz (occupied voxels)")
-    conv.add_argument("--resolution", type=float, help="voxel size (m) for a cloud or mesh input")
+    conv.add_argument(
+        "--resolution", type=float, help="voxel size (m) for a cloud, scan graph or mesh input"
+    )
     conv.add_argument(
         "--origin", type=float, nargs=3, metavar=("X", "Y", "Z"), help="sensor origin of a cloud"
     )
@@ -86,10 +94,20 @@ def map_info(path: Path) -> list[str]:
         return lines
     from secure3d.world.server_sources import (
         CLOUD_SUFFIXES,
+        GRAPH_SUFFIXES,
         read_cloud,
+        read_cloud_scans,
         read_surface_mesh,
     )
 
+    if suffix in GRAPH_SUFFIXES:
+        scans = read_cloud_scans(path, str(path))
+        pts, o = scans.points, scans.origins
+        return [
+            f"{path}: OctoMap scan graph, {len(o)} scans, {len(pts)} points",
+            f"  bounds     : {_v(pts.min(0))} - {_v(pts.max(0))} m (points)",
+            f"  origins    : {_v(o.min(0))} - {_v(o.max(0))} m (sensor positions)",
+        ]
     if suffix in CLOUD_SUFFIXES and suffix != ".ply" or _is_cloud_ply(path):
         pts = read_cloud(path, str(path))
         return [
@@ -142,17 +160,19 @@ def convert(src: Path, dst: Path, resolution: float | None, origin: list[float] 
             return f"wrote {dst}"
         return _octomap_to_cloud(src, dst)
     if out_suffix not in OCTOMAP_SUFFIXES:
-        raise ConfigError(f"output {dst.name!r}: a cloud or mesh converts to .bt or .ot")
+        raise ConfigError(
+            f"output {dst.name!r}: a cloud, scan graph or mesh converts to .bt or .ot"
+        )
     if resolution is None or not 1e-4 <= resolution <= 100:
         raise ConfigError(f"--resolution: a number in [0.0001, 100] m is needed (got {resolution})")
     m = OccupancyMap(resolution)
     info = map_info(src)[0]
-    if "point cloud" in info:
-        from secure3d.world.server_sources import insert_cloud, read_cloud_origins
+    if "point cloud" in info or "scan graph" in info:
+        from secure3d.world.server_sources import insert_cloud, read_cloud_scans
 
-        pts, origins = read_cloud_origins(src, str(src))
-        if not insert_cloud(m, pts, origins, origin, str(src)):
-            codes = _leaves_from_points(pts, resolution)
+        scans = read_cloud_scans(src, str(src))
+        if not insert_cloud(m, scans, origin):
+            codes = _leaves_from_points(scans.points, resolution)
             _set_occupied(m, codes, TREE_DEPTH)
     else:
         from secure3d.world.server_sources import read_surface_mesh, surface_voxel_centres

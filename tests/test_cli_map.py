@@ -86,3 +86,23 @@ def test_errors_are_one_line(argv, message, capsys, tmp_path, monkeypatch) -> No
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err and err.startswith("secure3d: error: ")
+
+
+def test_info_and_convert_of_octomaps_scan_graph(octomap_dir: Path, tmp_path: Path, capsys) -> None:
+    """OctoMap's spherical_scan.graph: described, and converted as graph2tree builds it."""
+    src = octomap_dir / "spherical_scan.graph"
+    assert main(["map", "info", str(src)]) == 0
+    out = capsys.readouterr().out
+    assert "OctoMap scan graph, 1 scans, 10201 points" in out and "(1, 0, -0.5)" in out
+    dst = tmp_path / "sphere.bt"
+    assert main(["map", "convert", str(src), str(dst), "--resolution", "0.1"]) == 0
+    m = OccupancyMap.read_bt(dst)
+    from secure3d.mapping.scan_graph import read_scan_graph
+
+    g = read_scan_graph(src)
+    tree = octomap.OcTree(0.1)
+    tree.insertPointCloud(g.points, g.origins[0])
+    tree.updateInnerOccupancy()
+    np.testing.assert_array_equal(tree.getLabels(m.occupied_voxels()), 1)
+    np.testing.assert_array_equal(tree.getLabels(m.free_voxels()), 0)
+    assert len(m.occupied_voxels()) > 1000 and len(m.free_voxels()) > 10_000

@@ -56,6 +56,7 @@ from secure3d.simulation.modes import (
     RunSettings,
     Trigger,
     detour_reason,
+    goal_edge,
     hold_after,
     log,
     slow_replan_reason,
@@ -474,6 +475,8 @@ class Flight:
         self.last_attempt = self.t
         self.replans += 1
         plan = self.make_plan(self.x)
+        if plan is None:
+            plan = self.plan_to_goal_edge()
         if plan is not None:
             self.start_following(plan, Trigger.PLANNED)
             self.held_failures = 0
@@ -498,6 +501,19 @@ class Flight:
                     f" {np.degrees(0.5 * self.hfov):.0f} deg either way for new views",
                 )
         return u
+
+    def plan_to_goal_edge(self) -> PlanResult | None:
+        """At rest near the goal, the plan to the goal failed: plan to the near side of the goal's
+        tolerance ball instead (:func:`~secure3d.simulation.modes.goal_edge`)."""
+        p = np.asarray(self.model.position(self.x), dtype=float).ravel()
+        reach = self.loop.problem.options.start_region_radius
+        edge = goal_edge(p, self.s.goal, self.loop.scenario.goal.tolerance, reach)
+        if edge is None:
+            return None
+        self.event(
+            "aim nearer", f"planning to {np.round(edge, 2).tolist()}, inside the goal tolerance"
+        )
+        return self.make_plan(self.x, goal=edge)
 
     def explore(self) -> bool:
         """At rest, the replan failed: if the map shows no route because of a claim the camera has

@@ -58,6 +58,9 @@ DETOUR_SLACK_S = 10.0
 #: replanning at 5 m/s round a tree it had just seen, took a plan that swung 4.7 m wide (8.56 s,
 #: where the old plan had 2.16 s left); braking (1.07 s) and planning from rest took 4.56 s.
 SLOW_REPLAN_FACTOR = 2.5
+#: At rest near the goal, when the plan to the goal itself failed, the next plan aims at the point
+#: this fraction of the goal tolerance from the goal, on the robot's side (see :func:`goal_edge`).
+GOAL_EDGE_FRACTION = 0.7
 SLOW_REPLAN_SLACK_S = 1.0
 
 
@@ -221,3 +224,35 @@ def slow_replan_reason(final_time: float, stop_time: float, time_left: float) ->
             f"and {left:.1f} s left on the old plan (at most {top:.1f} s)"
         )
     return None
+
+
+def goal_edge(
+    position: np.ndarray, goal: np.ndarray, tolerance: float, reach: float
+) -> np.ndarray | None:
+    """Where to aim instead of the goal from a robot at rest at ``position`` (3,): the point
+    ``GOAL_EDGE_FRACTION * tolerance`` from ``goal`` (3,) towards the robot, or None when the robot
+    is within ``tolerance`` already or farther than ``tolerance + reach`` from the goal.
+
+    Arrival counts anywhere within the tolerance, but plans end at their goal point. A robot that
+    braked just short of the goal, because an obstacle it had just seen hid the goal's far side
+    from every view, could not plan to the goal point (its reactive set reaches into space no view
+    covers, and a view of it needs the robot to back off and turn), while the near side of the
+    goal's ball lay in the region it had observed (``reach``: the start region's half size).
+    """
+    p, g = np.asarray(position, dtype=float), np.asarray(goal, dtype=float)
+    if (
+        p.shape != (3,)
+        or g.shape != (3,)
+        or not (np.all(np.isfinite(p)) and np.all(np.isfinite(g)))
+    ):
+        raise SimulationError(
+            f"goal_edge: position and goal must be 3 finite numbers, got {p!r}, {g!r}"
+        )
+    if not (np.isfinite(tolerance) and tolerance > 0 and np.isfinite(reach) and reach >= 0):
+        raise SimulationError(
+            f"goal_edge: tolerance must be > 0 and reach >= 0 (m), got {tolerance!r}, {reach!r}"
+        )
+    d = float(np.linalg.norm(p - g))
+    if d <= tolerance or d > tolerance + reach:
+        return None
+    return g + GOAL_EDGE_FRACTION * tolerance * (p - g) / d

@@ -168,12 +168,12 @@ def _claim_sources(belief: OccupancyMap, claim: ServerClaim, res: float) -> None
 
     if claim.cloud is not None:
         what = "server_map.cloud"
-        points, origins = server_sources.read_cloud_origins(claim.cloud, what)
+        scans = server_sources.read_cloud_scans(claim.cloud, what)
         server = OccupancyMap(res)
-        if server_sources.insert_cloud(server, points, origins, claim.origin, what):
+        if server_sources.insert_cloud(server, scans, claim.origin):
             belief.set_claim_from_map(server)
         else:
-            belief.set_claim_voxels(points, True)
+            belief.set_claim_voxels(scans.points, True)
     if claim.mesh is not None:
         v, f = server_sources.read_surface_mesh(claim.mesh, "server_map.mesh")
         belief.set_claim_voxels(server_sources.surface_voxel_centres(v, f, res), True)

@@ -32,6 +32,11 @@ OCTOMAP_SUFFIXES = (".bt", ".ot")
 
 def _stat_checked(path: str | os.PathLike[str], what: str) -> tuple[Path, os.stat_result]:
     p = Path(path)
+    if p.suffix.lower() in (".graph", ".log"):
+        raise ScenarioError(
+            f"{what}: {p.name!r} is a scan graph, not a tree; build one with `secure3d map convert"
+            f" {p.name} {p.stem}.bt --resolution R` (or give it as server_map.cloud)"
+        )
     if p.suffix.lower() not in OCTOMAP_SUFFIXES:
         raise ScenarioError(f"{what}: OctoMap files must be .bt or .ot (got {p.name!r})")
     try:

@@ -7,6 +7,9 @@
   (vertex properties ``origin_x``, ``origin_y``, ``origin_z``: one scan per distinct origin),
   else from the scenario's ``origin``; without either, each point only marks its voxel occupied
   and no free space is claimed (a ray from a guessed origin would claim free space nobody saw).
+- **OctoMap scan graph** (``.graph``, or its text form ``.log``;
+  :mod:`secure3d.mapping.scan_graph`): every scan inserted from its node's pose, in file order,
+  as OctoMap's ``graph2tree`` does.
 - **Mesh** (``.obj``, ``.stl``, ``.ply``, ``.off``, ``.glb``, any format trimesh loads as
   triangles; need not be closed): its surface voxelised at the map's resolution, i.e. every voxel
   whose centre lies within half a voxel diagonal of a triangle (every voxel the surface touches).
@@ -23,13 +26,16 @@ import io
 import math
 import os
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
-from secure3d.errors import ScenarioError
+from secure3d.errors import MapFormatError, ScenarioError
 from secure3d.world.octomap_files import octomap_resolution
 
-CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz")
+CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".graph", ".log")
+#: Scan graphs: scans with poses (read by :mod:`secure3d.mapping.scan_graph`, not Open3D).
+GRAPH_SUFFIXES = (".graph", ".log")
 SERVER_MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
 #: Largest point-cloud or mesh file read (bytes).
 MAX_SOURCE_BYTES = 200_000_000
@@ -43,7 +49,10 @@ MAX_SERVER_MESH_FACES = 2_000_000
 MAX_MESH_CELLS = 50_000_000
 
 
-def _size_checked(path: Path, what: str, suffixes: tuple[str, ...], kind: str) -> None:
+def _size_checked(
+    path: Path, what: str, suffixes: tuple[str, ...], kind: str, limit: int = 0
+) -> None:
+    limit = limit or MAX_SOURCE_BYTES
     if path.suffix.lower() not in suffixes:
         raise ScenarioError(
             f"{what}: {kind} files must be {', '.join(suffixes)} (got {path.name!r})"
@@ -52,20 +61,86 @@ def _size_checked(path: Path, what: str, suffixes: tuple[str, ...], kind: str) -
         size = path.stat().st_size
     except OSError as exc:
         raise ScenarioError(f"{what}: cannot read {path}: {exc.strerror or exc}") from None
-    if size > MAX_SOURCE_BYTES:
+    if size > limit:
         raise ScenarioError(
-            f"{what}: {path} is larger than {MAX_SOURCE_BYTES // 1_000_000} MB (got {size} bytes)"
+            f"{what}: {path} is larger than {limit // 1_000_000} MB (got {size} bytes)"
         )
 
 
 def read_cloud(path: str | os.PathLike[str], what: str = "cloud") -> np.ndarray:
-    """Points of a ``.ply``/``.pcd``/``.xyz`` file, through Open3D (see :func:`read_cloud_origins`).
+    """Points of a cloud or scan-graph file (see :func:`read_cloud_scans`).
 
     Returns
     -------
     (n, 3) float64
     """
-    return read_cloud_origins(path, what)[0]
+    return read_cloud_scans(path, what).points
+
+
+class CloudScans(NamedTuple):
+    """A point-cloud file's points grouped into the scans they were taken in.
+
+    Attributes
+    ----------
+    points : (n, 3) float64
+        World-frame points, scan after scan.
+    origins : (m, 3) float64 or None
+        Each scan's sensor position; None when the file has no origins (one unlocated scan).
+    offsets : (m + 1,) int64 or None
+        Scan ``i`` is ``points[offsets[i]:offsets[i + 1]]``; None with ``origins``.
+    """
+
+    points: np.ndarray
+    origins: np.ndarray | None = None
+    offsets: np.ndarray | None = None
+
+
+def read_cloud_scans(path: str | os.PathLike[str], what: str = "cloud") -> CloudScans:
+    """A cloud file's points and scans: a scan graph's nodes in file order, a ``.ply``/``.pcd``
+    with per-point origins one scan per distinct origin (in order of first appearance), any
+    other cloud one scan without an origin.
+
+    Raises
+    ------
+    ScenarioError
+        Wrong suffix, too large, unreadable or malformed (naming ``what`` and the file), empty,
+        or too many points or scans.
+    """
+    p = Path(path)
+    if p.suffix.lower() in GRAPH_SUFFIXES:
+        return _read_graph_scans(p, what)
+    pts, origins = read_cloud_origins(p, what)
+    if origins is None:
+        return CloudScans(pts)
+    uniq, first, inverse = np.unique(origins, axis=0, return_index=True, return_inverse=True)
+    if len(uniq) > MAX_CLOUD_ORIGINS:
+        raise ScenarioError(
+            f"{what}: {len(uniq)} distinct per-point origins, more than {MAX_CLOUD_ORIGINS}"
+            " scans (group the points by scan)"
+        )
+    rank = np.empty(len(uniq), np.int64)
+    rank[np.argsort(first)] = np.arange(len(uniq))
+    scan_of = rank[inverse.ravel()]
+    order = np.argsort(scan_of, kind="stable")
+    offsets = np.searchsorted(scan_of[order], np.arange(len(uniq) + 1))
+    return CloudScans(pts[order], uniq[np.argsort(first)], offsets.astype(np.int64))
+
+
+def _read_graph_scans(p: Path, what: str) -> CloudScans:
+    from secure3d.mapping.scan_graph import MAX_GRAPH_BYTES, read_scan_graph
+
+    _size_checked(p, what, GRAPH_SUFFIXES, "scan-graph", MAX_GRAPH_BYTES)
+    try:
+        graph = read_scan_graph(p)
+    except OSError as exc:
+        raise ScenarioError(f"{what}: cannot read {p}: {exc.strerror or exc}") from None
+    except MapFormatError as exc:
+        raise ScenarioError(f"{what}: {exc}") from None
+    if len(graph.points) > MAX_CLOUD_POINTS:
+        raise ScenarioError(f"{what}: {p} has more than {MAX_CLOUD_POINTS} points")
+    if len(graph.origins) > MAX_CLOUD_ORIGINS:
+        raise ScenarioError(f"{what}: {p} has more than {MAX_CLOUD_ORIGINS} scans")
+    return CloudScans(graph.points, graph.origins, graph.offsets)
 
 
 def read_cloud_origins(
@@ -90,7 +165,10 @@ def read_cloud_origins(
     from secure3d._deps import open3d
 
     p = Path(path)
-    _size_checked(p, what, CLOUD_SUFFIXES, "point-cloud")
+    if p.suffix.lower() in GRAPH_SUFFIXES:
+        scans = _read_graph_scans(p, what)
+        return scans.points, np.repeat(scans.origins, np.diff(scans.offsets), axis=0)
+    _size_checked(p, what, CLOUD_SUFFIXES[:3], "point-cloud")
     o3d = open3d()
     try:
         pcd = o3d.t.io.read_point_cloud(str(p))
@@ -116,26 +194,18 @@ def read_cloud_origins(
     return pts[keep], origins
 
 
-def insert_cloud(
-    target: object, points: np.ndarray, origins: np.ndarray | None, origin: object, what: str
-) -> bool:
-    """Insert a cloud into ``target`` (an OccupancyMap) as OctoMap rays: from each point's own
-    origin (one scan per distinct origin, at most :data:`MAX_CLOUD_ORIGINS`) if the file has
-    them, else from ``origin``. Returns False (nothing inserted) when there is no origin at all.
+def insert_cloud(target: object, scans: CloudScans, origin: object) -> bool:
+    """Insert a cloud into ``target`` (an OccupancyMap) as OctoMap rays: scan by scan from each
+    scan's origin if the file has them, else as one scan from ``origin``. Returns False (nothing
+    inserted) when there is no origin at all.
     """
-    if origins is None:
+    if scans.origins is None:
         if origin is None:
             return False
-        target.insert_point_cloud(points, np.asarray(origin, float), None)
+        target.insert_point_cloud(scans.points, np.asarray(origin, float), None)
         return True
-    uniq, inverse = np.unique(origins, axis=0, return_inverse=True)
-    if len(uniq) > MAX_CLOUD_ORIGINS:
-        raise ScenarioError(
-            f"{what}: {len(uniq)} distinct per-point origins, more than {MAX_CLOUD_ORIGINS}"
-            " scans (group the points by scan)"
-        )
-    for k, o in enumerate(uniq):
-        target.insert_point_cloud(points[inverse.ravel() == k], o, None)
+    for k, o in enumerate(scans.origins):
+        target.insert_point_cloud(scans.points[scans.offsets[k] : scans.offsets[k + 1]], o, None)
     return True
 
 
@@ -237,11 +307,14 @@ def check_source_file(path: Path, field: str, what: str) -> float | None:
 
 __all__ = [
     "CLOUD_SUFFIXES",
+    "GRAPH_SUFFIXES",
+    "CloudScans",
     "SERVER_MESH_SUFFIXES",
     "check_source_file",
     "insert_cloud",
     "read_cloud",
     "read_cloud_origins",
+    "read_cloud_scans",
     "read_surface_mesh",
     "surface_voxel_centres",
 ]

@@ -302,7 +302,8 @@ class ServerMapSpec:
 
     One source: derived from the true world with ``attacks`` applied (no file), or its own
     OctoMap file ``bt`` (``.bt`` or ``.ot``; the YAML key is ``octomap``, ``bt`` still works), a
-    point cloud ``cloud`` (``.ply``/``.pcd``/``.xyz``, its points ray ends from ``origin``) or a
+    point cloud ``cloud`` (``.ply``/``.pcd``/``.xyz``, its points ray ends from ``origin``; or an
+    OctoMap scan graph ``.graph``/``.log``, each scan from its own pose) or a
     mesh ``mesh`` (its surface voxelised). ``resolution`` is the voxel size of the robot's map
     (m). Region attacks apply to every source; attacks on named obstacles only to the world.
     """

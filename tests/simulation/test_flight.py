@@ -300,3 +300,25 @@ def test_a_diff_drive_braked_against_a_wall_turns_away_and_goes_on(maps_dir, mon
     creep = STOP_SPEED**2 / (2.0 * scenario.vehicle.limits["max_accel"])
     assert np.ptp(run.positions[span], axis=0).max() <= creep + 1e-9
     assert run.reached_goal, run.summary()
+
+
+def test_goal_edge_is_the_near_side_of_the_goal_tolerance():
+    from secure3d.simulation.modes import GOAL_EDGE_FRACTION, goal_edge
+
+    goal = np.array([14.5, 6.9, 1.2])
+    p = np.array([14.709, 6.516, 1.2])  # warehouse_survey: braked 0.44 m short of the goal
+    edge = goal_edge(p, goal, 0.3, 1.0)
+    assert np.linalg.norm(edge - goal) == pytest.approx(GOAL_EDGE_FRACTION * 0.3)
+    assert np.linalg.norm(p - edge) == pytest.approx(np.linalg.norm(p - goal) - 0.7 * 0.3)
+    assert np.cross(edge - goal, p - goal) == pytest.approx(np.zeros(3), abs=1e-12)
+    assert goal_edge(goal + [0.25, 0, 0], goal, 0.3, 1.0) is None  # arrived already
+    assert goal_edge(goal + [1.31, 0, 0], goal, 0.3, 1.0) is None  # beyond the observed reach
+    assert goal_edge(goal + [1.29, 0, 0], goal, 0.3, 1.0) is not None
+    for args, what in (
+        (([1.0, 2.0], goal, 0.3, 1.0), "position"),
+        ((p, [np.nan, 0, 0], 0.3, 1.0), "goal"),
+        ((p, goal, 0.0, 1.0), "tolerance"),
+        ((p, goal, 0.3, -1.0), "reach"),
+    ):
+        with pytest.raises(SimulationError, match=what):
+            goal_edge(*args)

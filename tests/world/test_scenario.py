@@ -43,7 +43,7 @@ def scenarios() -> dict[str, Scenario]:
 def sandbox(tmp_path: Path) -> Path:
     """A copy of maps/ (YAML, meshes, octomaps) that tests may corrupt."""
     for p in MAPS.rglob("*"):
-        if p.is_file() and p.suffix in (".yaml", ".obj", ".ply", ".stl", ".bt"):
+        if p.is_file() and p.suffix in (".yaml", ".obj", ".ply", ".stl", ".bt", ".graph"):
             dest = tmp_path / p.relative_to(MAPS)
             dest.parent.mkdir(parents=True, exist_ok=True)
             dest.write_bytes(p.read_bytes())

@@ -279,3 +279,63 @@ def test_cloud_with_per_point_origins_is_one_octomap_scan_per_origin(tmp_path: P
     centre = lambda keys: (np.array(sorted(keys)) + 0.5) * 0.1  # noqa: E731
     np.testing.assert_array_equal(tree.getLabels(centre(occ)), 1)
     np.testing.assert_array_equal(tree.getLabels(centre(free)), 0)
+
+
+def test_scan_graph_server_map_is_each_scan_from_its_pose_as_graph2tree_inserts_it() -> None:
+    """warehouse_survey.yaml: four posed scans (yawed and tilted) of an OctoMap .graph; the claim
+    is every scan inserted from its node's position in file order, voxel for voxel what
+    octomap-python builds from the same world-frame points."""
+    import octomap
+
+    from secure3d.mapping.scan_graph import read_scan_graph
+
+    s = load_scenario(MAPS / "warehouse_survey.yaml")
+    graph = read_scan_graph(s.server_map.cloud)
+    assert len(graph.origins) == 4 and not np.allclose(graph.rotations[1:], [1, 0, 0, 0])
+    occ, free = _claims(belief_map(s))
+    tree = octomap.OcTree(0.1)
+    for k, o in enumerate(graph.origins):
+        tree.insertPointCloud(graph.points[graph.offsets[k] : graph.offsets[k + 1]], o)
+    n_occ = n_free = 0
+    for leaf in tree.begin_leafs():
+        n = 8 ** (16 - leaf.getDepth())
+        n_occ, n_free = (n_occ + n, n_free) if tree.isNodeOccupied(leaf) else (n_occ, n_free + n)
+    assert (len(occ), len(free)) == (n_occ, n_free) and n_free > 50_000
+    centre = lambda keys: (np.array(sorted(keys)) + 0.5) * 0.1  # noqa: E731
+    np.testing.assert_array_equal(tree.getLabels(centre(occ)), 1)
+    np.testing.assert_array_equal(tree.getLabels(centre(free)), 0)
+    # The survey predates the barrel (12.97..13.93, 5.87..6.83, below 1.44 m): its place is claimed
+    # free, and shelf_3 (y 8.0..8.8 today) is claimed where it stood, its face 0.6 m further
+    # north: today's shelf in front of that face is claimed free.
+    assert (134, 63, 7) in free
+    assert (80, 86, 10) in occ and {(80, 80, 10), (80, 85, 10)} <= free
+
+
+def test_a_broken_scan_graph_is_a_one_line_scenario_error(tmp_path: Path) -> None:
+    data = yaml.safe_load((MAPS / "warehouse_survey.yaml").read_text())
+    (tmp_path / "clouds").mkdir()
+    (tmp_path / "meshes").mkdir()
+    for name in ("crate_stack.obj", "barrel.ply"):
+        (tmp_path / "meshes" / name).write_bytes((MAPS / "meshes" / name).read_bytes())
+    raw = (MAPS / "clouds" / "warehouse_survey.graph").read_bytes()
+    (tmp_path / "clouds" / "warehouse_survey.graph").write_bytes(raw[:-200])
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(data))
+    with pytest.raises(
+        ScenarioError, match=r"server_map.cloud: .*warehouse_survey\.graph: .*trunc"
+    ):
+        load_scenario(tmp_path / "s.yaml")
+
+
+def test_a_scan_graph_as_the_true_world_says_how_to_make_a_tree(tmp_path: Path) -> None:
+    (tmp_path / "scans.graph").write_bytes(
+        (MAPS / "clouds" / "warehouse_survey.graph").read_bytes()
+    )
+    data = {
+        "name": "s",
+        "world": {"bounds": {"lo": [0, 0, 0], "hi": [16, 12, 3.5]}, "octomap": "scans.graph"},
+        "start": {"position": [1.5, 3.9, 1.2]},
+        "goal": {"position": [14.5, 6.9, 1.2]},
+    }
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(data))
+    with pytest.raises(ScenarioError, match=r"world.octomap: .*scan graph.*secure3d map convert"):
+        load_scenario(tmp_path / "s.yaml")
