@@ -507,12 +507,9 @@ class Flight:
         tolerance ball instead (:func:`~secure3d.simulation.modes.goal_edge`)."""
         p = np.asarray(self.model.position(self.x), dtype=float).ravel()
         reach = self.loop.problem.options.start_region_radius
-        edge = goal_edge(p, self.s.goal, self.loop.scenario.goal.tolerance, reach)
-        if edge is None:
+        if (edge := goal_edge(p, self.s.goal, self.loop.scenario.goal.tolerance, reach)) is None:
             return None
-        self.event(
-            "aim nearer", f"planning to {np.round(edge, 2).tolist()}, inside the goal tolerance"
-        )
+        self.event("aim nearer", f"to {np.round(edge, 2).tolist()}, inside the goal tolerance")
         return self.make_plan(self.x, goal=edge)
 
     def explore(self) -> bool:
