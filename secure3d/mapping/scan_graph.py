@@ -47,9 +47,11 @@ from secure3d.errors import MapFormatError
 __all__ = [
     "MAX_GRAPH_BYTES",
     "ScanGraph",
+    "euler_quaternion",
     "read_scan_graph",
     "read_scan_graph_bytes",
     "read_scan_log_bytes",
+    "rotation_matrix",
     "write_scan_graph_bytes",
 ]
 
@@ -97,7 +99,7 @@ class ScanGraph(NamedTuple):
         return np.repeat(self.origins, np.diff(self.offsets), axis=0)
 
 
-def _rotation_matrix(q: NDArray[np.float64]) -> NDArray[np.float64]:
+def rotation_matrix(q: NDArray[np.float64]) -> NDArray[np.float64]:
     """(3, 3) rotation of the unit quaternion ``q = (w, x, y, z)``."""
     w, x, y, z = q
     return np.array(
@@ -123,7 +125,7 @@ def _quaternion_product(a: NDArray, b: NDArray) -> NDArray[np.float64]:
     )
 
 
-def _euler_quaternion(roll: float, pitch: float, yaw: float) -> NDArray[np.float64]:
+def euler_quaternion(roll: float, pitch: float, yaw: float) -> NDArray[np.float64]:
     """Unit quaternion ``(w, x, y, z)`` of ``Rz(yaw) Ry(pitch) Rx(roll)`` (octomath's order)."""
     cr, sr = np.cos(roll / 2), np.sin(roll / 2)
     cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
@@ -155,7 +157,7 @@ def _to_world(local: NDArray, t: NDArray, q: NDArray) -> NDArray[np.float64]:
     if np.array_equal(q, [1.0, 0.0, 0.0, 0.0]):
         world = local + t
     else:
-        world = local @ _rotation_matrix(q).T + t
+        world = local @ rotation_matrix(q).T + t
     return world.astype(np.float32).astype(np.float64)
 
 
@@ -270,7 +272,7 @@ def read_scan_log_bytes(data: bytes) -> ScanGraph:
             if values.size != 6:
                 raise MapFormatError(f"line {no}: NODE needs x y z roll pitch yaw")
             rpy = values[3:].astype(np.float32).astype(np.float64)
-            t, q = _checked_pose(values[:3], _euler_quaternion(*rpy), f"line {no}")
+            t, q = _checked_pose(values[:3], euler_quaternion(*rpy), f"line {no}")
             scans.append([[], t, q, len(scans)])
         elif not scans:
             raise MapFormatError(f"line {no}: a point before the first NODE line")
@@ -334,8 +336,6 @@ def write_scan_graph_bytes(
     for i in links:
         (t1, q1), (t2, q2) = poses[i - 1], poses[i]
         inv1 = q1 * np.array([1.0, -1.0, -1.0, -1.0])  # first.pose.inv() * second.pose
-        rel = _POSE.pack(
-            3, *(_rotation_matrix(q1).T @ (t2 - t1)), 4, *_quaternion_product(inv1, q2)
-        )
+        rel = _POSE.pack(3, *(rotation_matrix(q1).T @ (t2 - t1)), 4, *_quaternion_product(inv1, q2))
         out += [_EDGE.pack(i - 1, i), rel, struct.pack("<d", 1.0)]
     return b"".join(out)

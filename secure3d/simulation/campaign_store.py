@@ -409,6 +409,13 @@ def _failure_data(scenario: Scenario, folder: Path) -> dict[str, Any]:
     for section, key in _FILE_KEYS:
         if data[section].get(key):
             data[section][key] = local(data[section][key])
+    survey = scenario.server_map.survey
+    if survey is not None:  # a family's survey held in memory: written as a .graph asset
+        dst = folder / "assets" / f"{hashlib.sha256(survey).hexdigest()[:8]}_survey.graph"
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        dst.write_bytes(survey)
+        del data["server_map"]["survey"]
+        data["server_map"]["cloud"] = f"assets/{dst.name}"
     return data
 
 

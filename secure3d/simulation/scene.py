@@ -18,16 +18,12 @@ import numpy as np
 import trimesh
 
 from secure3d.errors import GeometryError
+from secure3d.geometry.box_mesh import UNIT_BOX as _UNIT_BOX
+from secure3d.geometry.box_mesh import box_arrays
 from secure3d.world.spec import Box, MeshObstacle
 
 #: Name under which all voxel boxes of a world are reported.
 VOXEL_NAME = "voxels"
-
-#: Unit cube centred at the origin (8 vertices, 12 outward-wound triangles), taken from trimesh so
-#: every box mesh has the same winding as ``trimesh.creation.box``.
-_UNIT_BOX = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
-_UNIT_BOX_VERTICES = np.asarray(_UNIT_BOX.vertices, dtype=float)
-_UNIT_BOX_FACES = np.asarray(_UNIT_BOX.faces, dtype=np.int64)
 
 
 def check_voxel_boxes(voxel_boxes: object) -> np.ndarray:
@@ -61,28 +57,6 @@ def voxel_boxes_from_centres(centres: np.ndarray, size: float) -> np.ndarray:
         raise GeometryError(f"voxel size must be > 0, got {size!r}")
     half = 0.5 * float(size)
     return np.stack([c - half, c + half], axis=1)
-
-
-def box_arrays(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and faces of many axis-aligned boxes at once.
-
-    Parameters
-    ----------
-    lo, hi : (n, 3) float
-        Box corners.
-
-    Returns
-    -------
-    vertices : (8 n, 3) float
-    faces : (12 n, 3) int64
-        Faces of box ``k`` are rows ``12 k .. 12 k + 11``, wound outwards.
-    """
-    lo = np.asarray(lo, dtype=float).reshape(-1, 3)
-    hi = np.asarray(hi, dtype=float).reshape(-1, 3)
-    centre, extent = 0.5 * (lo + hi), hi - lo
-    vertices = centre[:, None, :] + _UNIT_BOX_VERTICES[None, :, :] * extent[:, None, :]
-    faces = _UNIT_BOX_FACES[None, :, :] + 8 * np.arange(len(lo))[:, None, None]
-    return vertices.reshape(-1, 3), faces.reshape(-1, 3)
 
 
 #: Which side of the box each unit-box triangle lies on: axis (0, 1, 2) and sign (0: -, 1: +).

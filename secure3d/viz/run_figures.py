@@ -62,7 +62,7 @@ def scenario_voxels(scenario: Scenario) -> dict:
     )
 
     claim = server_claim(scenario)
-    file_claim = claim.bt is not None or claim.cloud is not None or claim.mesh is not None
+    file_claim = not scenario.server_map.from_world
     claimed = belief_map(scenario).claimed_voxels(True) if file_claim or claim.regions else None
     octomap = scenario.world.octomap
     colors = None if octomap is None else octomap_voxel_colors(octomap, "world.octomap")

@@ -69,6 +69,8 @@ class ServerClaim:
     cloud, mesh : Path or None
         The server map as a point cloud (rays from ``origin``, or bare points without it) or as a
         mesh surface (see :mod:`secure3d.world.server_sources`).
+    survey : bytes or None
+        The server map as an OctoMap scan graph held in memory (each scan from its pose).
     regions : tuple of Attack
         Region attacks, applied voxel by voxel after everything above is claimed.
     """
@@ -79,6 +81,7 @@ class ServerClaim:
     cloud: Path | None = None
     origin: tuple[float, float, float] | None = None
     mesh: Path | None = None
+    survey: bytes | None = None
     regions: tuple[Attack, ...] = ()
 
 
@@ -90,9 +93,14 @@ def server_claim(scenario: Scenario) -> ServerClaim:
     """
     spec = scenario.server_map
     regions = tuple(a for a in spec.attacks if a.region is not None)
-    if spec.source_file is not None:
+    if not spec.from_world:
         return ServerClaim(
-            bt=spec.bt, cloud=spec.cloud, origin=spec.origin, mesh=spec.mesh, regions=regions
+            bt=spec.bt,
+            cloud=spec.cloud,
+            origin=spec.origin,
+            mesh=spec.mesh,
+            survey=spec.survey,
+            regions=regions,
         )
     world = scenario.world
     claimed: dict[str, Box | MeshObstacle] = {o.name: o for o in (*world.boxes, *world.meshes)}
@@ -162,13 +170,16 @@ def belief_map(scenario: Scenario, resolution: float | None = None) -> Occupancy
 
 
 def _claim_sources(belief: OccupancyMap, claim: ServerClaim, res: float) -> None:
-    """Claim a point-cloud or mesh server map (:mod:`secure3d.world.server_sources`)."""
+    """Claim a point-cloud, scan-graph or mesh server map (:mod:`secure3d.world.server_sources`)."""
     from secure3d.mapping.occupancy import OccupancyMap
     from secure3d.world import server_sources
 
-    if claim.cloud is not None:
+    if claim.cloud is not None or claim.survey is not None:
         what = "server_map.cloud"
-        scans = server_sources.read_cloud_scans(claim.cloud, what)
+        if claim.survey is not None:
+            scans = server_sources.survey_scans(claim.survey)
+        else:
+            scans = server_sources.read_cloud_scans(claim.cloud, what)
         server = OccupancyMap(res)
         if server_sources.insert_cloud(server, scans, claim.origin):
             belief.set_claim_from_map(server)

@@ -11,6 +11,7 @@ from secure3d.world.denial_families import DENIAL
 from secure3d.world.families import Family
 from secure3d.world.passage_families import PASSAGE_WIDTH
 from secure3d.world.region_attacks import REGION_ATTACKS
+from secure3d.world.survey_families import SURVEY
 from secure3d.world.thin_families import OCCLUSION_3D, THIN_OBSTACLES
 
 __all__ = ["FAMILIES"]
@@ -18,5 +19,5 @@ __all__ = ["FAMILIES"]
 #: Families by name.
 FAMILIES: dict[str, Family] = {
     f.name: f
-    for f in (THIN_OBSTACLES, OCCLUSION_3D, DEAD_END, REGION_ATTACKS, DENIAL, PASSAGE_WIDTH)
+    for f in (THIN_OBSTACLES, OCCLUSION_3D, DEAD_END, REGION_ATTACKS, DENIAL, PASSAGE_WIDTH, SURVEY)
 }

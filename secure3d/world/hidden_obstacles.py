@@ -481,7 +481,7 @@ def _fresh_name(world: World, added: list[Box], stem: str) -> str:
 def _with_hidden(base: Scenario, added: list[Box], i: int, kind: str) -> Scenario:
     world = dataclasses.replace(base.world, boxes=(*base.world.boxes, *added))
     server = base.server_map
-    if server.source_file is None:
+    if server.from_world:
         hides = tuple(Attack("hide", target=b.name) for b in added)
         server = dataclasses.replace(server, attacks=(*server.attacks, *hides))
     names = ", ".join(b.name for b in added)

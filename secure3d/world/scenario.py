@@ -240,6 +240,13 @@ _SERVER_KEYS = ("resolution", "attacks", "octomap", "bt", "cloud", "origin", "me
 
 def _server_map(data: object, folder: Path, world: World) -> ServerMapSpec:
     data = _as_mapping(data if data is not None else {}, "server_map")
+    if "survey" in data:  # what scenario_to_dict notes for a survey held in memory
+        raise _FieldError(
+            "server_map.survey",
+            "a survey held in memory; save_scenario writes it as a .graph"
+            " file, named by server_map.cloud",
+            data["survey"],
+        )
     _check_keys(data, _SERVER_KEYS, (), "server_map")
     sources = [k for k in ("octomap", "bt", "cloud", "mesh") if data.get(k) is not None]
     if len(sources) > 1:

@@ -48,9 +48,13 @@ def scenario_summary(scenario: Scenario, max_obstacles: int = 30) -> str:
     if len(rows) > max_obstacles:
         out.append(f"    ... and {len(rows) - max_obstacles} more")
     s = scenario.server_map
-    if s.source_file is not None:
+    if not s.from_world:
         kind = "OctoMap" if s.bt else ("point cloud" if s.cloud else "mesh")
-        claim = f"given as its own {kind} {s.source_file.name}"
+        claim = (
+            f"given as its own {kind} {s.source_file.name}"
+            if s.source_file is not None
+            else f"a scan graph survey held in memory ({len(s.survey)} bytes)"
+        )
         if s.attacks:
             claim += "; attacks: " + "; ".join(a.describe() for a in s.attacks)
     else:

@@ -6,6 +6,7 @@ by :mod:`secure3d.world.scenario`.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -109,6 +110,7 @@ def scenario_to_dict(
                 if getattr(s, field) is not None
             },
             **({"origin": list(s.origin)} if s.origin is not None else {}),
+            **({"survey": _survey_note(s.survey)} if s.survey is not None else {}),
         },
         "vehicle": _flat_dict(scenario.vehicle),
         "camera": _flat_dict(scenario.camera),
@@ -117,6 +119,24 @@ def scenario_to_dict(
         "planner": _flat_dict(scenario.planner),
         "simulation": _flat_dict(scenario.simulation),
     }
+
+
+def _survey_note(survey: bytes) -> str:
+    digest = hashlib.sha256(survey).hexdigest()[:16]
+    return f"scan graph in memory, {len(survey)} bytes, sha256 {digest}"
+
+
+def with_survey_file(scenario: Scenario, path: str | os.PathLike[str]) -> Scenario:
+    """``scenario`` with its in-memory survey (``server_map.survey``) written to ``path`` (a
+    ``.graph`` file) and named as ``server_map.cloud``; unchanged without one."""
+    s = scenario.server_map
+    if s.survey is None:
+        return scenario
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(s.survey)
+    server = dataclasses.replace(s, survey=None, cloud=path.resolve())
+    return dataclasses.replace(scenario, server_map=server)
 
 
 def save_scenario(scenario: Scenario, path: str | os.PathLike[str]) -> Path:
@@ -131,6 +151,7 @@ def save_scenario(scenario: Scenario, path: str | os.PathLike[str]) -> Path:
         The written file.
     """
     path = Path(path)
+    scenario = with_survey_file(scenario, path.with_suffix(".graph"))
     data = scenario_to_dict(scenario, path.resolve().parent)
     text = yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
     path.write_text(text, encoding="utf-8")

@@ -143,6 +143,17 @@ def _read_graph_scans(p: Path, what: str) -> CloudScans:
     return CloudScans(graph.points, graph.origins, graph.offsets)
 
 
+def survey_scans(data: bytes) -> CloudScans:
+    """The scans of a scan graph held in memory (``server_map.survey``)."""
+    from secure3d.mapping.scan_graph import read_scan_graph_bytes
+
+    try:
+        graph = read_scan_graph_bytes(data)
+    except MapFormatError as exc:
+        raise ScenarioError(f"server_map.survey: {exc}") from None
+    return CloudScans(graph.points, graph.origins, graph.offsets)
+
+
 def read_cloud_origins(
     path: str | os.PathLike[str], what: str = "cloud"
 ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -317,4 +328,5 @@ __all__ = [
     "read_cloud_scans",
     "read_surface_mesh",
     "surface_voxel_centres",
+    "survey_scans",
 ]

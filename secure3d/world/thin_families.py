@@ -205,7 +205,7 @@ def place_hidden(
 def hidden_variant(base: Scenario, kind: str, box: Box, i: int, family: str) -> Scenario:
     world = dataclasses.replace(base.world, boxes=(*base.world.boxes, box))
     server = base.server_map
-    if server.source_file is None:  # a server map file (OctoMap, cloud, mesh) lacks the box as is
+    if server.from_world:  # a server map file (OctoMap, cloud, mesh) or survey lacks it as is
         server = dataclasses.replace(
             server, attacks=(*server.attacks, Attack("hide", target=box.name))
         )

@@ -304,8 +304,10 @@ class ServerMapSpec:
     OctoMap file ``bt`` (``.bt`` or ``.ot``; the YAML key is ``octomap``, ``bt`` still works), a
     point cloud ``cloud`` (``.ply``/``.pcd``/``.xyz``, its points ray ends from ``origin``; or an
     OctoMap scan graph ``.graph``/``.log``, each scan from its own pose) or a
-    mesh ``mesh`` (its surface voxelised). ``resolution`` is the voxel size of the robot's map
-    (m). Region attacks apply to every source; attacks on named obstacles only to the world.
+    mesh ``mesh`` (its surface voxelised), or ``survey``, the bytes of an OctoMap scan graph held
+    in memory (what the ``survey`` campaign family makes; :func:`save_scenario` writes it beside
+    the YAML as a ``.graph`` file). ``resolution`` is the voxel size of the robot's map (m).
+    Region attacks apply to every source; attacks on named obstacles only to the world.
     """
 
     attacks: tuple[Attack, ...] = ()
@@ -314,19 +316,25 @@ class ServerMapSpec:
     cloud: Path | None = None
     origin: Vec3 | None = None
     mesh: Path | None = None
+    survey: bytes | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "attacks", tuple(self.attacks))
         r = _positive(self.resolution, "server_map.resolution")
         if not 0.01 <= r <= 2.0:  # finer than 1 cm or coarser than 2 m is a unit error here
             raise ScenarioError(f"server_map.resolution: must be in [0.01, 2] m (got {r})")
-        given = [k for k in ("bt", "cloud", "mesh") if getattr(self, k) is not None]
+        if self.survey is not None and not isinstance(self.survey, bytes):
+            raise ScenarioError(
+                f"server_map.survey: must be a scan graph's bytes (got {type(self.survey).__name__})"
+            )
+        given = [k for k in ("bt", "cloud", "mesh", "survey") if getattr(self, k) is not None]
         if len(given) > 1:
             raise ScenarioError(
                 f"server_map: give one of octomap, cloud, mesh (got {', '.join(given)})"
             )
         for k in given:
-            object.__setattr__(self, k, Path(getattr(self, k)))
+            if k != "survey":
+                object.__setattr__(self, k, Path(getattr(self, k)))
         if self.origin is not None:
             if self.cloud is None:
                 raise ScenarioError("server_map.origin: only a cloud has a sensor origin")
@@ -347,3 +355,9 @@ class ServerMapSpec:
     def source_file(self) -> Path | None:
         """The server map's own file (OctoMap, cloud or mesh), None when derived from the world."""
         return self.bt or self.cloud or self.mesh
+
+    @property
+    def from_world(self) -> bool:
+        """Whether the server map is the world's named obstacles with attacks (no file, no
+        survey): the only source named attacks and hidden-obstacle ``hide`` attacks act on."""
+        return self.source_file is None and self.survey is None
