@@ -245,9 +245,8 @@ def _judge_points(
     obstacle_margin = np.minimum(dist, in_map) - r
 
     # ---- observed before: start ball, or an earlier view with a clear line of sight -------------
-    start_margin = (
-        np.minimum(flat - problem.start_region_lo, problem.start_region_hi - flat).min(axis=1) - r
-    )
+    s_lo, s_hi = problem.observed_start
+    start_margin = np.minimum(flat - s_lo, s_hi - flat).min(axis=1) - r
     # The body ball is seen only if the whole cone of sight lines from the camera to it is clear.
     vis_margin = start_margin.copy()
     unresolved = np.flatnonzero(start_margin < -tol)

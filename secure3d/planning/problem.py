@@ -253,6 +253,12 @@ class PlanningProblem:
         reactive set of the start state: the paper's safety theorem assumes S_r(x(0)) observed).
     occupancy : the belief map (used only for the graph-search guess), may be None.
     options : :class:`PlannerOptions`.
+    observed_lo, observed_hi : (3,) the box the certificate and the tracking guard count as
+        observed at the start, when it differs from the start region (None: the start region).
+        A replan in flight sets it (:meth:`with_start`): the NLP's start region is grown to
+        contain S_r(x0) so that node 0 is feasible, but only what the robot verified counts as
+        observed (session 25: counting the grown box let a robot touch a wall the server had
+        misplaced).
     """
 
     model: VehicleModel
@@ -270,6 +276,8 @@ class PlanningProblem:
     controller: object | None = None
     occupancy: OccupancyMap | None = None
     name: str = ""
+    observed_lo: np.ndarray | None = None
+    observed_hi: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         for attr in (
@@ -285,6 +293,15 @@ class PlanningProblem:
             arr = np.array(getattr(self, attr), dtype=float)
             arr.flags.writeable = False
             object.__setattr__(self, attr, arr)
+        if (self.observed_lo is None) != (self.observed_hi is None):
+            raise ConfigError("observed_lo, observed_hi: give both or neither")
+        for attr in ("observed_lo", "observed_hi"):
+            if getattr(self, attr) is not None:
+                arr = np.array(getattr(self, attr), dtype=float)
+                if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+                    raise ConfigError(f"{attr}: expected 3 finite numbers, got {arr}")
+                arr.flags.writeable = False
+                object.__setattr__(self, attr, arr)
         if self.x0.shape != (self.model.nx,):
             raise ConfigError(f"x0: expected shape ({self.model.nx},), got {self.x0.shape}")
         if not np.all(np.isfinite(self.x0)):
@@ -311,6 +328,25 @@ class PlanningProblem:
         return index
 
     @property
+    def observed_start(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) of the box counted as observed at the start by the certificate and the guard:
+        ``observed_lo/hi`` when set, else the start region."""
+        if self.observed_lo is not None:
+            return self.observed_lo, self.observed_hi
+        return self.start_region_lo, self.start_region_hi
+
+    def manoeuvre_box(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) of the body along the reactive manoeuvre from ``x0`` (its rolled-out positions
+        grown by the body radius; without a controller, the body at ``x0``)."""
+        r = self.model.body_radius
+        p = np.asarray(self.model.position(x0), dtype=float).reshape(1, 3)
+        if self.controller is not None:
+            out = self.controller.rollout_batch(np.asarray(x0, dtype=float)[None], dt=0.01)
+            traj = np.asarray(out[1] if isinstance(out, tuple) else out, dtype=float)[0]
+            p = np.asarray(self.model.position(traj), dtype=float).reshape(-1, 3)
+        return p.min(axis=0) - r, p.max(axis=0) + r
+
+    @property
     def start_position(self) -> np.ndarray:
         return np.asarray(self.model.position(self.x0), dtype=float)
 
@@ -323,7 +359,9 @@ class PlanningProblem:
             lo, hi = start_region(
                 self.model, self.family, self.x0, updated.options.start_region_radius
             )
-            updated = replace(updated, start_region_lo=lo, start_region_hi=hi)
+            updated = replace(
+                updated, start_region_lo=lo, start_region_hi=hi, observed_lo=None, observed_hi=None
+            )
         return updated
 
     def with_start(
@@ -337,7 +375,10 @@ class PlanningProblem:
         The observed start box is ``region`` (lo, hi) if given, else a cube of ``half_size``
         around the new start (default: the option ``start_region_radius``); callers that know what
         the camera saw (the closed loop) pass the largest box their map has observed. Either is
-        grown to contain S_r(x0) (see :func:`start_region`).
+        grown to contain S_r(x0) (see :func:`start_region`) for the NLP. With ``region``, the
+        certificate and the guard count as observed only ``region`` and the body along the
+        reactive manoeuvre from ``x0`` (:meth:`manoeuvre_box`; at rest, the body where it is), not
+        the fitted set's slack around it (``observed_lo/hi``).
         """
         from dataclasses import replace
 
@@ -352,10 +393,20 @@ class PlanningProblem:
                 raise ConfigError(f"with_start: region lo must be <= hi, got {region!r}")
             lo, hi = start_region(self.model, self.family, x0, 0.0)
             lo, hi = np.minimum(lo, r_lo), np.maximum(hi, r_hi)
-            return replace(self, x0=x0, start_region_lo=lo, start_region_hi=hi)
+            m_lo, m_hi = self.manoeuvre_box(x0)
+            return replace(
+                self,
+                x0=x0,
+                start_region_lo=lo,
+                start_region_hi=hi,
+                observed_lo=np.minimum(m_lo, r_lo),
+                observed_hi=np.maximum(m_hi, r_hi),
+            )
         half = self.options.start_region_radius if half_size is None else half_size
         lo, hi = start_region(self.model, self.family, x0, half)
-        return replace(self, x0=x0, start_region_lo=lo, start_region_hi=hi)
+        return replace(
+            self, x0=x0, start_region_lo=lo, start_region_hi=hi, observed_lo=None, observed_hi=None
+        )
 
 
 def start_region(

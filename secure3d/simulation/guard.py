@@ -238,7 +238,7 @@ class TrackingGuard:
         R, o = self._views
         c, M = problem.family.ellipsoid(np.asarray(x, dtype=float))
         bounds = (problem.bounds_lo, problem.bounds_hi)
-        start = (problem.start_region_lo, problem.start_region_hi)
+        start = problem.observed_start
         c, M = np.asarray(c, dtype=float).ravel(), np.asarray(M, dtype=float).reshape(3, 3)
         half = self._frame_faces(problem.frustum) if len(o) else None
         index = self._box_index(lo, hi)
