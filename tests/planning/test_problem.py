@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from secure3d.errors import ConfigError
@@ -28,3 +30,70 @@ def test_planner_and_solver_names_compare_equal_to_their_strings():
 def test_options_name_the_bad_field_and_value(field, value, needle):
     with pytest.raises(ConfigError, match=needle):
         PlannerOptions(**{field: value})
+
+
+@pytest.fixture(scope="module")
+def corner_problem(maps_dir):
+    import secure3d
+    from secure3d.planning.problem import problem_from_scenario
+
+    return problem_from_scenario(secure3d.load_scenario(maps_dir / "blind_corner.yaml"))
+
+
+def test_a_replan_counts_as_observed_only_its_region_and_the_body_along_its_manoeuvre(
+    corner_problem,
+):
+    """with_start(region=...): the NLP's start region grows to contain S_r(x0) (node 0 must be
+    feasible), but the certificate and the guard count as observed only the region and the body
+    along the reactive manoeuvre from x0 (session 25: the grown box let a robot touch a wall)."""
+    import numpy as np
+
+    from secure3d.planning.certificate import state_margin
+    from secure3d.planning.problem import start_region
+
+    p = corner_problem
+    model, r = p.model, p.model.body_radius
+    pos = np.asarray(model.position(p.x0), dtype=float)
+    region = (pos - r - 0.01, pos + r + 0.01)  # the camera saw 1 cm round the body
+    no_views = (np.zeros((0, 3, 3)), np.zeros((0, 3)))
+    rest = p.with_start(p.x0, region=region)
+    fitted_lo, fitted_hi = start_region(model, p.family, p.x0, 0.0)
+    np.testing.assert_allclose(rest.start_region_lo, np.minimum(fitted_lo, region[0]))
+    np.testing.assert_allclose(rest.observed_start[0], region[0])  # the body is inside it
+    assert np.any(rest.start_region_lo < rest.observed_start[0] - 1e-3)  # the fitted slack
+    assert state_margin(p.x0, rest, *no_views)[0] >= -1e-6  # at rest: the body where it is
+    # moving at 1 m/s along +x: the braking path counts as observed for its own state ...
+    moving = p.x0.copy()
+    moving[3] = 1.0
+    fly = p.with_start(moving, region=region)
+    m_lo, m_hi = fly.manoeuvre_box(moving)
+    assert m_hi[0] > region[1][0] + 0.05
+    np.testing.assert_allclose(fly.observed_start[1], np.maximum(m_hi, region[1]))
+    assert state_margin(moving, fly, *no_views)[0] >= -1e-6
+    # ... but a faster state's longer braking leaves it, though the NLP's grown region holds it
+    faster = p.x0.copy()
+    faster[3] = 2.0
+    grown = dataclasses.replace(fly, observed_lo=None, observed_hi=None)
+    grown = dataclasses.replace(
+        grown,
+        start_region_lo=np.minimum(
+            fly.start_region_lo, start_region(model, p.family, faster, 0.0)[0]
+        ),
+        start_region_hi=np.maximum(
+            fly.start_region_hi, start_region(model, p.family, faster, 0.0)[1]
+        ),
+    )
+    assert state_margin(faster, grown, *no_views)[0] >= -1e-6
+    assert (
+        state_margin(
+            faster,
+            dataclasses.replace(grown, observed_lo=fly.observed_lo, observed_hi=fly.observed_hi),
+            *no_views,
+        )[0]
+        < -0.01
+    )
+    # a start the old way (a cube, the take-off premise) counts its whole box
+    assert rest.with_start(p.x0).observed_lo is None
+    assert rest.with_options(start_region_radius=0.5).observed_lo is None
+    with pytest.raises(ConfigError, match="observed_lo"):
+        dataclasses.replace(rest, observed_hi=None)
