@@ -69,3 +69,21 @@ def tiny(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("scenarios") / "tiny.yaml"
     path.write_text(TINY_ROOM.read_text())
     return path
+
+
+@pytest.fixture(scope="session")
+def octomap_voxels():
+    """``count(tree) -> (occupied, free)`` voxels of an octomap-python tree (OctoMap prunes equal
+    siblings: a leaf at depth d stands for 8**(16 - d) voxels)."""
+
+    def count(tree: object) -> tuple[int, int]:
+        n_occ = n_free = 0
+        for leaf in tree.begin_leafs():
+            n = 8 ** (16 - leaf.getDepth())
+            if tree.isNodeOccupied(leaf):
+                n_occ += n
+            else:
+                n_free += n
+        return n_occ, n_free
+
+    return count

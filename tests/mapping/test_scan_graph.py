@@ -21,18 +21,9 @@ from secure3d.mapping.scan_graph import (
 )
 
 
-def _octomap_voxels(tree: octomap.OcTree) -> tuple[int, int]:
-    n_occ = n_free = 0
-    for leaf in tree.begin_leafs():  # OctoMap prunes equal siblings: count voxels per leaf
-        n = 8 ** (16 - leaf.getDepth())
-        if tree.isNodeOccupied(leaf):
-            n_occ += n
-        else:
-            n_free += n
-    return n_occ, n_free
-
-
-def test_octomaps_spherical_scan_graph_reads_and_inserts_as_octomap_does(octomap_dir) -> None:
+def test_octomaps_spherical_scan_graph_reads_and_inserts_as_octomap_does(
+    octomap_dir, octomap_voxels
+) -> None:
     path = octomap_dir / "spherical_scan.graph"
     raw = path.read_bytes()
     graph = read_scan_graph(path)
@@ -55,7 +46,7 @@ def test_octomaps_spherical_scan_graph_reads_and_inserts_as_octomap_does(octomap
     tree = octomap.OcTree(0.1)
     tree.insertPointCloud(graph.points, graph.origins[0])
     occ, free = ours.occupied_voxels(), ours.free_voxels()
-    assert (len(occ), len(free)) == _octomap_voxels(tree) and len(free) > 10_000
+    assert (len(occ), len(free)) == octomap_voxels(tree) and len(free) > 10_000
     np.testing.assert_array_equal(tree.getLabels(occ), 1)
     np.testing.assert_array_equal(tree.getLabels(free), 0)
 

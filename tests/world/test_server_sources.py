@@ -243,7 +243,9 @@ def test_region_attack_family_is_pure_and_valid() -> None:
         assert occ != occ0, f"{v.name}: the attack changed nothing"
 
 
-def test_cloud_with_per_point_origins_is_one_octomap_scan_per_origin(tmp_path: Path) -> None:
+def test_cloud_with_per_point_origins_is_one_octomap_scan_per_origin(
+    tmp_path: Path, octomap_voxels
+) -> None:
     """A .ply with origin_x/y/z vertex properties: each point is a ray from its own origin, as
     octomap-python inserts each scan; the scenario's origin is not needed."""
     import octomap
@@ -268,20 +270,15 @@ def test_cloud_with_per_point_origins_is_one_octomap_scan_per_origin(tmp_path: P
     f32 = pts.astype(np.float32).astype(float)  # the file stores float32
     for o in origins:
         tree.insertPointCloud(f32[(own == o).all(1)], o)
-    n_occ = n_free = 0
-    for leaf in tree.begin_leafs():  # OctoMap prunes equal siblings: count voxels per leaf
-        n = 8 ** (16 - leaf.getDepth())
-        if tree.isNodeOccupied(leaf):
-            n_occ += n
-        else:
-            n_free += n
-    assert (len(occ), len(free)) == (n_occ, n_free) and n_free > 1000
+    assert (len(occ), len(free)) == octomap_voxels(tree) and len(free) > 1000
     centre = lambda keys: (np.array(sorted(keys)) + 0.5) * 0.1  # noqa: E731
     np.testing.assert_array_equal(tree.getLabels(centre(occ)), 1)
     np.testing.assert_array_equal(tree.getLabels(centre(free)), 0)
 
 
-def test_scan_graph_server_map_is_each_scan_from_its_pose_as_graph2tree_inserts_it() -> None:
+def test_scan_graph_server_map_is_each_scan_from_its_pose_as_graph2tree_inserts_it(
+    octomap_voxels,
+) -> None:
     """warehouse_survey.yaml: four posed scans (yawed and tilted) of an OctoMap .graph; the claim
     is every scan inserted from its node's position in file order, voxel for voxel what
     octomap-python builds from the same world-frame points."""
@@ -296,11 +293,7 @@ def test_scan_graph_server_map_is_each_scan_from_its_pose_as_graph2tree_inserts_
     tree = octomap.OcTree(0.1)
     for k, o in enumerate(graph.origins):
         tree.insertPointCloud(graph.points[graph.offsets[k] : graph.offsets[k + 1]], o)
-    n_occ = n_free = 0
-    for leaf in tree.begin_leafs():
-        n = 8 ** (16 - leaf.getDepth())
-        n_occ, n_free = (n_occ + n, n_free) if tree.isNodeOccupied(leaf) else (n_occ, n_free + n)
-    assert (len(occ), len(free)) == (n_occ, n_free) and n_free > 50_000
+    assert (len(occ), len(free)) == octomap_voxels(tree) and len(free) > 50_000
     centre = lambda keys: (np.array(sorted(keys)) + 0.5) * 0.1  # noqa: E731
     np.testing.assert_array_equal(tree.getLabels(centre(occ)), 1)
     np.testing.assert_array_equal(tree.getLabels(centre(free)), 0)

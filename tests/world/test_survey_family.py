@@ -100,17 +100,8 @@ def test_a_survey_campaign_flies_and_the_secure_robot_does_not_collide(maps_dir,
     from secure3d.simulation.campaign import run_campaign
 
     base = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
-    result = run_campaign(
-        base,
-        2,
-        planners=("secure",),
-        seed=5,
-        workers=1,
-        out_dir=tmp_path,
-        progress=False,
-        kind="survey",
-        nodes=20,
-    )
+    flown = {"planners": ("secure",), "seed": 5, "workers": 1, "progress": False, "nodes": 20}
+    result = run_campaign(base, 2, out_dir=tmp_path, kind="survey", **flown)
     names = [v.name for v in family_variants(SURVEY, base, 2, seed=5)]
     assert [r.scenario for r in result.records] == names
     assert not any(r.collided for r in result.records)
