@@ -42,7 +42,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from secure3d.errors import MapFormatError
+from secure3d.errors import GeometryError, MapFormatError
 
 __all__ = [
     "MAX_GRAPH_BYTES",
@@ -99,9 +99,16 @@ class ScanGraph(NamedTuple):
         return np.repeat(self.origins, np.diff(self.offsets), axis=0)
 
 
+def _unit_quaternion(q: object, what: str) -> NDArray[np.float64]:
+    q = np.asarray(q, dtype=float)
+    if q.shape != (4,) or not np.all(np.isfinite(q)) or abs(np.linalg.norm(q) - 1) > _UNIT_TOL:
+        raise GeometryError(f"{what}: a unit quaternion (w, x, y, z) is needed, got {q!r}")
+    return q
+
+
 def rotation_matrix(q: NDArray[np.float64]) -> NDArray[np.float64]:
-    """(3, 3) rotation of the unit quaternion ``q = (w, x, y, z)``."""
-    w, x, y, z = q
+    """(3, 3) rotation of the unit quaternion ``q = (w, x, y, z)`` (GeometryError otherwise)."""
+    w, x, y, z = _unit_quaternion(q, "rotation_matrix")
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
@@ -325,7 +332,14 @@ def write_scan_graph_bytes(
     out = [struct.pack("<I", len(scans))]
     poses = []
     for i, (pts, t, q) in enumerate(scans):
-        pts = np.asarray(pts, np.float64).reshape(-1, 3)
+        pts, t = np.asarray(pts, np.float64), np.asarray(t, np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3 or t.shape != (3,):
+            raise GeometryError(
+                f"scan {i}: points must be (n, 3) and the translation (3,), got {pts.shape}, {t.shape}"
+            )
+        if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(t))):
+            raise GeometryError(f"scan {i}: points and translation must be finite")
+        q = _unit_quaternion(q, f"scan {i}")
         rec = np.empty(len(pts), _POINT)
         rec["tag"], rec["xyz"] = 3, pts.astype(np.float32)
         pose = _POSE.pack(3, *np.asarray(t, float), 4, *np.asarray(q, float))

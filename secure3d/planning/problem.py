@@ -338,10 +338,13 @@ class PlanningProblem:
     def manoeuvre_box(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) of the body along the reactive manoeuvre from ``x0`` (its rolled-out positions
         grown by the body radius; without a controller, the body at ``x0``)."""
+        x0 = np.asarray(x0, dtype=float)
+        if x0.shape != (self.model.nx,) or not np.all(np.isfinite(x0)):
+            raise ConfigError(f"manoeuvre_box: x0 must be {self.model.nx} finite numbers, got {x0}")
         r = self.model.body_radius
         p = np.asarray(self.model.position(x0), dtype=float).reshape(1, 3)
         if self.controller is not None:
-            out = self.controller.rollout_batch(np.asarray(x0, dtype=float)[None], dt=0.01)
+            out = self.controller.rollout_batch(x0[None], dt=0.01)
             traj = np.asarray(out[1] if isinstance(out, tuple) else out, dtype=float)[0]
             p = np.asarray(self.model.position(traj), dtype=float).reshape(-1, 3)
         return p.min(axis=0) - r, p.max(axis=0) + r

@@ -114,8 +114,23 @@ def survey_scans(
     :data:`LIDAR_RANGE`, ready for :func:`~secure3d.mapping.scan_graph.write_scan_graph_bytes`.
     """
     from secure3d._deps import open3d
+    from secure3d.errors import GeometryError
     from secure3d.mapping.scan_graph import rotation_matrix
 
+    vertices, faces = np.asarray(vertices, dtype=float), np.asarray(faces)
+    if (
+        vertices.ndim != 2
+        or vertices.shape[1:] != (3,)
+        or faces.ndim != 2
+        or faces.shape[1:] != (3,)
+    ):
+        raise GeometryError(
+            f"survey_scans: vertices and faces must be (n, 3), got {vertices.shape}, {faces.shape}"
+        )
+    if not 0.0 < half_elevation_deg <= 90.0:
+        raise GeometryError(
+            f"survey_scans: half_elevation_deg must be in (0, 90], got {half_elevation_deg!r}"
+        )
     o3d = open3d()
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(

@@ -155,3 +155,20 @@ def test_file_errors_name_the_file(tmp_path: Path) -> None:
     big.write_bytes(_small_graph())
     with pytest.raises(MapFormatError, match=r"big\.graph: larger than 10 bytes"):
         read_scan_graph(big, max_bytes=10)
+
+
+def test_the_writer_and_the_rotation_refuse_bad_scans_by_name() -> None:
+    from secure3d.errors import GeometryError
+    from secure3d.mapping.scan_graph import rotation_matrix
+
+    ok = (np.zeros((2, 3)), np.zeros(3), np.array([1.0, 0, 0, 0]))
+    for scan, problem in [
+        ((np.zeros((2, 2)), ok[1], ok[2]), "points must be"),
+        ((ok[0], np.zeros(2), ok[2]), "translation"),
+        ((np.full((2, 3), np.nan), ok[1], ok[2]), "finite"),
+        ((ok[0], ok[1], np.array([2.0, 0, 0, 0])), "unit quaternion"),
+    ]:
+        with pytest.raises(GeometryError, match=problem):
+            write_scan_graph_bytes([ok, scan])
+    with pytest.raises(GeometryError, match="unit quaternion"):
+        rotation_matrix(np.array([1.0, 0.0, 0.0]))

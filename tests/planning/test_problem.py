@@ -95,5 +95,7 @@ def test_a_replan_counts_as_observed_only_its_region_and_the_body_along_its_mano
     # a start the old way (a cube, the take-off premise) counts its whole box
     assert rest.with_start(p.x0).observed_lo is None
     assert rest.with_options(start_region_radius=0.5).observed_lo is None
+    with pytest.raises(ConfigError, match="manoeuvre_box: x0"):
+        rest.manoeuvre_box(np.zeros(2))
     with pytest.raises(ConfigError, match="observed_lo"):
         dataclasses.replace(rest, observed_hi=None)

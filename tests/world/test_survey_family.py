@@ -119,3 +119,20 @@ def test_bad_survey_bytes_are_refused_by_name(maps_dir):
     )
     with pytest.raises(ScenarioError, match="server_map.survey: 5 nodes do not fit"):
         belief_map(broken)
+
+
+def test_survey_scans_refuse_bad_input_by_name():
+    from secure3d.errors import GeometryError
+    from secure3d.world.survey_families import survey_scans
+
+    v, f = np.eye(3), np.array([[0, 1, 2]])
+    pose = [(np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]))]
+    with pytest.raises(GeometryError, match="half_elevation_deg"):
+        survey_scans(v, f, pose, 95.0)
+    with pytest.raises(GeometryError, match="vertices and faces"):
+        survey_scans(v[:, :2], f, pose, 20.0)
+    with pytest.raises(GeometryError, match="unit quaternion"):
+        survey_scans(v, f, [(np.zeros(3), np.array([0.0, 0.0, 0.0, 0.0]))], 20.0)
+    # a lidar at the origin sees the triangle x + y + z = 1 (the rays towards it)
+    ((pts, t, q),) = survey_scans(v, f, pose, 30.0)
+    assert len(pts) and np.allclose(pts.sum(axis=1), 1.0, atol=1e-5)
