@@ -256,6 +256,42 @@ def read_scan_graph_bytes(data: bytes) -> ScanGraph:
     return graph
 
 
+def _log_blocks(lines: list[str]) -> list[tuple[int, str, list[str], list[int]]]:
+    """The scans of a scan log's lines: (line number, NODE line, its point lines, their numbers)."""
+    blocks: list[tuple[int, str, list[str], list[int]]] = []
+    for no, line in enumerate(lines, 1):
+        if not line or line[0] in "# \t\r":
+            continue
+        if line.startswith("NODE"):
+            blocks.append((no, line, [], []))
+        elif not blocks:
+            raise MapFormatError(f"line {no}: a point before the first NODE line")
+        else:
+            blocks[-1][2].append(line)
+            blocks[-1][3].append(no)
+    return blocks
+
+
+def _log_points(block: list[str], numbers: list[int]) -> NDArray[np.float64]:
+    """(n, 3) points of one scan's lines; a bad line is named by its number."""
+    try:  # every line x y z: one parse of the whole block
+        values = np.array(" ".join(block).split(), dtype=np.float64)
+        if values.size == 3 * len(block):
+            return values.reshape(-1, 3)
+    except ValueError:
+        pass
+    for k, line in zip(numbers, block, strict=True):  # find the bad line
+        words = line.split()
+        try:
+            np.array(words[:3], dtype=np.float64)
+        except ValueError:
+            raise MapFormatError(f"line {k}: not numbers: {line[:60]!r}") from None
+        if len(words) < 3:
+            raise MapFormatError(f"line {k}: a point needs x y z")
+    # extra words after x y z, as OctoMap reads them: keep the first three of each line
+    return np.array([line.split()[:3] for line in block], dtype=np.float64).reshape(-1, 3)
+
+
 def read_scan_log_bytes(data: bytes) -> ScanGraph:
     """Parse OctoMap's text scan log (``.log``, the input of ``log2graph``).
 
@@ -265,29 +301,18 @@ def read_scan_log_bytes(data: bytes) -> ScanGraph:
         A point before the first ``NODE`` line, a line that is not numbers, a ``NODE`` line
         without six numbers, non-finite poses, or no points at all.
     """
-    scans: list[list] = []
-    for no, line in enumerate(data.decode("utf-8", errors="replace").splitlines(), 1):
-        if not line or line[0] in "# \t\r":
-            continue
-        words = line.split()
-        is_node = words[0] == "NODE"
+    done = []
+    lines = data.decode("utf-8", "replace").splitlines()
+    for i, (no, node, block, numbers) in enumerate(_log_blocks(lines)):
         try:
-            values = np.array(words[1:] if is_node else words[:3], dtype=np.float64)
+            values = np.array(node.split()[1:], dtype=np.float64)
         except ValueError:
-            raise MapFormatError(f"line {no}: not numbers: {line[:60]!r}") from None
-        if is_node:
-            if values.size != 6:
-                raise MapFormatError(f"line {no}: NODE needs x y z roll pitch yaw")
-            rpy = values[3:].astype(np.float32).astype(np.float64)
-            t, q = _checked_pose(values[:3], euler_quaternion(*rpy), f"line {no}")
-            scans.append([[], t, q, len(scans)])
-        elif not scans:
-            raise MapFormatError(f"line {no}: a point before the first NODE line")
-        elif values.size != 3:
-            raise MapFormatError(f"line {no}: a point needs x y z")
-        else:
-            scans[-1][0].append(values)
-    done = [(_to_world(np.array(p, float).reshape(-1, 3), t, q), t, q, i) for p, t, q, i in scans]
+            raise MapFormatError(f"line {no}: not numbers: {node[:60]!r}") from None
+        if values.size != 6:
+            raise MapFormatError(f"line {no}: NODE needs x y z roll pitch yaw")
+        rpy = values[3:].astype(np.float32).astype(np.float64)
+        t, q = _checked_pose(values[:3], euler_quaternion(*rpy), f"line {no}")
+        done.append((_to_world(_log_points(block, numbers), t, q), t, q, i))
     graph = _assemble(done, max(len(done) - 1, 0))  # log2graph joins consecutive nodes
     if len(graph.points) == 0:
         raise MapFormatError("the scan log holds no points")

@@ -139,6 +139,7 @@ def test_edge_to_an_unknown_node_and_bad_logs_are_refused() -> None:
         (b"1 2 3\n", "before the first NODE"),
         (b"NODE 0 0 0 0 0\n1 2 3\n", "six numbers|roll pitch yaw"),
         (b"NODE 0 0 0 0 0 0\n1 x 3\n", "not numbers"),
+        (b"NODE 0 0 0 0 0 0\n1 2 3\n# c\n\n4 y 6\n", "line 5: not numbers"),
         (b"NODE 0 0 0 0 0 0\n1 2\n", "x y z"),
         (b"# nothing\n", "no points"),
     ]:
