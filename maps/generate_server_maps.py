@@ -99,28 +99,10 @@ def survey_mesh() -> trimesh.Trimesh:
     return trimesh.util.concatenate(parts)
 
 
-def survey_scans(mesh: trimesh.Trimesh) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    from scipy.spatial.transform import Rotation
+def survey_poses() -> list[tuple[np.ndarray, np.ndarray]]:
+    from secure3d.mapping.scan_graph import euler_quaternion
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
-        o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)),
-    )
-    az = np.radians(np.arange(-180.0, 180.0, 0.6))
-    el = np.radians(np.arange(-24.0, 24.1, 2.0))
-    a, e = np.meshgrid(az, el, indexing="ij")
-    local = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], -1).reshape(-1, 3)
-    scans = []
-    for t, rpy in SURVEY_POSES:
-        rot = Rotation.from_euler("ZYX", np.radians(rpy[::-1]))
-        d = rot.apply(local)
-        rays = np.concatenate([np.broadcast_to(t, d.shape), d], axis=1).astype(np.float32)
-        hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
-        ok = np.isfinite(hit) & (hit <= 20.0)
-        quat = np.roll(rot.as_quat(), 1)  # (w, x, y, z)
-        scans.append((local[ok] * hit[ok, None], np.array(t), quat))
-    return scans
+    return [(np.array(t, float), euler_quaternion(*np.radians(rpy))) for t, rpy in SURVEY_POSES]
 
 
 def main() -> None:
@@ -134,8 +116,10 @@ def main() -> None:
     o3d.t.io.write_point_cloud(str(out), pcd, write_ascii=False)
     print(f"{out}: {len(points)} points; meshes/blind_corner_building.obj: {len(mesh.faces)} faces")
     from secure3d.mapping.scan_graph import write_scan_graph_bytes
+    from secure3d.world.survey_families import survey_scans
 
-    scans = survey_scans(survey_mesh())
+    mesh = survey_mesh()
+    scans = survey_scans(mesh.vertices, mesh.faces, survey_poses(), 24.0, azimuth_step_deg=0.6)
     graph = HERE / "clouds" / "warehouse_survey.graph"
     graph.write_bytes(write_scan_graph_bytes(scans))
     print(f"{graph}: {len(scans)} scans, {sum(len(s[0]) for s in scans)} points")

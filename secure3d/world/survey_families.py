@@ -99,6 +99,7 @@ def survey_scans(
     faces: np.ndarray,
     poses: list[tuple[np.ndarray, np.ndarray]],
     half_elevation_deg: float,
+    azimuth_step_deg: float = AZIMUTH_STEP_DEG,
 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Cast a rotating lidar at every pose against the triangles.
 
@@ -106,7 +107,9 @@ def survey_scans(
     ----------
     vertices : (v, 3) float ; faces : (f, 3) int
     poses : list of (translation (3,), quaternion (4,) as w, x, y, z)
-    half_elevation_deg : the vertical field is +-this (degrees)
+    half_elevation_deg : the vertical field is +-this (degrees), in rings
+        :data:`ELEVATION_STEP_DEG` apart
+    azimuth_step_deg : degrees between two rays of a ring
 
     Returns
     -------
@@ -137,7 +140,11 @@ def survey_scans(
         o3d.core.Tensor(np.asarray(vertices, np.float32)),
         o3d.core.Tensor(np.asarray(faces, np.uint32)),
     )
-    az = np.radians(np.arange(-180.0, 180.0, AZIMUTH_STEP_DEG))
+    if not 0.0 < azimuth_step_deg <= 90.0:
+        raise GeometryError(
+            f"survey_scans: azimuth_step_deg must be in (0, 90], got {azimuth_step_deg!r}"
+        )
+    az = np.radians(np.arange(-180.0, 180.0, azimuth_step_deg))
     el = np.radians(np.arange(-half_elevation_deg, half_elevation_deg + 1e-9, ELEVATION_STEP_DEG))
     a, e = np.meshgrid(az, el, indexing="ij")
     local = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], -1).reshape(-1, 3)
