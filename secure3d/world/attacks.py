@@ -177,7 +177,7 @@ def _claim_sources(belief: OccupancyMap, claim: ServerClaim, res: float) -> None
     if claim.cloud is not None or claim.survey is not None:
         what = "server_map.cloud"
         if claim.survey is not None:
-            scans = server_sources.survey_scans(claim.survey)
+            scans = server_sources.read_survey_scans(claim.survey)
         else:
             scans = server_sources.read_cloud_scans(claim.cloud, what)
         server = OccupancyMap(res)

@@ -36,6 +36,8 @@ from secure3d.world.octomap_files import octomap_resolution
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".graph", ".log")
 #: Scan graphs: scans with poses (read by :mod:`secure3d.mapping.scan_graph`, not Open3D).
 GRAPH_SUFFIXES = (".graph", ".log")
+#: Clouds Open3D reads.
+OPEN3D_CLOUD_SUFFIXES = tuple(s for s in CLOUD_SUFFIXES if s not in GRAPH_SUFFIXES)
 SERVER_MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
 #: Largest point-cloud or mesh file read (bytes).
 MAX_SOURCE_BYTES = 200_000_000
@@ -143,7 +145,7 @@ def _read_graph_scans(p: Path, what: str) -> CloudScans:
     return CloudScans(graph.points, graph.origins, graph.offsets)
 
 
-def survey_scans(data: bytes) -> CloudScans:
+def read_survey_scans(data: bytes) -> CloudScans:
     """The scans of a scan graph held in memory (``server_map.survey``)."""
     from secure3d.mapping.scan_graph import read_scan_graph_bytes
 
@@ -179,7 +181,7 @@ def read_cloud_origins(
     if p.suffix.lower() in GRAPH_SUFFIXES:
         scans = _read_graph_scans(p, what)
         return scans.points, np.repeat(scans.origins, np.diff(scans.offsets), axis=0)
-    _size_checked(p, what, CLOUD_SUFFIXES[:3], "point-cloud")
+    _size_checked(p, what, OPEN3D_CLOUD_SUFFIXES, "point-cloud")
     o3d = open3d()
     try:
         pcd = o3d.t.io.read_point_cloud(str(p))
@@ -328,5 +330,5 @@ __all__ = [
     "read_cloud_scans",
     "read_surface_mesh",
     "surface_voxel_centres",
-    "survey_scans",
+    "read_survey_scans",
 ]

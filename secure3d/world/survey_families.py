@@ -162,12 +162,12 @@ def _moved(prep: _Prepared, base: Scenario, rng: np.random.Generator) -> tuple:
     """The surveyed named obstacles, one of them maybe where it stood before; and a note."""
     a, b = np.asarray(base.start.position), np.asarray(base.goal.position)
     span = np.subtract(base.world.bounds.hi, base.world.bounds.lo)
+    along = np.linspace(a, b, 50)
     near = []
     for k, o in enumerate(prep.named):
         lo, hi = np.asarray(o.lo), np.asarray(o.hi)
         if np.any((hi - lo)[:2] > MOVED_MAX_SPAN * span[:2]):
             continue
-        along = np.linspace(a, b, 50)
         gap = np.maximum(np.maximum(lo - along, along - hi), 0.0)
         if np.linalg.norm(gap, axis=1).min() <= MOVED_NEAR_ROUTE:
             near.append(k)
