@@ -221,6 +221,39 @@ def segments_blocked(p0: object, p1: object, lo: object, hi: object) -> np.ndarr
     return _kernels().segment_box_any(*_segments_and_boxes(p0, p1, lo, hi))
 
 
+def polyline_distance(points: object, path: object) -> np.ndarray:
+    """Euclidean distance from each point to the polyline through ``path`` (its segments
+    ``path[j] -> path[j + 1]``; one vertex is a point). A ball of radius r about ``points[i]`` lies
+    in the union of the balls of radius r about the polyline iff this distance is 0.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    path : (m, 3) float, m >= 1
+
+    Returns
+    -------
+    (n,) float
+    """
+    p = np.asarray(points, dtype=float).reshape(-1, 3)
+    q = np.asarray(path, dtype=float)
+    if q.ndim != 2 or q.shape[1] != 3 or len(q) == 0 or not np.all(np.isfinite(q)):
+        raise GeometryError(f"polyline_distance: path must be (m >= 1, 3) finite, got {q.shape}")
+    if len(q) == 1:
+        return np.linalg.norm(p - q[0], axis=1)
+    a, d = q[:-1], np.diff(q, axis=0)  # (s, 3)
+    dd = np.einsum("ij,ij->i", d, d)
+    out = np.empty(len(p))
+    step = max(1, (1 << 20) // len(a))  # about a million point-segment pairs at a time
+    for i in range(0, len(p), step):
+        rel = p[i : i + step, None, :] - a[None]  # (k, s, 3)
+        t = np.einsum("ksj,sj->ks", rel, d) / np.where(dd > 0, dd, 1.0)
+        t = np.clip(t, 0.0, 1.0)
+        gap = rel - t[..., None] * d[None]
+        out[i : i + step] = np.sqrt(np.einsum("ksj,ksj->ks", gap, gap).min(axis=1))
+    return out
+
+
 def cones_blocked(
     apex: object, centre: object, lo: object, hi: object, radius: float
 ) -> np.ndarray:

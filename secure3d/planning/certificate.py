@@ -245,8 +245,7 @@ def _judge_points(
     obstacle_margin = np.minimum(dist, in_map) - r
 
     # ---- observed before: start ball, or an earlier view with a clear line of sight -------------
-    s_lo, s_hi = problem.observed_start
-    start_margin = np.minimum(flat - s_lo, s_hi - flat).min(axis=1) - r
+    start_margin = problem.start_margins(flat, r)
     # The body ball is seen only if the whole cone of sight lines from the camera to it is clear.
     vis_margin = start_margin.copy()
     unresolved = np.flatnonzero(start_margin < -tol)

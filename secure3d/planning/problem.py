@@ -17,6 +17,7 @@ import numpy as np
 
 from secure3d.errors import ConfigError
 from secure3d.geometry.box_index import BoxIndex
+from secure3d.geometry.polytope import polyline_distance
 from secure3d.validation import is_int_in, is_real
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -237,6 +238,10 @@ class PlannerOptions:
             )
 
 
+#: A start counted observed as a whole (take-off, ``plan()``): no separate observed box or path.
+_NOT_OBSERVED = {"observed_lo": None, "observed_hi": None, "observed_path": None}
+
+
 @dataclass(frozen=True, eq=False)
 class PlanningProblem:
     """Everything the planner needs, in the robot's belief.
@@ -259,6 +264,9 @@ class PlanningProblem:
         contain S_r(x0) so that node 0 is feasible, but only what the robot verified counts as
         observed (session 25: counting the grown box let a robot touch a wall the server had
         misplaced).
+    observed_path : (m, 3) body centres along the reactive manoeuvre from ``x0`` (a replan in
+        flight): the body swept along it counts as observed too, besides the box
+        (:meth:`start_margins`). None: the box alone.
     """
 
     model: VehicleModel
@@ -278,6 +286,7 @@ class PlanningProblem:
     name: str = ""
     observed_lo: np.ndarray | None = None
     observed_hi: np.ndarray | None = None
+    observed_path: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         for attr in (
@@ -302,6 +311,14 @@ class PlanningProblem:
                     raise ConfigError(f"{attr}: expected 3 finite numbers, got {arr}")
                 arr.flags.writeable = False
                 object.__setattr__(self, attr, arr)
+        if self.observed_path is not None:
+            path = np.array(self.observed_path, dtype=float)
+            if path.ndim != 2 or path.shape[1:] != (3,) or not len(path):
+                raise ConfigError(f"observed_path: expected (m >= 1, 3) points, got {path.shape}")
+            if not np.all(np.isfinite(path)):
+                raise ConfigError("observed_path: every point must be finite")
+            path.flags.writeable = False
+            object.__setattr__(self, "observed_path", path)
         if self.x0.shape != (self.model.nx,):
             raise ConfigError(f"x0: expected shape ({self.model.nx},), got {self.x0.shape}")
         if not np.all(np.isfinite(self.x0)):
@@ -335,19 +352,38 @@ class PlanningProblem:
             return self.observed_lo, self.observed_hi
         return self.start_region_lo, self.start_region_hi
 
-    def manoeuvre_box(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(lo, hi) of the body along the reactive manoeuvre from ``x0`` (its rolled-out positions
-        grown by the body radius; without a controller, the body at ``x0``)."""
+    def start_margins(self, points: np.ndarray, r: float) -> np.ndarray:
+        """How far a ball of radius ``r`` about each of ``points`` (n, 3) lies inside what counts
+        as observed at the start (>= 0: inside): the box :attr:`observed_start`, or the body swept
+        along :attr:`observed_path` (minus the distance to that path). The two count as a union,
+        never as their bounding box (a region narrower than the body beside unobserved space must
+        not count the whole slab the body pokes into)."""
+        pts = np.asarray(points, dtype=float).reshape(-1, 3)
+        lo, hi = self.observed_start
+        margin = np.minimum(pts - lo, hi - pts).min(axis=1) - r
+        if self.observed_path is not None and len(pts):
+            outside = np.flatnonzero(margin < 0.0)
+            if len(outside):
+                near = -polyline_distance(pts[outside], self.observed_path)
+                margin[outside] = np.maximum(margin[outside], near)
+        return margin
+
+    def manoeuvre_path(self, x0: np.ndarray) -> np.ndarray:
+        """(m, 3) positions of the body centre along the reactive manoeuvre from ``x0`` (its
+        rollout at 0.01 s, repeated positions dropped; without a controller, ``x0``'s alone)."""
         x0 = np.asarray(x0, dtype=float)
         if x0.shape != (self.model.nx,) or not np.all(np.isfinite(x0)):
-            raise ConfigError(f"manoeuvre_box: x0 must be {self.model.nx} finite numbers, got {x0}")
-        r = self.model.body_radius
+            raise ConfigError(
+                f"manoeuvre_path: x0 must be {self.model.nx} finite numbers, got {x0}"
+            )
         p = np.asarray(self.model.position(x0), dtype=float).reshape(1, 3)
         if self.controller is not None:
             out = self.controller.rollout_batch(x0[None], dt=0.01)
             traj = np.asarray(out[1] if isinstance(out, tuple) else out, dtype=float)[0]
             p = np.asarray(self.model.position(traj), dtype=float).reshape(-1, 3)
-        return p.min(axis=0) - r, p.max(axis=0) + r
+        moved = np.ones(len(p), bool)
+        moved[1:] = np.abs(np.diff(p, axis=0)).max(axis=1) > 1e-12
+        return p[moved]
 
     @property
     def start_position(self) -> np.ndarray:
@@ -362,9 +398,7 @@ class PlanningProblem:
             lo, hi = start_region(
                 self.model, self.family, self.x0, updated.options.start_region_radius
             )
-            updated = replace(
-                updated, start_region_lo=lo, start_region_hi=hi, observed_lo=None, observed_hi=None
-            )
+            updated = replace(updated, start_region_lo=lo, start_region_hi=hi, **_NOT_OBSERVED)
         return updated
 
     def with_start(
@@ -380,8 +414,8 @@ class PlanningProblem:
         the camera saw (the closed loop) pass the largest box their map has observed. Either is
         grown to contain S_r(x0) (see :func:`start_region`) for the NLP. With ``region``, the
         certificate and the guard count as observed only ``region`` and the body along the
-        reactive manoeuvre from ``x0`` (:meth:`manoeuvre_box`; at rest, the body where it is), not
-        the fitted set's slack around it (``observed_lo/hi``).
+        reactive manoeuvre from ``x0`` (:meth:`manoeuvre_path`; at rest, the body where it is), not
+        the fitted set's slack around it (``observed_lo/hi``, ``observed_path``).
         """
         from dataclasses import replace
 
@@ -396,20 +430,18 @@ class PlanningProblem:
                 raise ConfigError(f"with_start: region lo must be <= hi, got {region!r}")
             lo, hi = start_region(self.model, self.family, x0, 0.0)
             lo, hi = np.minimum(lo, r_lo), np.maximum(hi, r_hi)
-            m_lo, m_hi = self.manoeuvre_box(x0)
             return replace(
                 self,
                 x0=x0,
                 start_region_lo=lo,
                 start_region_hi=hi,
-                observed_lo=np.minimum(m_lo, r_lo),
-                observed_hi=np.maximum(m_hi, r_hi),
+                observed_lo=r_lo,
+                observed_hi=r_hi,
+                observed_path=self.manoeuvre_path(x0),
             )
         half = self.options.start_region_radius if half_size is None else half_size
         lo, hi = start_region(self.model, self.family, x0, half)
-        return replace(
-            self, x0=x0, start_region_lo=lo, start_region_hi=hi, observed_lo=None, observed_hi=None
-        )
+        return replace(self, x0=x0, start_region_lo=lo, start_region_hi=hi, **_NOT_OBSERVED)
 
 
 def start_region(

@@ -66,14 +66,15 @@ def test_a_replan_counts_as_observed_only_its_region_and_the_body_along_its_mano
     moving = p.x0.copy()
     moving[3] = 1.0
     fly = p.with_start(moving, region=region)
-    m_lo, m_hi = fly.manoeuvre_box(moving)
-    assert m_hi[0] > region[1][0] + 0.05
-    np.testing.assert_allclose(fly.observed_start[1], np.maximum(m_hi, region[1]))
+    path = fly.manoeuvre_path(moving)
+    assert path[:, 0].max() > region[1][0] + 0.05 - r and len(path) > 10
+    np.testing.assert_allclose(fly.observed_path, path)
+    np.testing.assert_allclose(fly.observed_start[1], region[1])  # the box is the region alone
     assert state_margin(moving, fly, *no_views)[0] >= -1e-6
     # ... but a faster state's longer braking leaves it, though the NLP's grown region holds it
     faster = p.x0.copy()
     faster[3] = 2.0
-    grown = dataclasses.replace(fly, observed_lo=None, observed_hi=None)
+    grown = dataclasses.replace(fly, observed_lo=None, observed_hi=None, observed_path=None)
     grown = dataclasses.replace(
         grown,
         start_region_lo=np.minimum(
@@ -84,18 +85,70 @@ def test_a_replan_counts_as_observed_only_its_region_and_the_body_along_its_mano
         ),
     )
     assert state_margin(faster, grown, *no_views)[0] >= -1e-6
-    assert (
-        state_margin(
-            faster,
-            dataclasses.replace(grown, observed_lo=fly.observed_lo, observed_hi=fly.observed_hi),
-            *no_views,
-        )[0]
-        < -0.01
-    )
+    assert state_margin(faster, fly, *no_views)[0] < -0.01
     # a start the old way (a cube, the take-off premise) counts its whole box
     assert rest.with_start(p.x0).observed_lo is None
-    assert rest.with_options(start_region_radius=0.5).observed_lo is None
-    with pytest.raises(ConfigError, match="manoeuvre_box: x0"):
-        rest.manoeuvre_box(np.zeros(2))
+    assert rest.with_start(p.x0).observed_path is None
+    assert rest.with_options(start_region_radius=0.5).observed_path is None
+    with pytest.raises(ConfigError, match="manoeuvre_path: x0"):
+        rest.manoeuvre_path(np.zeros(2))
     with pytest.raises(ConfigError, match="observed_lo"):
         dataclasses.replace(rest, observed_hi=None)
+    with pytest.raises(ConfigError, match="observed_path: expected"):
+        dataclasses.replace(rest, observed_path=np.zeros((0, 3)))
+    with pytest.raises(ConfigError, match="observed_path: every point"):
+        dataclasses.replace(rest, observed_path=np.full((2, 3), np.nan))
+
+
+def test_the_observed_region_and_the_body_count_as_a_union_not_their_bounding_box(
+    corner_problem,
+):
+    """A replan at rest whose observed region stops inside the body (unobserved space beside it):
+    the body where it is counts as observed, but not the slab the body pokes into along the
+    region's whole face (session 26: that slab counted when the two were one bounding box)."""
+    import numpy as np
+
+    from secure3d.planning.certificate import state_margin
+
+    p = corner_problem
+    r = p.model.body_radius
+    pos = np.asarray(p.model.position(p.x0), dtype=float)
+    # the region's -x face 0.1 m inside the body; 1 m wide in y
+    region = (pos + [-r + 0.1, -1.0, -r - 0.01], pos + [1.0, 1.0, r + 0.01])
+    rest = p.with_start(p.x0, region=region)
+    no_views = (np.zeros((0, 3, 3)), np.zeros((0, 3)))
+    assert state_margin(p.x0, rest, *no_views)[0] >= -1e-6  # the body where it is
+    aside = p.x0.copy()
+    aside[1] += 0.6  # the same x, 0.6 m along the face: the body 0.1 m into unobserved space
+    margin = state_margin(aside, rest, *no_views)[0]
+    assert margin == pytest.approx(-0.1, abs=1e-6)
+    inside = aside.copy()
+    inside[0] += 0.1  # moved clear of the face: inside the region
+    assert state_margin(inside, rest, *no_views)[0] >= -1e-6
+    m = rest.start_margins(np.array([pos, pos + [0.0, 0.6, 0.0], pos + [0.05, 0.0, 0.0]]), r)
+    np.testing.assert_allclose(m, [0.0, -0.1, -0.05], atol=1e-9)
+
+
+def test_polyline_distance_is_the_distance_to_the_nearest_segment():
+    import numpy as np
+
+    from secure3d.errors import GeometryError
+    from secure3d.geometry.polytope import polyline_distance
+
+    path = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0]])
+    pts = np.array([[0.5, 0.3, 0], [2, 0.5, 0], [-1, 0, 0], [1, 2, 2], [0.5, 0, 0]])
+    np.testing.assert_allclose(
+        polyline_distance(pts, path), [0.3, 1.0, 1.0, np.sqrt(5.0), 0.0], atol=1e-12
+    )
+    np.testing.assert_allclose(polyline_distance(pts, path[:1]), np.linalg.norm(pts, axis=1))
+    rng = np.random.default_rng(3)
+    walk = np.cumsum(rng.normal(size=(40, 3)), axis=0)
+    walk[5] = walk[4]  # a repeated vertex (zero-length segment)
+    q = rng.normal(size=(300, 3)) * 4
+    t = np.linspace(0, 1, 2001)[:, None, None]
+    dense = (walk[:-1][None] + t * np.diff(walk, axis=0)[None]).reshape(-1, 3)
+    brute = np.linalg.norm(q[:, None] - dense[None], axis=2).min(axis=1)
+    got = polyline_distance(q, walk)
+    assert np.all(got <= brute + 1e-12) and np.all(brute - got < 5e-3)
+    with pytest.raises(GeometryError, match="polyline_distance: path"):
+        polyline_distance(q, np.zeros((0, 3)))
