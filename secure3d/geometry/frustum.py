@@ -60,6 +60,14 @@ class PinholeFrustum:
         Principal point as a fraction of the image width / height (``cx / width``, ``cy /
         height``), in [0, 1]; 0.5 (default) is a centred principal point. Off-centre values make
         the side planes asymmetric.
+    side_margin, side_offset, side_shrink : float
+        The *observed* field of view's side faces (default 0, 0, 0: the image's border). The side
+        plane of an image edge at tangent t (``x = t z``) becomes ``x = (t - side_shrink) z +
+        side_offset`` (a narrower angle, moved out by ``side_offset`` at depth 0), and a point must
+        lie ``side_margin`` (m, 3D) inside it: see
+        :func:`secure3d.mapping.observability.observed_sides`.
+    near : float
+        Depth (m) of a near face ``z >= near``; 0 (default): none.
     """
 
     hfov: float
@@ -68,6 +76,10 @@ class PinholeFrustum:
     far_kind: Literal["depth", "range"] = "depth"
     principal_x: float = 0.5
     principal_y: float = 0.5
+    side_margin: float = 0.0
+    side_offset: float = 0.0
+    side_shrink: float = 0.0
+    near: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("hfov", "vfov"):
@@ -88,6 +100,18 @@ class PinholeFrustum:
             if not 0.0 <= v <= 1.0:
                 raise ConfigError(f"PinholeFrustum.{name}: must be in [0, 1], got {v!r}")
             object.__setattr__(self, name, v)
+        for name in ("side_margin", "side_offset", "side_shrink", "near"):
+            v = _finite(getattr(self, name), name)
+            if not v >= 0.0:
+                raise ConfigError(f"PinholeFrustum.{name}: must be >= 0, got {v!r}")
+            object.__setattr__(self, name, v)
+        x_lo, x_hi, y_lo, y_hi = self.image_extents
+        if min(x_hi - x_lo, y_hi - y_lo) <= 2 * self.side_shrink:
+            raise ConfigError(
+                f"PinholeFrustum.side_shrink: {self.side_shrink!r} closes the field of view"
+            )
+        if self.near >= self.far_plane_depth:
+            raise ConfigError(f"PinholeFrustum.near: {self.near!r} is beyond the far face")
 
     @classmethod
     def from_intrinsics(
@@ -170,25 +194,33 @@ class PinholeFrustum:
 
     def optical_halfspaces(self) -> tuple[np.ndarray, np.ndarray]:
         """Faces in the optical frame: ``(N (n, 3), d (n,))`` with unit outward rows, inside iff
-        ``N p <= d``. Order: right, left, bottom, top (side planes, ``d = 0``), then the far faces
-        (:meth:`far_facets`: one for ``"depth"``, a cap of facets for ``"range"``)."""
+        ``N p <= d``. Order: right, left, bottom, top (side planes: through the optical centre
+        unless the sides are those of an observed field of view, see ``side_margin``), the near
+        face if ``near > 0``, then the far faces (:meth:`far_facets`: one for ``"depth"``, a cap
+        of facets for ``"range"``)."""
         x_lo, x_hi, y_lo, y_hi = self.image_extents
+        s = self.side_shrink
         N = np.array(
             [
-                [1.0, 0.0, -x_hi],
-                [-1.0, 0.0, x_lo],
-                [0.0, 1.0, -y_hi],
-                [0.0, -1.0, y_lo],
+                [1.0, 0.0, -(x_hi - s)],
+                [-1.0, 0.0, x_lo + s],
+                [0.0, 1.0, -(y_hi - s)],
+                [0.0, -1.0, y_lo + s],
             ]
         )
-        N /= np.linalg.norm(N, axis=1, keepdims=True)
+        norm = np.linalg.norm(N, axis=1)
+        N /= norm[:, None]
+        d = self.side_offset / norm - self.side_margin
+        if self.near > 0.0:
+            N, d = np.vstack([N, [[0.0, 0.0, -1.0]]]), np.append(d, -self.near)
         far_N, far_d = self.far_facets()
-        return np.vstack([N, far_N]), np.concatenate([np.zeros(4), far_d])
+        return np.vstack([N, far_N]), np.concatenate([d, far_d])
 
     @property
     def n_faces(self) -> int:
-        """Number of half-spaces of the field of view (4 sides plus the far faces)."""
-        return 4 + len(self.far_facets()[1])
+        """Number of half-spaces of the field of view (4 sides, the near face if any, plus the far
+        faces)."""
+        return 4 + (self.near > 0.0) + len(self.far_facets()[1])
 
 
 #: Largest angular size of one far facet of a range-limited frustum (rad).

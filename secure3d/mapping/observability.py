@@ -56,9 +56,11 @@ def observed_range(
     discretize: bool = False,
     dropout: float = 0.0,
     miss_probability: float = DROPOUT_MISS_PROBABILITY,
+    edge_allowance: bool = False,
 ) -> float:
     """The far limit (m, in the camera's ``far_kind``) out to which a frame surely hits every
-    obstacle of size ``min_obstacle_size`` inside its field of view.
+    obstacle of size ``min_obstacle_size`` inside its field of view (with ``edge_allowance``: every
+    such obstacle touching a point inside it, its ball straddling the sensor's limit or not).
 
     Parameters
     ----------
@@ -82,16 +84,19 @@ def observed_range(
     Returns
     -------
     float
-        ``min(max_range, z_res - w / 2, z_vox)`` (> 0): z_res from the pixel pitch (and dropout,
+        ``min(max_range, z_res - w / 2, z_vox)`` (> 0; with ``edge_allowance`` the sensor's
+        limits count w / 2 short, w for ``"range"``): z_res from the pixel pitch (and dropout,
         :func:`_pixel_pitch_depth`), z_vox from the discretisation (:func:`_discretised_far`).
 
     Notes
     -----
     *Far face.* The planner and the certificate see a point (of a manoeuvre's body ball) inside the
     field of view; an obstacle touching it contains a ball of diameter w through that point, whose
-    centre may lie w / 2 deeper. The far limit is therefore ``z_res - w / 2``. (The side faces have
-    no such allowance: an obstacle ball straddling the image border is guaranteed only once it is
-    inside the image; see docs/guarantees.md.)
+    centre may lie w / 2 deeper. The far limit is therefore ``z_res - w / 2``. The pixel ray
+    through that ball's centre plane reaches it at most w / 2 deeper than q (w further for a
+    Euclidean range), so with ``edge_allowance`` a sensor limit counts ``max_range - w / 2``
+    (``- w`` for ``"range"``); without it a ball straddling the limit is covered once it is
+    within range. The side faces' allowance is :func:`observed_sides`.
 
     *Range.* A Euclidean limit bounds z-depth too (``z <= range``), so ``min(max_range, z_res)`` as a
     range is sound; the field of view is inner-approximated from it as before.
@@ -110,12 +115,62 @@ def observed_range(
     if discretize and far_kind == "range":
         far = _discretised_far(far, res, max_range, resolution)
     z_obs = z_res - 0.5 * w
+    if edge_allowance:
+        far -= w if far_kind == "range" else 0.5 * w
+    if far <= 0.0:
+        raise ConfigError(
+            f"observed_range: max_range {max_range!r} m leaves no surely observed depth for"
+            f" min_obstacle_size {min_obstacle_size!r} m"
+        )
     if z_obs <= 0.0:
         raise ConfigError(
             f"observed_range: min_obstacle_size {min_obstacle_size!r} is too small for this camera"
             f" (fx {fx:g}, fy {fy:g} px): no depth is surely observed"
         )
     return min(far, z_obs)
+
+
+def observed_sides(
+    fx: float,
+    fy: float,
+    min_obstacle_size: float = DEFAULT_MIN_OBSTACLE_SIZE,
+    *,
+    dropout: float = 0.0,
+    miss_probability: float = DROPOUT_MISS_PROBABILITY,
+) -> tuple[float, float, float, float]:
+    """The observed field of view's side and near faces, ``(margin, offset, shrink, near)`` as
+    :class:`~secure3d.geometry.frustum.PinholeFrustum` takes them (``side_margin``,
+    ``side_offset``, ``side_shrink``, ``near``): the side faces' counterpart of the far face's
+    ``- w / 2`` in :func:`observed_range`.
+
+    An obstacle touching a point q counted as seen contains a ball of diameter w through q; its
+    centre c lies within w / 2 of q. Some pixel ray meets that ball if, in the depth plane of c,
+    a pixel centre lies within w / 2 of c. The pixel centres there form a lattice of pitch
+    ``(p_x, p_y) = (z / fx, z / fy)`` inset half a pitch from the image's edges, so a c inside the
+    image's rectangle grown by g on every side (corners included) has one within
+    ``sqrt((g + p_x / 2)^2 + (g + p_y / 2)^2)``, which is at most w / 2 for
+
+        g(z) = (sqrt(2 w^2 - (p_x - p_y)^2) - p_x - p_y) / 4,
+
+    concave in z, from ``w / (2 sqrt 2)`` at z = 0 to 0 at the pixel-pitch depth z_res (where the
+    far face already stops c). Its chord ``offset - shrink z``, with ``offset = w / (2 sqrt 2)``
+    and ``shrink = offset / z_res``, lies below it, so c is hit wherever it lies inside the
+    planes ``x = (t - shrink) z + offset`` of the image's edges (tangents t); q must then lie
+    ``margin = w / 2`` inside them (3D distance), and ``near = w / 2`` deep so that c lies in
+    front of the camera.
+
+    With dropout (``m x m`` rays on the ball, :func:`_pixel_pitch_depth`) the square of side
+    ``w / sqrt 2`` round c must lie inside the image: ``margin = w / 2 + w / (2 sqrt 2)`` inside
+    the image's own planes (``offset = shrink = 0``).
+    """
+    fx = _number(fx, "fx")
+    fy = _number(fy, "fy")
+    w = _number(min_obstacle_size, "min_obstacle_size")
+    half = 0.5 * w
+    if rays_needed(dropout, miss_probability) > 1:
+        return half * (1.0 + 1.0 / math.sqrt(2.0)), 0.0, 0.0, half
+    offset = half / math.sqrt(2.0)
+    return half, offset, offset / _pixel_pitch_depth(fx, fy, w, 1), half
 
 
 def _pixel_pitch_depth(fx: float, fy: float, w: float, n: int) -> float:

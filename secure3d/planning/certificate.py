@@ -106,14 +106,17 @@ def _clear_views(
 
     A camera's margin is computed in its own frame (x right, y down, z forward) from the FOV angles
     and the sensor range, independently of the NLP's half-space code: the smallest of the distances
-    inside the horizontal and vertical sides and the far limit, minus the radius. Positive: the
-    whole ball is inside the field of view."""
+    inside the horizontal and vertical sides (an observed field of view's: ``side_margin``,
+    ``side_offset``, ``side_shrink``), the near face if any and the far limit, minus the radius.
+    Positive: the whole ball is inside the (observed) field of view."""
     from secure3d.planning._certificate_kernel import best_clear_views
 
     if index is None:
         index = BoxIndex.of(lo, hi)
 
-    ah, av = 0.5 * frustum.hfov, 0.5 * frustum.vfov
+    if frustum.principal_x != 0.5 or frustum.principal_y != 0.5:
+        raise PlanningError("certify: the views' margins need a centred principal point")
+    sides = np.array([frustum.side_margin, frustum.side_offset, frustum.side_shrink, frustum.near])
     points = np.ascontiguousarray(points, dtype=float)
     n = len(points)
     found, view = np.zeros(n, dtype=bool), np.full(n, -1, dtype=np.int64)
@@ -123,10 +126,9 @@ def _clear_views(
         np.ascontiguousarray(owner, dtype=np.int64),
         np.ascontiguousarray(R, dtype=float),
         np.ascontiguousarray(o, dtype=float),
-        np.sin(ah),
-        np.cos(ah),
-        np.sin(av),
-        np.cos(av),
+        np.tan(0.5 * frustum.hfov),
+        np.tan(0.5 * frustum.vfov),
+        sides,
         float(frustum.far),
         frustum.far_kind == "range",
         float(radius),

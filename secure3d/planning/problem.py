@@ -459,19 +459,29 @@ def start_region(
     return lo, hi
 
 
-def observed_frustum(scenario: Scenario, min_obstacle_size: object | None = None) -> PinholeFrustum:
+def observed_frustum(
+    scenario: Scenario,
+    min_obstacle_size: object | None = None,
+    edge_allowance: bool | None = None,
+) -> PinholeFrustum:
     """The camera's field of view cut at the *observed range*: the far limit out to which every
     frame surely hits obstacles of ``min_obstacle_size`` (default: the scenario's planner setting),
     from the camera's intrinsics, the map resolution, ``discretize`` and dropout
-    (:func:`secure3d.mapping.observability.observed_range`). The NLP's visibility constraints and
-    the certificate's views both read it from the problem."""
+    (:func:`secure3d.mapping.observability.observed_range`). With ``edge_allowance`` (default:
+    the scenario's ``planner.edge_allowance``) the sensor's limit counts w / 2 short, its side
+    faces move inwards and it gains a near face
+    (:func:`~secure3d.mapping.observability.observed_sides`): then an obstacle touching any point
+    counted as seen is surely hit, its ball straddling the view's edge or not. The NLP's visibility
+    constraints, the certificate's views and the tracking guard all read it from the problem."""
     from secure3d.geometry.frustum import PinholeFrustum
-    from secure3d.mapping.observability import observed_range
+    from secure3d.mapping.observability import observed_range, observed_sides
 
     cam = scenario.camera
     w = scenario.planner.min_obstacle_size if min_obstacle_size is None else min_obstacle_size
     if not is_real(w) or not (math.isfinite(w) and w > 0):
         raise ConfigError(f"planner option min_obstacle_size: must be a number > 0, got {w!r}")
+    if edge_allowance is None:
+        edge_allowance = scenario.planner.edge_allowance
     far = observed_range(
         cam.fx,
         cam.fy,
@@ -481,8 +491,22 @@ def observed_frustum(scenario: Scenario, min_obstacle_size: object | None = None
         min_obstacle_size=float(w),
         discretize=cam.discretize,
         dropout=cam.dropout,
+        edge_allowance=bool(edge_allowance),
     )
-    return PinholeFrustum(hfov=cam.hfov, vfov=cam.vfov, far=far, far_kind=cam.far_kind)
+    sides = (0.0, 0.0, 0.0, 0.0)
+    if edge_allowance:
+        sides = observed_sides(cam.fx, cam.fy, float(w), dropout=cam.dropout)
+    margin, offset, shrink, near = sides
+    return PinholeFrustum(
+        hfov=cam.hfov,
+        vfov=cam.vfov,
+        far=far,
+        far_kind=cam.far_kind,
+        side_margin=margin,
+        side_offset=offset,
+        side_shrink=shrink,
+        near=near,
+    )
 
 
 def rest_footprint(scenario: Scenario, **options: object) -> float:

@@ -204,8 +204,13 @@ class PlannerSpec:
         certificate count only that far as seen. Smaller values shorten the observed range (and slow
         the secure robot) in proportion. Default 0.15 m: with the shipped 160 x 120, 90 deg camera
         (fx = 80 px) every frame hits such obstacles out to 8.4 m, beyond the shipped 5-8 m ranges,
-        so those scenarios plan as before (0.1 m cuts their view to 5.6 m: blind corner T 4.17 ->
-        4.12 s, forest 4.565 -> 4.573 s).
+        so there the sensor's limit (less w / 2) decides (0.1 m cuts their view to 5.6 m).
+    edge_allowance : count a point as seen only where an obstacle of ``min_obstacle_size``
+        touching it is surely hit even when its ball straddles the edge of the view: the sensor's
+        limit counts w / 2 short, the side faces move inwards and a near face is added
+        (:func:`secure3d.mapping.observability.observed_sides`). Default off: the guarantee then
+        covers such obstacles once their ball is inside the image and within range
+        (docs/guarantees.md measures the cost; ``beam_3d`` plans no certified route with it).
     extra_starts : further cruise-speed fractions (each in (0, 1]) the cold plan also starts from,
         keeping the fastest plan that passes (:class:`~secure3d.planning.problem.PlannerOptions`).
         Default none: set it only where one start is measured to land in a slow local optimum.
@@ -221,6 +226,7 @@ class PlannerSpec:
     max_iter: int = 500
     min_obstacle_size: float = 0.15
     extra_starts: tuple[float, ...] = ()
+    edge_allowance: bool = False
 
     def __post_init__(self) -> None:
         nodes = _integer(self.nodes, "planner.nodes", 5, 400)
@@ -235,6 +241,10 @@ class PlannerSpec:
             )
         object.__setattr__(self, "extra_starts", starts)
         _positive(self.min_obstacle_size, "planner.min_obstacle_size")
+        if not isinstance(self.edge_allowance, bool):
+            raise ScenarioError(
+                f"planner.edge_allowance: must be true or false (got {_short(self.edge_allowance)})"
+            )
         _choice(self.lookback, ("adaptive", "fixed"), "planner.lookback")
         _integer(self.lookback_steps, "planner.lookback_steps", 1, nodes - 1)
         _choice(self.solver, ("ipopt", "fatrop"), "planner.solver")
@@ -323,6 +333,7 @@ class Scenario:
                 min_obstacle_size=self.planner.min_obstacle_size,
                 discretize=c.discretize,
                 dropout=c.dropout,
+                edge_allowance=self.planner.edge_allowance,
             )
         except ConfigError as exc:
             raise ScenarioError(

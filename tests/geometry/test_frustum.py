@@ -72,6 +72,49 @@ def test_points_classified_like_the_view_angles(rng):
     assert not points_in_frustum(R, o, fr, centre[None], margin=depth_to_side + 0.05)[0]
 
 
+def test_observed_sides_move_the_side_planes_and_add_a_near_face(rng):
+    """An observed field of view holds exactly the points ``side_margin`` inside the planes
+    ``x = (t - side_shrink) z + side_offset`` of the image's edges, beyond the near face and inside
+    the far face; the certificate's own camera margin (from the angles, not the half-spaces) is
+    the same distance."""
+    from secure3d.planning.certificate import _clear_views
+
+    e, off, s, near = 0.12, 0.05, 0.03, 0.3
+    fr = PinholeFrustum(
+        np.radians(90),
+        np.radians(60),
+        6.0,
+        side_margin=e,
+        side_offset=off,
+        side_shrink=s,
+        near=near,
+    )
+    assert fr.n_faces == 6
+    p_opt = points_around_camera(rng, 20_000, fr.far)
+    th, tv = np.tan(fr.hfov / 2) - s, np.tan(fr.vfov / 2) - s
+    h_gap = (th * p_opt[:, 2] + off - np.abs(p_opt[:, 0])) / np.hypot(1, th) - e
+    v_gap = (tv * p_opt[:, 2] + off - np.abs(p_opt[:, 1])) / np.hypot(1, tv) - e
+    gaps = np.stack([h_gap, v_gap, p_opt[:, 2] - near, fr.far - p_opt[:, 2]], axis=1)
+    inside = gaps.min(axis=1) >= 0
+    assert 500 < inside.sum() < 19_000
+    R, o = random_pose(rng)
+    p_world = o + p_opt @ R.T
+    np.testing.assert_array_equal(points_in_frustum(R, o, fr, p_world), inside)
+    # the certificate's view margin: the smallest gap minus the radius
+    pts = p_world[inside][:200]
+    args = (np.full(len(pts), 1), R[None], o[None])
+    no_boxes = (np.zeros((0, 3)), np.zeros((0, 3)))
+    _, _, raw, _ = _clear_views(pts, *args, fr, 0.05, *no_boxes, 1e-6)
+    np.testing.assert_allclose(raw, gaps[inside][:200].min(axis=1) - 0.05, atol=1e-9)
+    for field, bad in (("side_margin", -0.01), ("side_offset", float("nan")), ("near", -1.0)):
+        with pytest.raises(ConfigError, match=field):
+            PinholeFrustum(hfov=1.0, vfov=1.0, far=5.0, **{field: bad})
+    with pytest.raises(ConfigError, match="side_shrink: 2.0 closes the field of view"):
+        PinholeFrustum(hfov=1.0, vfov=1.0, far=5.0, side_shrink=2.0)
+    with pytest.raises(ConfigError, match="near: 6.0 is beyond the far face"):
+        PinholeFrustum(hfov=1.0, vfov=1.0, far=5.0, near=6.0)
+
+
 def test_asymmetric_intrinsics_match_pixel_projection(rng):
     fx, fy, W, H, cx, cy = 200.0, 180.0, 320, 240, 100.0, 150.0
     fr = PinholeFrustum.from_intrinsics(fx, fy, W, H, far=5.0, cx=cx, cy=cy)

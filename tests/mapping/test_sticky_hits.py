@@ -11,7 +11,7 @@ import trimesh
 from secure3d.errors import ConfigError
 from secure3d.mapping import OccupancyMap, Trust
 from secure3d.mapping.keys import coords_to_codes
-from secure3d.mapping.observability import observed_range, rays_needed
+from secure3d.mapping.observability import observed_range, observed_sides, rays_needed
 from secure3d.simulation.camera import DepthCamera
 from secure3d.world.spec import CameraSpec
 
@@ -135,6 +135,83 @@ def test_every_frame_hits_an_obstacle_of_min_size_within_the_observed_range(size
     assert misses[2.0] > 0, misses
 
 
+def _border_ball_centre(rng, spec, frustum, size, z, corner):
+    """A point q on the boundary of ``frustum``'s side faces at depth z (on two faces at a corner),
+    and the centre of a ball of diameter ``size`` through q pushed out of the image as far as it
+    goes (along the image planes' outward normals): the worst placement the faces allow."""
+    tans = (spec.width / (2 * spec.fx), spec.height / (2 * spec.fy))
+    s, off, e = frustum.side_shrink, frustum.side_offset, frustum.side_margin
+    q, out = np.zeros(3), np.zeros(3)
+    q[2] = z
+    axes = (0, 1) if corner else (int(rng.integers(2)),)
+    for axis in (0, 1):
+        t = tans[axis] - s
+        edge = (t * z + off) - e * np.hypot(1.0, t)  # |x| on the face at depth z
+        sign = rng.choice([-1.0, 1.0])
+        if axis in axes:
+            q[axis] = sign * edge
+            n = np.zeros(3)
+            n[axis], n[2] = sign, -tans[axis]  # the image plane's outward normal
+            out += n / np.linalg.norm(n)
+        else:
+            q[axis] = rng.uniform(-1, 1) * edge
+    return q + 0.5 * size * out / np.linalg.norm(out)
+
+
+@pytest.mark.parametrize("size", [0.04, 0.15])
+def test_a_ball_touching_the_observed_field_of_view_at_its_side_is_hit(size):
+    """The side faces of the observed field of view (observed_sides): a ball of diameter w through
+    any point of them, pushed out of the image as far as it goes, is hit by the frame, along every
+    border and at the corners, from the near face out to the observed range. On the image's own
+    border (no allowance) some such balls are missed."""
+    from secure3d.geometry.frustum import PinholeFrustum
+
+    spec = CameraSpec(width=64, height=48, hfov_deg=90, max_range=8.0)
+    z_obs = observed_range(spec.fx, spec.fy, 8.0, "depth", 0.1, min_obstacle_size=size)
+    margin, offset, shrink, near = observed_sides(spec.fx, spec.fy, size)
+    assert margin == pytest.approx(size / 2) and near == pytest.approx(size / 2)
+    observed = PinholeFrustum(
+        spec.hfov,
+        spec.vfov,
+        z_obs,
+        side_margin=margin,
+        side_offset=offset,
+        side_shrink=shrink,
+        near=near,
+    )
+    border = PinholeFrustum(spec.hfov, spec.vfov, z_obs)
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=size / 2)
+    rng = np.random.default_rng(1)
+    misses = {}
+    for name, frustum in (("observed", observed), ("border", border)):
+        missed = 0
+        for k in range(80):
+            lowest = max(near, 0.6 * size) if name == "observed" else 0.6 * size
+            z = rng.uniform(lowest, z_obs) if k % 3 else z_obs
+            c = _border_ball_centre(rng, spec, frustum, size, z, corner=k % 4 == 0)
+            placed = ball.copy()
+            placed.apply_translation((c[2], -c[0], -c[1]))  # optical (x, y, z) -> world
+            cam = DepthCamera(spec, [("ball", placed)])
+            missed += "ball" not in cam.render(LOOK_X, np.zeros(3)).hit_names()
+        misses[name] = missed
+    assert misses["observed"] == 0, misses
+    assert misses["border"] > 0, misses
+
+
+def test_the_observed_sides_follow_the_size_the_pixels_and_dropout():
+    margin, offset, shrink, near = observed_sides(80, 80, 0.1)
+    z_res = 0.1 * 80 / math.sqrt(2)
+    assert (margin, near) == (pytest.approx(0.05), pytest.approx(0.05))
+    assert offset == pytest.approx(0.05 / math.sqrt(2))
+    assert shrink == pytest.approx(offset / z_res)
+    # with dropout: the square of m x m rays round the centre inside the image's own planes
+    assert observed_sides(80, 80, 0.1, dropout=0.05) == pytest.approx(
+        (0.05 * (1 + 1 / math.sqrt(2)), 0.0, 0.0, 0.05)
+    )
+    with pytest.raises(ConfigError, match="min_obstacle_size"):
+        observed_sides(80, 80, -1.0)
+
+
 def test_discretized_frames_mark_the_same_hit_voxels_as_every_pixel():
     """OctoMap's discretize casts one ray per end voxel but marks every end voxel occupied, so a
     thin obstacle the full pixel grid hits is never skipped."""
@@ -155,6 +232,16 @@ def test_the_observed_range_follows_resolution_dropout_and_range_limits():
         3.0 - 0.05 * math.sqrt(3)
     )
     assert observed_range(80, 80, 3.0, "range", 0.1, discretize=False) == 3.0
+    # with the edge allowance a sensor limit counts w / 2 short (a ray reaches the ball through a
+    # seen point at most w / 2 deeper), w short for a Euclidean range
+    edge = {"edge_allowance": True}
+    assert observed_range(80, 80, 3.0, "depth", 0.1, **edge) == pytest.approx(3.0 - 0.075)
+    assert observed_range(80, 80, 3.0, "range", 0.1, discretize=True, **edge) == pytest.approx(
+        3.0 - 0.05 * math.sqrt(3) - 0.15
+    )
+    assert observed_range(80, 80, 20.0, "depth", 0.1, min_obstacle_size=0.1, **edge) == base
+    with pytest.raises(ConfigError, match="max_range 0.1 m leaves no surely observed depth"):
+        observed_range(80, 80, 0.1, "range", 0.1, **edge)
     # dropout: enough rays that losing all of them has probability <= 1e-6 per frame
     assert rays_needed(0.0) == 1 and rays_needed(0.05) == 5 and 0.05**5 <= 1e-6
     assert observed_range(80, 80, 20.0, "depth", 0.1, dropout=0.05) < base / 2

@@ -41,3 +41,34 @@ def test_min_obstacle_size_is_validated_with_the_file_and_field(maps_dir, tmp_pa
         path.write_text(text.replace("min_obstacle_size: 0.04", f"min_obstacle_size: {bad}"))
         with pytest.raises(ScenarioError, match=r"bad\.yaml.*planner\.min_obstacle_size"):
             secure3d.load_scenario(path)
+
+
+def test_edge_allowance_narrows_every_view_and_the_pole_scene_still_arrives(maps_dir, tmp_path):
+    """planner.edge_allowance: true: the problem's frustum gets observed_sides' faces (the NLP,
+    the certificate and the guard all read it), the thin-pole scene still arrives without
+    collision with every plan certified, and a value other than true/false is refused by name."""
+    import dataclasses
+
+    from secure3d.mapping.observability import observed_sides
+    from secure3d.planning.problem import problem_from_scenario
+
+    scenario = secure3d.load_scenario(maps_dir / "thin_pole.yaml")
+    assert problem_from_scenario(scenario).frustum.side_margin == 0.0  # off by default
+    on = dataclasses.replace(
+        scenario, planner=dataclasses.replace(scenario.planner, edge_allowance=True)
+    )
+    f = problem_from_scenario(on).frustum
+    cam = scenario.camera
+    assert (f.side_margin, f.side_offset, f.side_shrink, f.near) == pytest.approx(
+        observed_sides(cam.fx, cam.fy, 0.04)
+    )
+    run = simulate(on, "secure", seed=0)
+    assert not run.collided and run.reached_goal, run.summary()
+    assert all(p.certificate is not None and p.certificate.ok for _, p in run.plans)
+    text = (maps_dir / "thin_pole.yaml").read_text()
+    path = tmp_path / "bad.yaml"
+    path.write_text(
+        text.replace("min_obstacle_size: 0.04", "min_obstacle_size: 0.04, edge_allowance: 1")
+    )
+    with pytest.raises(ScenarioError, match=r"bad\.yaml.*planner\.edge_allowance"):
+        secure3d.load_scenario(path)
