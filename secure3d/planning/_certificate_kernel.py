@@ -138,8 +138,10 @@ def best_clear_views(  # pragma: no cover - compiled
     owner,
     R,
     o,
-    tan_h,
-    tan_v,
+    sin_h,
+    cos_h,
+    sin_v,
+    cos_v,
     sides,
     far,
     far_range,
@@ -160,10 +162,11 @@ def best_clear_views(  # pragma: no cover - compiled
     samples 0 .. owner[i] - 1, writes:
 
     - ``raw[i]``: the best view margin min(horizontal side, vertical side, near, far) - radius.
-      The side planes are those of the image edges at tangents ``tan_h``, ``tan_v`` (half angles)
-      as an observed field of view moves them, ``sides = (margin, offset, shrink, near)``
+      The side planes ``x = t z + offset`` have unit normals (cos, -sin) in (x, z), ``sin_h =
+      sin(atan t)`` and so on for the horizontal and vertical pairs (t: the image edge's tangent
+      less an observed field of view's ``side_shrink``), ``sides = (margin, offset, near)``
       (:class:`~secure3d.geometry.frustum.PinholeFrustum`'s ``side_margin``, ``side_offset``,
-      ``side_shrink``, ``near``; all 0: the image's border, no near face);
+      ``near``; all 0: the image's border, no near face);
     - ``found[i]``, ``best[i]``: the best margin among cameras whose sight cone is clear of the boxes
       (lo, hi) (their spatial index ``tree``: :attr:`BoxIndex.tree`, exact), trying cameras by
       decreasing margin and giving up past the ``top`` best once margins are <= -tol (then no
@@ -184,9 +187,7 @@ def best_clear_views(  # pragma: no cover - compiled
     grow_hi = np.empty(3)
     stack = np.empty(_STACK, dtype=np.int64)
     recent = np.full(_RECENT, -1, dtype=np.int64)
-    margin, offset, shrink, near = sides[0], sides[1], sides[2], sides[3]
-    th, tv = tan_h - shrink, tan_v - shrink
-    inv_h, inv_v = 1.0 / np.sqrt(1.0 + th * th), 1.0 / np.sqrt(1.0 + tv * tv)
+    margin, offset, near = sides[0], sides[1], sides[2]
     work = 0
     for i in range(first, n):
         if work >= max_work:
@@ -203,8 +204,8 @@ def best_clear_views(  # pragma: no cover - compiled
             x = R[j, 0, 0] * dx + R[j, 1, 0] * dy + R[j, 2, 0] * dz
             y = R[j, 0, 1] * dx + R[j, 1, 1] * dy + R[j, 2, 1] * dz
             z = R[j, 0, 2] * dx + R[j, 1, 2] * dy + R[j, 2, 2] * dz
-            side_h = (th * z + offset - abs(x)) * inv_h - margin
-            side_v = (tv * z + offset - abs(y)) * inv_v - margin
+            side_h = z * sin_h - abs(x) * cos_h + offset * cos_h - margin
+            side_v = z * sin_v - abs(y) * cos_v + offset * cos_v - margin
             f = far - (np.sqrt(x * x + y * y + z * z) if far_range else z)
             if near > 0.0:
                 f = min(f, z - near)
