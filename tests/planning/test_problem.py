@@ -127,6 +127,15 @@ def test_the_observed_region_and_the_body_count_as_a_union_not_their_bounding_bo
     assert state_margin(inside, rest, *no_views)[0] >= -1e-6
     m = rest.start_margins(np.array([pos, pos + [0.0, 0.6, 0.0], pos + [0.05, 0.0, 0.0]]), r)
     np.testing.assert_allclose(m, [0.0, -0.1, -0.05], atol=1e-9)
+    # braking diagonally from 2 m/s: the body along the path counts, its bounding box's corner not
+    diagonal = p.x0.copy()
+    diagonal[3:5] = np.sqrt(2.0)
+    fly = p.with_start(diagonal, region=(pos - r, pos + r))
+    path = fly.observed_path
+    assert np.ptp(path[:, 0]) > 0.3 and np.ptp(path[:, 1]) > 0.3
+    on_path, corner = path[len(path) // 2], [path[:, 0].max(), path[:, 1].min(), pos[2]]
+    m = fly.start_margins(np.array([on_path, corner]), r)
+    assert m[0] == pytest.approx(0.0, abs=1e-9) and m[1] < -0.1
 
 
 def test_polyline_distance_is_the_distance_to_the_nearest_segment():
