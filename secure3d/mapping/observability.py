@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 from secure3d.errors import ConfigError
+from secure3d.geometry.frustum import PinholeFrustum
 from secure3d.validation import is_real
 
 #: Default smallest obstacle (m) the guarantee covers (see PlannerSpec.min_obstacle_size for why).
@@ -98,11 +99,8 @@ def observed_range(
     (``- w`` for ``"range"``); without it a ball straddling the limit is covered once it is
     within range. The side faces' allowance is :func:`observed_sides`.
 
-    *Range.* A Euclidean limit bounds z-depth too (``z <= range``), so ``min(max_range, z_res)`` as a
-    range is sound; the field of view is inner-approximated from it as before.
-
-    *Noise.* Depth noise moves a hit along its ray; the guarantee places it within the noise of the
-    surface, not necessarily in the surface's voxel.
+    *Range.* A Euclidean limit bounds z-depth too, so ``min(max_range, z_res)`` as a range is
+    sound. *Noise* moves a hit along its ray, within the noise of the surface.
     """
     fx = _number(fx, "fx")
     fy = _number(fy, "fy")
@@ -219,3 +217,42 @@ def _discretised_far(far: float, res: float, max_range: float, resolution: float
             f" sensor at resolution {resolution!r}: nothing is surely observed"
         )
     return far
+
+
+def observed_frustum(
+    camera: object, resolution: float, min_obstacle_size: float, *, edge_allowance: bool = False
+) -> PinholeFrustum:
+    """The camera's field of view cut at the *observed range* (:func:`observed_range`), from a
+    camera spec (``fx``, ``fy``, ``hfov``, ``vfov``, ``max_range``, ``far_kind``, ``discretize``,
+    ``dropout``: :class:`secure3d.world.spec.CameraSpec`) and the map's voxel edge. With
+    ``edge_allowance`` the sensor's limit counts w / 2 short, the side faces move inwards and a
+    near face is added (:func:`observed_sides`): then an obstacle of ``min_obstacle_size``
+    touching any point counted as seen is surely hit, its ball straddling the view's edge or not.
+    The NLP's visibility rows, the certificate's views and the tracking guard all read it from the
+    planning problem."""
+    c = camera
+    far = observed_range(
+        c.fx,
+        c.fy,
+        c.max_range,
+        c.far_kind,
+        resolution,
+        min_obstacle_size=min_obstacle_size,
+        discretize=c.discretize,
+        dropout=c.dropout,
+        edge_allowance=bool(edge_allowance),
+    )
+    sides = (0.0, 0.0, 0.0, 0.0)
+    if edge_allowance:
+        sides = observed_sides(c.fx, c.fy, min_obstacle_size, dropout=c.dropout)
+    margin, offset, shrink, near = sides
+    return PinholeFrustum(
+        hfov=c.hfov,
+        vfov=c.vfov,
+        far=far,
+        far_kind=c.far_kind,
+        side_margin=margin,
+        side_offset=offset,
+        side_shrink=shrink,
+        near=near,
+    )

@@ -18,6 +18,7 @@ import numpy as np
 from secure3d.errors import ConfigError
 from secure3d.geometry.box_index import BoxIndex
 from secure3d.geometry.polytope import polyline_distance
+from secure3d.mapping.observability import observed_frustum
 from secure3d.validation import is_int_in, is_real
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -459,56 +460,6 @@ def start_region(
     return lo, hi
 
 
-def observed_frustum(
-    scenario: Scenario,
-    min_obstacle_size: object | None = None,
-    edge_allowance: bool | None = None,
-) -> PinholeFrustum:
-    """The camera's field of view cut at the *observed range*: the far limit out to which every
-    frame surely hits obstacles of ``min_obstacle_size`` (default: the scenario's planner setting),
-    from the camera's intrinsics, the map resolution, ``discretize`` and dropout
-    (:func:`secure3d.mapping.observability.observed_range`). With ``edge_allowance`` (default:
-    the scenario's ``planner.edge_allowance``) the sensor's limit counts w / 2 short, its side
-    faces move inwards and it gains a near face
-    (:func:`~secure3d.mapping.observability.observed_sides`): then an obstacle touching any point
-    counted as seen is surely hit, its ball straddling the view's edge or not. The NLP's visibility
-    constraints, the certificate's views and the tracking guard all read it from the problem."""
-    from secure3d.geometry.frustum import PinholeFrustum
-    from secure3d.mapping.observability import observed_range, observed_sides
-
-    cam = scenario.camera
-    w = scenario.planner.min_obstacle_size if min_obstacle_size is None else min_obstacle_size
-    if not is_real(w) or not (math.isfinite(w) and w > 0):
-        raise ConfigError(f"planner option min_obstacle_size: must be a number > 0, got {w!r}")
-    if edge_allowance is None:
-        edge_allowance = scenario.planner.edge_allowance
-    far = observed_range(
-        cam.fx,
-        cam.fy,
-        cam.max_range,
-        cam.far_kind,
-        scenario.server_map.resolution,
-        min_obstacle_size=float(w),
-        discretize=cam.discretize,
-        dropout=cam.dropout,
-        edge_allowance=bool(edge_allowance),
-    )
-    sides = (0.0, 0.0, 0.0, 0.0)
-    if edge_allowance:
-        sides = observed_sides(cam.fx, cam.fy, float(w), dropout=cam.dropout)
-    margin, offset, shrink, near = sides
-    return PinholeFrustum(
-        hfov=cam.hfov,
-        vfov=cam.vfov,
-        far=far,
-        far_kind=cam.far_kind,
-        side_margin=margin,
-        side_offset=offset,
-        side_shrink=shrink,
-        near=near,
-    )
-
-
 def rest_footprint(scenario: Scenario, **options: object) -> float:
     """Half-width (m) of the narrowest corridor the secure planner can use: the largest semi-axis
     of the reactive set at rest at the start (plus how far its centre sits off the body, in the
@@ -584,7 +535,9 @@ def problem_from_scenario(
 
     model = model_from_spec(scenario.vehicle, scenario.camera)
     family = family_for(model, controller=controller_name, kind=kind)
-    frustum = observed_frustum(scenario, min_size)
+    _check_positive("min_obstacle_size", min_size)
+    res, edge = scenario.server_map.resolution, scenario.planner.edge_allowance
+    frustum = observed_frustum(scenario.camera, res, float(min_size), edge_allowance=edge)
     if x0 is None:
         s = scenario.start
         x0 = model.initial_state(np.array(s.position), np.array(s.velocity), s.yaw)
