@@ -216,6 +216,20 @@ class PinholeFrustum:
         far_N, far_d = self.far_facets()
         return np.vstack([N, far_N]), np.concatenate([d, far_d])
 
+    def side_plane_angles(self) -> tuple[float, float, float, float]:
+        """``(sin_h, cos_h, sin_v, cos_v)``: the side planes' unit normals in the optical frame are
+        ``(+-cos, 0, -sin)`` (horizontal pair) and ``(0, +-cos, -sin)`` (vertical pair), for a
+        centred principal point; the image's half angles, less ``side_shrink`` in tangent. (The
+        certificate's camera margin reads these, independently of :meth:`optical_halfspaces`.)"""
+        out: list[float] = []
+        for half in (0.5 * self.hfov, 0.5 * self.vfov):
+            if self.side_shrink == 0.0:  # the image's own angles, as the certificate always had
+                out += [float(np.sin(half)), float(np.cos(half))]
+            else:
+                t = float(np.tan(half)) - self.side_shrink
+                out += [t / float(np.hypot(1.0, t)), 1.0 / float(np.hypot(1.0, t))]
+        return out[0], out[1], out[2], out[3]
+
     @property
     def n_faces(self) -> int:
         """Number of half-spaces of the field of view (4 sides, the near face if any, plus the far

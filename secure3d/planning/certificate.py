@@ -117,13 +117,6 @@ def _clear_views(
     if frustum.principal_x != 0.5 or frustum.principal_y != 0.5:
         raise PlanningError("certify: the views' margins need a centred principal point")
     sides = np.array([frustum.side_margin, frustum.side_offset, frustum.near])
-    planes = []  # (sin, cos) of the horizontal and vertical side planes' angles
-    for half in (0.5 * frustum.hfov, 0.5 * frustum.vfov):
-        if frustum.side_shrink == 0.0:
-            planes += [np.sin(half), np.cos(half)]
-        else:
-            t = np.tan(half) - frustum.side_shrink
-            planes += [t / np.hypot(1.0, t), 1.0 / np.hypot(1.0, t)]
     points = np.ascontiguousarray(points, dtype=float)
     n = len(points)
     found, view = np.zeros(n, dtype=bool), np.full(n, -1, dtype=np.int64)
@@ -133,7 +126,7 @@ def _clear_views(
         np.ascontiguousarray(owner, dtype=np.int64),
         np.ascontiguousarray(R, dtype=float),
         np.ascontiguousarray(o, dtype=float),
-        *planes,
+        *frustum.side_plane_angles(),
         sides,
         float(frustum.far),
         frustum.far_kind == "range",

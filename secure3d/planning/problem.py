@@ -379,9 +379,9 @@ class PlanningProblem:
             )
         p = np.asarray(self.model.position(x0), dtype=float).reshape(1, 3)
         if self.controller is not None:
-            out = self.controller.rollout_batch(x0[None], dt=0.01)
-            traj = np.asarray(out[1] if isinstance(out, tuple) else out, dtype=float)[0]
-            p = np.asarray(self.model.position(traj), dtype=float).reshape(-1, 3)
+            _, traj = self.controller.rollout_batch(x0[None], dt=0.01)
+            p = np.asarray(self.model.position(np.asarray(traj, dtype=float)[0]), dtype=float)
+            p = p.reshape(-1, 3)
         moved = np.ones(len(p), bool)
         moved[1:] = np.abs(np.diff(p, axis=0)).max(axis=1) > 1e-12
         return p[moved]

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from secure3d.geometry.polytope import polyline_distance
 from secure3d.world.families import Family
 from secure3d.world.spec import Attack, Region, Scenario
 
@@ -43,12 +44,6 @@ class _Prepared:
     goal: np.ndarray
 
 
-def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    ab = b - a
-    t = np.clip((p - a) @ ab / max(float(ab @ ab), 1e-12), 0.0, 1.0)
-    return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
-
-
 def prepare(base: Scenario) -> _Prepared:
     """Read the base's server map once (the expensive part) and keep what variants draw from."""
     from secure3d.world.attacks import belief_map
@@ -56,7 +51,7 @@ def prepare(base: Scenario) -> _Prepared:
     occ = belief_map(base).claimed_voxels(True)
     start, goal = np.asarray(base.start.position), np.asarray(base.goal.position)
     if len(occ):
-        d = _segment_distance(occ, start, goal)
+        d = polyline_distance(occ, np.array([start, goal]))
         near = occ[d <= NEAR_ROUTE] if np.any(d <= NEAR_ROUTE) else occ
     else:
         near = occ

@@ -224,3 +224,14 @@ def test_casadi_twins_match_numpy(rng):
         np.testing.assert_allclose(
             float(m_s), ellipsoid_in_frustum_margin(cv, Mv, Rv, ov, fr), atol=1e-9
         )
+
+
+def test_side_plane_angles_are_the_unit_normals_of_the_side_halfspaces():
+    """The certificate's (sin, cos) of the side planes agree with optical_halfspaces' normals, with
+    and without an observed field of view's shrink."""
+    for shrink in (0.0, 0.05):
+        fr = PinholeFrustum(np.radians(90), np.radians(50), 6.0, side_shrink=shrink)
+        sin_h, cos_h, sin_v, cos_v = fr.side_plane_angles()
+        N, _ = fr.optical_halfspaces()
+        np.testing.assert_allclose(N[0], [cos_h, 0.0, -sin_h], atol=1e-12)
+        np.testing.assert_allclose(N[3], [0.0, -cos_v, -sin_v], atol=1e-12)
