@@ -235,7 +235,9 @@ def polyline_distance(points: object, path: object) -> np.ndarray:
     -------
     (n,) float
     """
-    p = np.asarray(points, dtype=float).reshape(-1, 3)
+    p = np.asarray(points, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 3 or not np.all(np.isfinite(p)):
+        raise GeometryError(f"polyline_distance: points must be (n, 3) finite, got {p.shape}")
     q = np.asarray(path, dtype=float)
     if q.ndim != 2 or q.shape[1] != 3 or len(q) == 0 or not np.all(np.isfinite(q)):
         raise GeometryError(f"polyline_distance: path must be (m >= 1, 3) finite, got {q.shape}")

@@ -161,3 +161,7 @@ def test_polyline_distance_is_the_distance_to_the_nearest_segment():
     assert np.all(got <= brute + 1e-12) and np.all(brute - got < 5e-3)
     with pytest.raises(GeometryError, match="polyline_distance: path"):
         polyline_distance(q, np.zeros((0, 3)))
+    with pytest.raises(GeometryError, match=r"polyline_distance: points must be \(n, 3\) finite"):
+        polyline_distance(np.array([[0.0, np.nan, 0.0]]), walk)
+    with pytest.raises(GeometryError, match="polyline_distance: points"):
+        polyline_distance(np.zeros(3), walk)
