@@ -184,8 +184,10 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
         max_range: float | None = None,
         discretize: bool = False,
         clear_range: float | None = None,
+        box: ArrayLike | None = None,
     ) -> InsertStats:
-        """Insert one scan, exactly as OctoMap's ``insertPointCloud``.
+        """Insert one scan, exactly as OctoMap's ``insertPointCloud``; with ``box``, only its
+        updates of voxels that meet the box.
 
         Parameters
         ----------
@@ -202,6 +204,10 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
         clear_range : float or None
             How far beams longer than ``max_range`` clear space (m), at most ``max_range``; None:
             ``max_range`` (OctoMap).
+        box : ((3,), (3,)) float or None
+            Corners (lo, hi) of the region of interest (m), such as the planning domain: voxels
+            outside it are not updated (see :func:`secure3d.mapping.scan.scan_update`). Not
+            OctoMap's BBX mode, which drops every ray whose end lies outside its box.
 
         Returns
         -------
@@ -210,14 +216,15 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
         Raises
         ------
         GeometryError
-            ``points`` is not (n, 3), or ``origin`` is not finite / outside the key range.
+            ``points`` is not (n, 3), ``origin`` is not finite / outside the key range, or ``box``
+            is not two finite corners with lo <= hi.
         ConfigError
             ``max_range`` is negative or NaN.
         """
         mr = self._check_max_range(max_range)
         cr = self._check_max_range(clear_range, "clear_range")
         upd = scan_tiles(
-            points, origin, self._resolution, mr, discretize=bool(discretize), clear_range=cr
+            points, origin, self._resolution, mr, bool(discretize), clear_range=cr, box=box
         )
         p = self._params
         self._sensor.add_logodds_tiles(
@@ -257,6 +264,7 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
         max_range: float | None,
         discretize: bool = False,
         far_kind: str = "range",
+        box: ArrayLike | None = None,
     ) -> InsertStats:
         """Insert a z-depth image from a pinhole camera (see :func:`depth_image_points`).
 
@@ -289,6 +297,8 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
             :meth:`insert_point_cloud`).
         far_kind : ``"range"`` or ``"depth"``
             What ``max_range`` limits (the scenario's ``camera.far_kind``).
+        box : ((3,), (3,)) float or None
+            Update only voxels that meet this box (see :meth:`insert_point_cloud`).
 
         Returns
         -------
@@ -297,10 +307,10 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
         mr = self._check_max_range(max_range)
         points = depth_image_points(depth, intrinsics, cam2world, origin, mr, far_kind)
         if far_kind != "depth" or mr is None:
-            return self.insert_point_cloud(points, origin, mr, discretize=discretize)
+            return self.insert_point_cloud(points, origin, mr, discretize, box=box)
         # a discretised hit moves to its voxel's centre, up to half a diagonal farther
         reach = far_plane_reach(np.shape(depth), intrinsics, mr) + self._resolution
-        return self.insert_point_cloud(points, origin, reach, discretize=discretize, clear_range=mr)
+        return self.insert_point_cloud(points, origin, reach, discretize, mr, box)
 
     # ------------------------------------------------------------------ point queries
 

@@ -32,6 +32,8 @@ from secure3d.mapping.morton import (
     _morton3,
     _spread16,
     codes_to_tiles,
+    coords_to_keys,
+    morton_decode,
     tiles_to_codes,
 )
 from secure3d.mapping.raycast import (
@@ -43,7 +45,7 @@ from secure3d.mapping.raycast import (
     check_points,
 )
 
-__all__ = ["ScanTiles", "ScanUpdate", "scan_tiles", "scan_update"]
+__all__ = ["ScanTiles", "ScanUpdate", "box_keys", "scan_tiles", "scan_update"]
 
 #: Largest key box (voxels) the dense kernel handles: two bitmaps of 2**27 bits = 32 MB of virtual
 #: memory, of which only the touched pages are ever used. Bigger scans use the chunked kernel.
@@ -110,12 +112,22 @@ def _discretize_kernel(points: np.ndarray, resolution: float) -> tuple[np.ndarra
     return centres[:m], nonfinite, outside
 
 
+@numba.njit(cache=True, inline="always")
+def _in_keys(kx: int, ky: int, kz: int, keep: np.ndarray) -> bool:
+    """Whether key (kx, ky, kz) lies in the key box ``keep`` (2, 3): rows lo, hi, inclusive."""
+    return (
+        keep[0, 0] <= kx <= keep[1, 0]
+        and keep[0, 1] <= ky <= keep[1, 1]
+        and keep[0, 2] <= kz <= keep[1, 2]
+    )
+
+
 @numba.njit(cache=True)
 def _dense_occupied(
-    end_keys: np.ndarray, status: np.ndarray, lo: np.ndarray, dims: np.ndarray
+    end_keys: np.ndarray, status: np.ndarray, lo: np.ndarray, dims: np.ndarray, keep: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The hit rays' end voxels of :func:`_dense_trace`: (their linear indices, each once in order
-    of first appearance, the occupied bitmap)."""
+    """The hit rays' end voxels inside the key box ``keep`` (2, 3) of :func:`_dense_trace`: (their
+    linear indices, each once in order of first appearance, the occupied bitmap)."""
     nxy = dims[0] * dims[1]
     total = nxy * dims[2]
     n = end_keys.shape[0]
@@ -124,7 +136,7 @@ def _dense_occupied(
     occ_idx = np.empty(min(total, n), np.int64)
     nocc = 0
     for i in range(n):
-        if status[i] == 0:
+        if status[i] == 0 and _in_keys(end_keys[i, 0], end_keys[i, 1], end_keys[i, 2], keep):
             end_idx = (end_keys[i, 0] - lo[0]) + dims[0] * (end_keys[i, 1] - lo[1])
             end_idx += nxy * (end_keys[i, 2] - lo[2])
             w = end_idx >> 6
@@ -148,9 +160,12 @@ def _dense_free(
     start: int,
     stop: int,
     bits: np.ndarray,
+    keep: np.ndarray,
 ) -> None:
     """The free voxels of rays ``start:stop`` (status 0 or 1) into ``bits``, the dense bitmap of
-    :func:`_dense_trace`. Runs without the GIL, so that parts of a scan trace in threads."""
+    :func:`_dense_trace`, each ray up to where it leaves the key box ``keep`` (2, 3) (inclusive;
+    the origin's voxel lies in it). Runs without the GIL, so that parts of a scan trace in
+    threads."""
     res_factor = 1.0 / resolution
     ox = origin[0]
     oy = origin[1]
@@ -172,6 +187,8 @@ def _dense_free(
         end_idx = (ekx - lo[0]) + nx * (eky - lo[1]) + nxy * (ekz - lo[2])
         if end_idx == origin_idx:
             continue
+        if not _in_keys(ekx, eky, ekz, keep):
+            end_idx = -1  # the ray leaves the box first: never stop at an index alias of its end
         # Every DDA step changes one key by one: a bound on this ray's steps.
         bound = abs(ekx - kox) + abs(eky - koy) + abs(ekz - koz) + 2
         length, sx, sy, sz, tmx, tmy, tmz, tdx, tdy, tdz = _dda_setup(
@@ -181,10 +198,25 @@ def _dense_free(
         sty = sy * nx
         stz = sz * nxy
         idx = origin_idx
+        kx, ky, kz = kox, koy, koz
         bits[idx >> 6] |= one << np.uint64(idx & 63)
         for _ in range(bound):
             axis, tmx, tmy, tmz = _dda_step(tmx, tmy, tmz, tdx, tdy, tdz)
-            idx += stx if axis == 0 else (sty if axis == 1 else stz)
+            if axis == 0:
+                idx += stx
+                kx += sx
+                if kx < keep[0, 0] or kx > keep[1, 0]:
+                    break
+            elif axis == 1:
+                idx += sty
+                ky += sy
+                if ky < keep[0, 1] or ky > keep[1, 1]:
+                    break
+            else:
+                idx += stz
+                kz += sz
+                if kz < keep[0, 2] or kz > keep[1, 2]:
+                    break
             # Accumulated rounding can pass the end voxel without hitting it: stop there.
             if idx == end_idx or min(tmx, min(tmy, tmz)) > length:
                 break
@@ -247,8 +279,11 @@ def _dense_trace(
     lo: np.ndarray,
     dims: np.ndarray,
     parts: int = 1,
+    keep: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """OctoMap's ``computeUpdate`` over all rays into dense bitmaps of the key box.
+    """OctoMap's ``computeUpdate`` over all rays into dense bitmaps of the key box, limited to the
+    voxels of the key box ``keep`` (2, 3) int64 (inclusive, holding the origin's voxel; None: the
+    whole box).
 
     Voxel ``k`` of the box ``lo``/``dims`` has linear index
     ``(kx - lo_x) + dims_x ((ky - lo_y) + dims_y (kz - lo_z))``; a DDA step is one addition to it.
@@ -257,7 +292,9 @@ def _dense_trace(
     >= 1. Returns (linear indices of the occupied voxels, each once in order of
     first appearance, the free bitmap, the occupied bitmap).
     """
-    occ_idx, occ_bits = _dense_occupied(end_keys, status, lo, dims)
+    if keep is None:
+        keep = np.stack([lo, lo + dims - 1])
+    occ_idx, occ_bits = _dense_occupied(end_keys, status, lo, dims, keep)
     n = ends.shape[0]
     parts = max(1, min(int(parts), n))
     free_bits = np.zeros(occ_bits.shape[0], np.uint64)  # calloc: pages zeroed when touched
@@ -268,8 +305,9 @@ def _dense_trace(
         pool = _pool(parts - 1)
         for c in range(1, parts):
             bits = np.zeros(occ_bits.shape[0], np.uint64)
-            others.append((bits, pool.submit(_dense_free, *args, bounds[c], bounds[c + 1], bits)))
-    _dense_free(*args, bounds[0], bounds[1], free_bits)
+            job = pool.submit(_dense_free, *args, bounds[c], bounds[c + 1], bits, keep)
+            others.append((bits, job))
+    _dense_free(*args, bounds[0], bounds[1], free_bits, keep)
     for bits, job in others:
         job.result()
         np.bitwise_or(free_bits, bits, out=free_bits)
@@ -380,12 +418,13 @@ def _scan_dense(
     resolution: float,
     lo: np.ndarray,
     dims: np.ndarray,
+    keep: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(free tiles' block codes, their masks, occupied codes) of a scan whose key box fits dense
-    bitmaps."""
+    bitmaps; only voxels of the key box ``keep`` (see :func:`_dense_trace`)."""
     parts = _trace_parts(len(ends))
     occ, free_bits, occ_bits = _dense_trace(
-        ends, end_keys, status, origin, resolution, lo, dims, parts
+        ends, end_keys, status, origin, resolution, lo, dims, parts, keep
     )
     blocks, masks = _dense_tiles(free_bits, occ_bits, lo, dims)
     return blocks, masks, _idx_to_codes(occ, lo, dims)
@@ -456,6 +495,7 @@ def scan_update(
     max_range: float | None = None,
     discretize: bool = False,
     clear_range: float | None = None,
+    box: ArrayLike | None = None,
 ) -> ScanUpdate:
     """Voxel updates of one scan, exactly as OctoMap's ``insertPointCloud`` computes them.
 
@@ -482,13 +522,47 @@ def scan_update(
         A sensor whose range limit is not a sphere (a z-depth limit) records every hit inside its
         limit with ``max_range`` beyond its farthest hit and clears no-return beams only as far as
         it surely saw, ``clear_range`` (see :meth:`OccupancyMap.insert_depth_image`).
+    box : ((3,), (3,)) float or None
+        Update only the voxels that meet this box (lo, hi corners, m): the same updates as without
+        it, less those of voxels outside it (a scan's rays are traced as they are; a ray that
+        leaves the box updates nothing beyond). The map's region of interest, such as a planning
+        domain: the camera sees far beyond a room, and free space out there costs time and memory.
 
     Returns
     -------
     ScanUpdate
     """
-    s = scan_tiles(points, origin, resolution, max_range, discretize, clear_range)
+    s = scan_tiles(points, origin, resolution, max_range, discretize, clear_range, box)
     return ScanUpdate(s.free(), *s[2:])
+
+
+def box_keys(box: ArrayLike, resolution: float) -> NDArray[np.int64]:
+    """(2, 3) int64: the keys (rows lo, hi, inclusive) of the voxels that meet the box ``box``
+    (rows lo, hi, m), within the key range. Raises :class:`GeometryError` for a box that is not
+    two finite corners with lo <= hi."""
+    try:
+        b = np.asarray(box, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise GeometryError(
+            f"box: expected two corners (lo, hi) of 3 numbers, got {box!r}"
+        ) from None
+    if b.shape != (2, 3) or not np.all(np.isfinite(b)):
+        raise GeometryError(f"box: expected two finite corners (lo, hi) of 3 numbers, got {box!r}")
+    if np.any(b[0] > b[1]):
+        raise GeometryError(f"box: lo {b[0].tolist()} must not exceed hi {b[1].tolist()}")
+    keys = np.floor(b / float(resolution)) + TREE_MAX_VAL
+    return np.clip(keys, 0, 2 * TREE_MAX_VAL - 1).astype(np.int64)
+
+
+def _keep_in_box(tiles: tuple, keep: NDArray[np.int64]) -> tuple:
+    """(blocks, masks, occupied) of a scan, less the voxels outside the key box ``keep``."""
+    blocks, masks, occ = tiles
+    free = tiles_to_codes(blocks, masks)
+    inside = [
+        np.all((k >= keep[0]) & (k <= keep[1]), axis=1) for k in map(morton_decode, (free, occ))
+    ]
+    blocks, masks = codes_to_tiles(free[inside[0]])
+    return blocks, masks, occ[inside[1]]
 
 
 def scan_tiles(
@@ -498,10 +572,12 @@ def scan_tiles(
     max_range: float | None = None,
     discretize: bool = False,
     clear_range: float | None = None,
+    box: ArrayLike | None = None,
 ) -> ScanTiles:
     """:func:`scan_update` with the free voxels as 4 x 4 x 4 tiles (:class:`ScanTiles`), as the
     dense kernel builds them: what :meth:`OccupancyMap.insert_point_cloud` feeds the voxel store,
     without listing every free voxel's code. Same parameters and errors as :func:`scan_update`."""
+    keep = None if box is None else box_keys(box, resolution)
     p = np.ascontiguousarray(check_points(points))
     o = check_origin(origin, resolution)
     mr = -1.0 if max_range is None or not np.isfinite(max_range) else float(max_range)
@@ -510,18 +586,32 @@ def scan_tiles(
         raise GeometryError(f"clear_range: must be in [0, max_range = {mr}], got {clear_range!r}")
     if discretize:
         centres, nonfinite, outside = _discretize_kernel(p, float(resolution))
-        s = scan_tiles(centres, o.astype(np.float64), resolution, max_range, False, clear_range)
+        s = scan_tiles(
+            centres, o.astype(np.float64), resolution, max_range, False, clear_range, box
+        )
         used = p.shape[0] - nonfinite - outside
         return s._replace(
             points_used=used, skipped_nonfinite=nonfinite, skipped_out_of_range=outside
         )
     ends, keys, status, lo, hi = _clipped_ends(p, o, float(resolution), mr, cr)
+    origin_key = coords_to_keys(o[None].astype(np.float64), resolution)[0][0]
+    traced_in_box = keep is not None and bool(
+        np.all((origin_key >= keep[0]) & (origin_key <= keep[1]))
+    )
+    if traced_in_box:  # each ray's voxels in the box are the ones before it first leaves it
+        lo, hi = np.maximum(lo, keep[0]), np.minimum(hi, keep[1])
     lo, dims = _dense_box(lo, hi)
-    if float(np.prod(dims.astype(np.float64))) <= _DENSE_VOXEL_LIMIT:
-        blocks, masks, occ = _scan_dense(ends, keys, status, o, float(resolution), lo, dims)
+    dense = float(np.prod(dims.astype(np.float64))) <= _DENSE_VOXEL_LIMIT
+    if dense:
+        tiles = _scan_dense(
+            ends, keys, status, o, float(resolution), lo, dims, keep if traced_in_box else None
+        )
     else:
         free, occ = _scan_chunked_kernel(ends, keys, status, o, float(resolution))
-        blocks, masks = codes_to_tiles(free)
+        tiles = (*codes_to_tiles(free), occ)
+    if keep is not None and not (dense and traced_in_box):
+        tiles = _keep_in_box(tiles, keep)
+    blocks, masks, occ = tiles
     counts = np.bincount(status, minlength=4)
     used = int(counts[0] + counts[1])
     return ScanTiles(blocks, masks, occ, used, int(counts[2]), int(counts[3]), int(counts[1]), used)

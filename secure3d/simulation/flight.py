@@ -193,6 +193,7 @@ class Flight:
             scenario.camera.max_range,
             discretize=scenario.camera.discretize,
             far_kind=scenario.camera.far_kind,
+            box=loop.map_box,
         )
         if self.guard is not None:
             self.guard.add_view(R, o)

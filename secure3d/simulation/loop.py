@@ -74,6 +74,12 @@ class Loop:
         except (ValueError, RuntimeError) as exc:
             raise SimulationError(f"{scenario.name}: cannot build the true world: {exc}") from exc
         self.belief = belief_map(scenario)
+        # Frames update only the voxels that meet the planning domain, the world's bounds: the
+        # certificate refuses a body that leaves them, so nothing outside can matter. A camera
+        # sees far beyond a room without floor or ceiling: at 2 cm voxels, carving that space
+        # cost most of a flight's wall time (CHANGELOG, session 27).
+        bounds = scenario.world.bounds
+        self.map_box = np.array([bounds.lo, bounds.hi], dtype=float)
         # The look-back assignment is compiled into each NLP's structure (the planner's default):
         # a new assignment costs a ~0.1 s build, and the NLP's KKT factorisation stays sparse.
         # As a parameter (one NLP for every assignment) the dense selection rows cost 3-5x the
