@@ -115,19 +115,23 @@ def record(path: Path | None = None, since: dict[tuple[str, str], set] | None = 
 
 def preload(path: Path | None = None) -> int:
     """Load (or compile) every kernel signature of the manifest that this process has not loaded
-    yet. Returns how many were loaded; entries that no longer fit (a renamed kernel, changed
-    argument types) are skipped."""
+    yet. Returns how many were loaded. Entries that no longer fit (a kernel renamed, or given
+    other argument types) are dropped from the manifest, so that no later set-up pays numba's
+    attempt to type them again (about 50 ms each)."""
     from numba.core.registry import CPUDispatcher
 
+    path = manifest_path() if path is None else Path(path)
     loaded = 0
-    for (modname, name), sigs in _read(manifest_path() if path is None else Path(path)).items():
+    stale: dict[tuple[str, str], set] = {}
+    for (modname, name), sigs in _read(path).items():
         if not _ours(modname):
             continue
         try:
             kernel = getattr(importlib.import_module(modname), name, None)
         except Exception:  # noqa: BLE001 - a module renamed or gone since the manifest was written
-            continue
+            kernel = None
         if not isinstance(kernel, CPUDispatcher):
+            stale[(modname, name)] = set(sigs)
             continue
         for sig in sigs:
             if sig in kernel.overloads:
@@ -135,6 +139,24 @@ def preload(path: Path | None = None) -> int:
             try:
                 kernel.compile(sig)
             except Exception:  # noqa: BLE001 - a stale entry: the kernel compiles on first call
+                stale.setdefault((modname, name), set()).add(sig)
                 continue
             loaded += 1
+    if stale:
+        _drop(path, stale)
     return loaded
+
+
+def _drop(path: Path, stale: dict[tuple[str, str], set]) -> None:
+    """Rewrite the manifest at ``path`` without the ``stale`` signatures (read afresh, written
+    whole and atomically; a file that cannot be written is left as it is)."""
+    known = _read(path)
+    for key, sigs in stale.items():
+        if key in known:
+            known[key] -= sigs
+            if not known[key]:
+                del known[key]
+    try:
+        atomic_write_bytes(path, pickle.dumps(known))
+    except Exception:  # noqa: BLE001 - a cache that cannot be written must not fail a set-up
+        return

@@ -86,6 +86,7 @@ def test_record_adds_only_what_is_new_and_preload_skips_stale_entries(tmp_path):
     stamp = path.stat().st_mtime_ns
     assert km.record(path) == 0 and path.stat().st_mtime_ns == stamp  # nothing new: not rewritten
     assert km.preload(path) == 0  # all loaded in this process already
+    recorded = pickle.loads(path.read_bytes())
     stale = pickle.loads(path.read_bytes())
     stale[("secure3d.no_such_module", "k")] = {(types.int64,)}
     stale[("secure3d.mapping.morton", "no_such_kernel")] = {(types.int64,)}
@@ -93,6 +94,19 @@ def test_record_adds_only_what_is_new_and_preload_skips_stale_entries(tmp_path):
     stale[("secure3d.mapping.morton", "_box_codes_kernel")] = {(types.unicode_type,)}
     path.write_bytes(pickle.dumps(stale))
     assert km.preload(path) == 0
+    # the stale entries of secure3d are dropped, so no later set-up tries them again
+    kept = pickle.loads(path.read_bytes())
+    assert ("secure3d.no_such_module", "k") not in kept
+    assert ("secure3d.mapping.morton", "no_such_kernel") not in kept
+    assert (types.unicode_type,) not in kept.get(
+        ("secure3d.mapping.morton", "_box_codes_kernel"), set()
+    )
+    assert kept[("os", "getcwd")] == {()}
+    assert {k: v for k, v in kept.items() if k[0] != "os"} == recorded  # the valid ones stay
+    stamp = path.stat().st_mtime_ns
+    assert (
+        km.preload(path) == 0 and path.stat().st_mtime_ns == stamp
+    )  # nothing stale: not rewritten
 
 
 def test_a_corrupt_or_unwritable_manifest_changes_nothing_but_speed(tmp_path):
