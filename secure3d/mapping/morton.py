@@ -24,6 +24,7 @@ __all__ = [
     "TILE_BITS",
     "TREE_MAX_VAL",
     "box_codes",
+    "box_keys",
     "codes_to_coords",
     "codes_to_tiles",
     "coords_to_codes",
@@ -32,6 +33,7 @@ __all__ = [
     "morton_decode",
     "morton_encode",
     "tile_voxel_count",
+    "tiles_in_box",
     "tiles_to_codes",
     "unique_sorted",
 ]
@@ -330,3 +332,37 @@ def codes_to_tiles(codes: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.uint
     if codes.size and codes.min() < 0:
         raise GeometryError("codes_to_tiles: codes must be non-negative")
     return _sorted_codes_to_tiles(np.sort(codes))
+
+
+def box_keys(box: ArrayLike, resolution: float) -> NDArray[np.int64]:
+    """(2, 3) int64: the keys (rows lo, hi, inclusive) of the voxels that meet the box ``box``
+    (rows lo, hi, m), within the key range. Raises :class:`GeometryError` for a box that is not
+    two finite corners with lo <= hi."""
+    try:
+        b = np.asarray(box, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise GeometryError(
+            f"box: expected two corners (lo, hi) of 3 numbers, got {box!r}"
+        ) from None
+    if b.shape != (2, 3) or not np.all(np.isfinite(b)):
+        raise GeometryError(f"box: expected two finite corners (lo, hi) of 3 numbers, got {box!r}")
+    if np.any(b[0] > b[1]):
+        raise GeometryError(f"box: lo {b[0].tolist()} must not exceed hi {b[1].tolist()}")
+    keys = np.floor(b / float(resolution)) + TREE_MAX_VAL
+    return np.clip(keys, 0, KEY_LIMIT - 1).astype(np.int64)
+
+
+def tiles_in_box(
+    blocks: NDArray[np.int64],
+    masks: NDArray[np.uint64],
+    codes: NDArray[np.int64],
+    keep: NDArray[np.int64],
+) -> tuple[NDArray[np.int64], NDArray[np.uint64], NDArray[np.int64]]:
+    """Tiles (``blocks`` (m,), ``masks`` (m,)) and codes (k,) less their voxels outside the key box
+    ``keep`` (2, 3) (rows lo, hi, inclusive): (blocks, masks, codes), the codes in their order."""
+    free = tiles_to_codes(blocks, masks)
+    inside = [
+        np.all((k >= keep[0]) & (k <= keep[1]), axis=1) for k in map(morton_decode, (free, codes))
+    ]
+    blocks, masks = codes_to_tiles(free[inside[0]])
+    return blocks, masks, codes[inside[1]]

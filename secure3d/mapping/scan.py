@@ -31,9 +31,10 @@ from secure3d.mapping.morton import (
     TREE_MAX_VAL,
     _morton3,
     _spread16,
+    box_keys,
     codes_to_tiles,
     coords_to_keys,
-    morton_decode,
+    tiles_in_box,
     tiles_to_codes,
 )
 from secure3d.mapping.raycast import (
@@ -45,7 +46,7 @@ from secure3d.mapping.raycast import (
     check_points,
 )
 
-__all__ = ["ScanTiles", "ScanUpdate", "box_keys", "scan_tiles", "scan_update"]
+__all__ = ["ScanTiles", "ScanUpdate", "scan_tiles", "scan_update"]
 
 #: Largest key box (voxels) the dense kernel handles: two bitmaps of 2**27 bits = 32 MB of virtual
 #: memory, of which only the touched pages are ever used. Bigger scans use the chunked kernel.
@@ -536,35 +537,6 @@ def scan_update(
     return ScanUpdate(s.free(), *s[2:])
 
 
-def box_keys(box: ArrayLike, resolution: float) -> NDArray[np.int64]:
-    """(2, 3) int64: the keys (rows lo, hi, inclusive) of the voxels that meet the box ``box``
-    (rows lo, hi, m), within the key range. Raises :class:`GeometryError` for a box that is not
-    two finite corners with lo <= hi."""
-    try:
-        b = np.asarray(box, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise GeometryError(
-            f"box: expected two corners (lo, hi) of 3 numbers, got {box!r}"
-        ) from None
-    if b.shape != (2, 3) or not np.all(np.isfinite(b)):
-        raise GeometryError(f"box: expected two finite corners (lo, hi) of 3 numbers, got {box!r}")
-    if np.any(b[0] > b[1]):
-        raise GeometryError(f"box: lo {b[0].tolist()} must not exceed hi {b[1].tolist()}")
-    keys = np.floor(b / float(resolution)) + TREE_MAX_VAL
-    return np.clip(keys, 0, 2 * TREE_MAX_VAL - 1).astype(np.int64)
-
-
-def _keep_in_box(tiles: tuple, keep: NDArray[np.int64]) -> tuple:
-    """(blocks, masks, occupied) of a scan, less the voxels outside the key box ``keep``."""
-    blocks, masks, occ = tiles
-    free = tiles_to_codes(blocks, masks)
-    inside = [
-        np.all((k >= keep[0]) & (k <= keep[1]), axis=1) for k in map(morton_decode, (free, occ))
-    ]
-    blocks, masks = codes_to_tiles(free[inside[0]])
-    return blocks, masks, occ[inside[1]]
-
-
 def scan_tiles(
     points: ArrayLike,
     origin: ArrayLike,
@@ -610,7 +582,7 @@ def scan_tiles(
         free, occ = _scan_chunked_kernel(ends, keys, status, o, float(resolution))
         tiles = (*codes_to_tiles(free), occ)
     if keep is not None and not (dense and traced_in_box):
-        tiles = _keep_in_box(tiles, keep)
+        tiles = tiles_in_box(*tiles, keep)
     blocks, masks, occ = tiles
     counts = np.bincount(status, minlength=4)
     used = int(counts[0] + counts[1])

@@ -7,10 +7,10 @@ import pytest
 
 from secure3d.errors import GeometryError
 from secure3d.mapping import scan as scan_module
-from secure3d.mapping.keys import coords_to_keys, morton_decode, scan_update
+from secure3d.mapping.keys import box_keys, coords_to_keys, morton_decode, scan_update
 from secure3d.mapping.occupancy import OccupancyMap
 from secure3d.mapping.octomap_io import read_scan_dat
-from secure3d.mapping.scan import box_keys, scan_tiles
+from secure3d.mapping.scan import scan_tiles
 
 
 @pytest.fixture(scope="module")
