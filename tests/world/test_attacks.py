@@ -167,9 +167,12 @@ def _reachable_2d(s: Scenario, step: float = 0.05) -> bool:
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     free = np.ones(gx.shape, dtype=bool)
     for olo, ohi in zip(lo[near], hi[near], strict=True):
-        dx = np.maximum(0, np.maximum(olo[0] - gx, gx - ohi[0]))
-        dy = np.maximum(0, np.maximum(olo[1] - gy, gy - ohi[1]))
-        free &= np.hypot(dx, dy) >= r
+        # only the cells within r of the box can be blocked by it
+        i = slice(*np.searchsorted(xs, [olo[0] - r, ohi[0] + r]))
+        j = slice(*np.searchsorted(ys, [olo[1] - r, ohi[1] + r]))
+        dx = np.maximum(0, np.maximum(olo[0] - gx[i, j], gx[i, j] - ohi[0]))
+        dy = np.maximum(0, np.maximum(olo[1] - gy[i, j], gy[i, j] - ohi[1]))
+        free[i, j] &= np.hypot(dx, dy) >= r
     start = tuple(np.argmin(abs(g - p)) for g, p in zip((xs, ys), s.start.position, strict=False))
     goal = tuple(np.argmin(abs(g - p)) for g, p in zip((xs, ys), s.goal.position, strict=False))
     seen = np.zeros_like(free)
@@ -199,26 +202,34 @@ def _check_variant(base: Scenario, v: Scenario, count: int = 1) -> list[Box]:
     else:
         assert v.server_map == base.server_map, "the server's own .bt already lacks it"
     claim_names = {o.name for o in (*server_claim(v).boxes, *server_claim(v).meshes)}
-    base_lo, base_hi = true_obstacles(base).aabbs()
-    others = [
-        Box(f"o{k}", tuple(a), tuple(c))
-        for k, (a, c) in enumerate(zip(base_lo, base_hi, strict=True))
-    ]
+    truth = true_obstacles(base)
+    base_lo, base_hi = truth.aabbs()
+    named = len(base_lo) - len(truth.voxel_boxes)  # voxels come last
     for box in new:
         assert box.name not in claim_names, "the server must not report the new obstacle"
         lo, hi = np.array(box.lo), np.array(box.hi)
         for p in (base.start.position, base.goal.position):
             assert _point_box_distance(np.array(p), lo, hi) >= keep - 1e-9
-        bottoms = [base.world.bounds.lo[2]] + [o.hi[2] for o in others]
-        tops = [base.world.bounds.hi[2]] + [o.lo[2] for o in others]
-        assert min(abs(box.lo[2] - z) for z in bottoms) < 1e-9, "must stand on something"
-        assert min(abs(box.hi[2] - z) for z in tops) < 1e-9, "must reach up to something"
-        for o in [*others, *(b for b in new if b is not box)]:
-            if o.hi[2] <= box.lo[2] + 1e-9 or o.lo[2] >= box.hi[2] - 1e-9:
+        bottoms = np.append(base_hi[:, 2], base.world.bounds.lo[2])
+        tops = np.append(base_lo[:, 2], base.world.bounds.hi[2])
+        assert np.min(abs(box.lo[2] - bottoms)) < 1e-9, "must stand on something"
+        assert np.min(abs(box.hi[2] - tops)) < 1e-9, "must reach up to something"
+        # gaps to named obstacles and other new ones; a scanned wall's voxels are judged by the
+        # route below instead
+        others = [(base_lo[k], base_hi[k]) for k in range(named)]
+        others += [(np.array(b.lo), np.array(b.hi)) for b in new if b is not box]
+        for olo, ohi in others:
+            if ohi[2] <= box.lo[2] + 1e-9 or olo[2] >= box.hi[2] - 1e-9:
                 continue  # what it stands on or reaches up to
-            gap = _box_gap(lo, hi, o.lo, o.hi)
+            gap = _box_gap(lo, hi, olo, ohi)
             assert gap == 0.0 or gap >= keep - 1e-9, f"{box.name} leaves a {gap:.3f} m sliver"
     assert _reachable_2d(v), f"{v.name}: the goal must stay reachable"
+    if len(truth.voxel_boxes):
+        # in a scanned world the route keeps a gap as wide as keep beside the new box
+        grow = keep - 2 * r
+        fat = [Box(b.name, tuple(np.subtract(b.lo, grow)), tuple(np.add(b.hi, grow))) for b in new]
+        world = dataclasses.replace(v.world, boxes=(*base.world.boxes, *fat))
+        assert _reachable_2d(dataclasses.replace(v, world=world)), f"{v.name}: a sliver route"
     return new
 
 
@@ -380,3 +391,13 @@ def test_belief_from_server_bt_at_any_resolution() -> None:
         np.testing.assert_array_equal(belief.is_known_obstacle(probes), [1, 0, 0, 0], err_msg=res)
     exact = belief_map(s)
     assert len(exact.claimed_voxels(occupied=False)) > 0, "a .bt also claims free space"
+
+
+def test_auto_variants_fit_a_scanned_corridor() -> None:
+    """A scanned corridor's walls are rough (geb079, 8 cm voxels): no box keeps the full gap from
+    every voxel, so gaps to voxels are judged by the route, which must keep that gap beside the new
+    box; and no box is squeezed between scanned clutter to less than planner.min_obstacle_size."""
+    crate = load_scenario(MAPS / "geb079_hidden_crate.yaml")
+    for v in random_hidden_obstacle_scenarios(crate, 3, 2701):
+        (box,) = _check_variant(crate, v)
+        assert np.min(np.subtract(box.hi, box.lo)) >= crate.planner.min_obstacle_size
