@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from secure3d.errors import GeometryError
-from secure3d.simulation.collision import CollisionWorld, rotation_z_to
+from secure3d.simulation.collision import CollisionWorld, merged_voxel_boxes, rotation_z_to
 from secure3d.simulation.scene import VOXEL_NAME, voxel_boxes_from_centres
 from secure3d.world.spec import Box, MeshObstacle
 
@@ -154,6 +154,42 @@ def test_voxel_boxes_collide_as_solid_boxes(rng):
     free = exact > 1e-6
     np.testing.assert_allclose(got[free], exact[free], atol=1e-6)
     assert world.nearest(centres[0], 0.05)[1] == VOXEL_NAME
+
+
+def test_voxel_leaves_merge_into_fewer_boxes_with_the_same_union(rng):
+    """An OctoMap's leaves (voxels, and pruned leaves 2 or 4 voxels wide) become fewer boxes for
+    fcl: every point is as far from their union as from the leaves', inside or out."""
+    res = 0.08
+    wall = np.stack(np.meshgrid(np.arange(12), np.arange(12), [0, 1], indexing="ij"), -1)
+    clutter = rng.integers(0, 12, (300, 3))
+    keys = np.unique(np.concatenate([wall.reshape(-1, 3), clutter]), axis=0)  # unit leaves
+    pruned = np.array([[20, 0, 0], [20, 2, 0], [24, 4, 4]])  # 2-wide, 2-wide and 4-wide leaves
+    sizes = np.array([2, 2, 4])
+    lo = (np.concatenate([keys, pruned]) - 7) * res  # corners (key - 32768) * res, as OctoMap's
+    hi = lo + np.concatenate([np.ones(len(keys)), sizes])[:, None] * res
+    leaves = np.stack([lo, hi], axis=1)
+    merged = merged_voxel_boxes(leaves)
+    assert len(merged) < len(leaves) / 3
+    pts = np.concatenate(
+        [
+            rng.uniform(lo.min(0) - 0.2, hi.max(0) + 0.2, (3000, 3)),
+            lo[rng.integers(0, len(lo), 2000)] + rng.uniform(-0.01, 0.01, (2000, 3)),  # at corners
+        ]
+    )
+    want = box_sdf(pts, leaves[:, 0], leaves[:, 1]).min(axis=1)
+    got = box_sdf(pts, merged[:, 0], merged[:, 1]).min(axis=1)
+    outside = want > 0
+    np.testing.assert_allclose(got[outside], want[outside], atol=1e-9)
+    np.testing.assert_array_equal(got <= 1e-12, want <= 1e-12)  # the same points inside
+    world = CollisionWorld(voxel_boxes=leaves)
+    some = np.flatnonzero(want > 0.05)[:20]
+    np.testing.assert_allclose(
+        [world.clearance(p, 0.05) for p in pts[some]], want[some] - 0.05, atol=1e-6
+    )
+    # boxes off any common grid are left as they are
+    odd = leaves.copy()
+    odd[0] += 0.013
+    assert merged_voxel_boxes(odd) is not None and len(merged_voxel_boxes(odd)) == len(odd)
 
 
 def test_empty_world_and_bad_input():
