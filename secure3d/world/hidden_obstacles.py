@@ -496,6 +496,8 @@ def _with_hidden(base: Scenario, added: list[Box], i: int, kind: str) -> Scenari
     if server.from_world:
         hides = tuple(Attack("hide", target=b.name) for b in added)
         server = dataclasses.replace(server, attacks=(*server.attacks, *hides))
+    else:  # a file or survey lacks it as it is: say so, so that its detection is reported
+        server = dataclasses.replace(server, lacks=(*server.lacks, *(b.name for b in added)))
     names = ", ".join(b.name for b in added)
     note = f"Variant {i}: {kind} hidden obstacle(s) {names} added and hidden from the server map."
     return dataclasses.replace(

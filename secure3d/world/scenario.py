@@ -235,7 +235,7 @@ def _attack(data: object, path: str, world: World, taken: set[str]) -> Attack:
     return Attack(kind, target=target, offset=offset)
 
 
-_SERVER_KEYS = ("resolution", "attacks", "octomap", "bt", "cloud", "origin", "mesh")
+_SERVER_KEYS = ("resolution", "attacks", "octomap", "bt", "cloud", "origin", "mesh", "lacks")
 
 
 def _server_map(data: object, folder: Path, world: World) -> ServerMapSpec:
@@ -276,6 +276,22 @@ def _server_map(data: object, folder: Path, world: World) -> ServerMapSpec:
         if not sources or sources[0] != "cloud":
             raise _FieldError("server_map.origin", "only a cloud has a sensor origin")
         kwargs["origin"] = _as_vec3(data["origin"], "server_map.origin")
+    if "lacks" in data:
+        names = _as_list(data["lacks"], "server_map.lacks")
+        for i, name in enumerate(names):
+            if not isinstance(name, str) or name not in taken:
+                raise _FieldError(
+                    f"server_map.lacks[{i}]",
+                    f"not an obstacle of the world (known: {', '.join(sorted(taken)) or 'none'})",
+                    name,
+                )
+        if not sources:
+            raise _FieldError(
+                "server_map.lacks",
+                "only a server map given as a file lacks obstacles; use a hide attack",
+                names,
+            )
+        kwargs["lacks"] = tuple(names)
     return ServerMapSpec(**kwargs)
 
 

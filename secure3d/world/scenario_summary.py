@@ -91,6 +91,8 @@ def _obstacle_rows(scenario: Scenario) -> list[tuple[str, str, Vec3, Vec3, str]]
             status[a.target] = f"HIDDEN by the server ({a.kind})"
         elif a.kind == "shift":
             status[a.target] = f"SHIFTED by the server by {_fmt(a.offset)} m"
+    for name in scenario.server_map.lacks:
+        status.setdefault(name, "HIDDEN: the server's map lacks it")
     rows = [(o.name, "box", o.lo, o.hi, status.get(o.name, "")) for o in w.boxes]
     rows += [
         (

@@ -111,6 +111,7 @@ def scenario_to_dict(
             },
             **({"origin": list(s.origin)} if s.origin is not None else {}),
             **({"survey": _survey_note(s.survey)} if s.survey is not None else {}),
+            **({"lacks": list(s.lacks)} if s.lacks else {}),
         },
         "vehicle": _flat_dict(scenario.vehicle),
         "camera": _flat_dict(scenario.camera),

@@ -378,6 +378,12 @@ class Scenario:
 
     def _check_attacks(self) -> None:
         known = set(self.world.obstacle_names)
+        for name in self.server_map.lacks:
+            if name not in known:
+                raise ScenarioError(
+                    f"server_map.lacks: {name!r} is not an obstacle of the world"
+                    f" (known: {', '.join(sorted(known)) or 'none'})"
+                )
         targets: set[str] = set()
         for i, a in enumerate(self.server_map.attacks):
             where = f"server_map.attacks[{i}]"
@@ -401,12 +407,14 @@ class Scenario:
 
     @property
     def hidden_obstacles(self) -> tuple[str, ...]:
-        """Names of true obstacles the server does not report (hide/stale attacks)."""
-        return tuple(
+        """Names of true obstacles the server does not report (hide/stale attacks, and what a
+        server map file or survey lacks: ``server_map.lacks``)."""
+        attacked = tuple(
             a.target
             for a in self.server_map.attacks
             if a.kind in ("hide", "stale") and a.target is not None
         )
+        return attacked + tuple(n for n in self.server_map.lacks if n not in attacked)
 
     def summary(self, max_obstacles: int = 30) -> str:
         """A readable multi-line description (also what ``secure3d show`` prints).

@@ -207,7 +207,10 @@ def _variant(prep: _Prepared, base: Scenario, rng: np.random.Generator, i: int) 
         raise ScenarioError(f"{base.name}: the survey of variant {i} hit nothing")
     regions = tuple(a for a in base.server_map.attacks if a.region is not None)
     server = ServerMapSpec(
-        attacks=regions, resolution=base.server_map.resolution, survey=write_scan_graph_bytes(scans)
+        attacks=regions,
+        resolution=base.server_map.resolution,
+        survey=write_scan_graph_bytes(scans),
+        lacks=v.hidden_obstacles,  # what the base's server hid, and the new obstacle
     )
     hidden = ", ".join(b.name for b in v.world.boxes[len(base.world.boxes) :])
     note = (

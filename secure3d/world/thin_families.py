@@ -205,10 +205,12 @@ def place_hidden(
 def hidden_variant(base: Scenario, kind: str, box: Box, i: int, family: str) -> Scenario:
     world = dataclasses.replace(base.world, boxes=(*base.world.boxes, box))
     server = base.server_map
-    if server.from_world:  # a server map file (OctoMap, cloud, mesh) or survey lacks it as is
+    if server.from_world:
         server = dataclasses.replace(
             server, attacks=(*server.attacks, Attack("hide", target=box.name))
         )
+    else:  # a server map file (OctoMap, cloud, mesh) or survey lacks it as it is: say so
+        server = dataclasses.replace(server, lacks=(*server.lacks, box.name))
     size = np.subtract(box.hi, box.lo)
     note = (
         f"Variant {i} of {family}: hidden {kind} {box.name}"

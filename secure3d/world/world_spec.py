@@ -308,6 +308,9 @@ class ServerMapSpec:
     in memory (what the ``survey`` campaign family makes; :func:`save_scenario` writes it beside
     the YAML as a ``.graph`` file). ``resolution`` is the voxel size of the robot's map (m).
     Region attacks apply to every source; attacks on named obstacles only to the world.
+    ``lacks`` names the world's obstacles a file or survey does not hold (put there after it was
+    made): hidden as a ``hide`` attack hides one from a map derived from the world, and reported
+    as such when the camera first sees them.
     """
 
     attacks: tuple[Attack, ...] = ()
@@ -317,9 +320,13 @@ class ServerMapSpec:
     origin: Vec3 | None = None
     mesh: Path | None = None
     survey: bytes | None = None
+    lacks: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "attacks", tuple(self.attacks))
+        object.__setattr__(self, "lacks", tuple(self.lacks))
+        if not all(isinstance(n, str) and n for n in self.lacks):
+            raise ScenarioError(f"server_map.lacks: expected obstacle names (got {self.lacks!r})")
         r = _positive(self.resolution, "server_map.resolution")
         if not 0.01 <= r <= 2.0:  # finer than 1 cm or coarser than 2 m is a unit error here
             raise ScenarioError(f"server_map.resolution: must be in [0.01, 2] m (got {r})")
@@ -339,6 +346,12 @@ class ServerMapSpec:
             if self.cloud is None:
                 raise ScenarioError("server_map.origin: only a cloud has a sensor origin")
             object.__setattr__(self, "origin", _vec3(self.origin, "server_map.origin"))
+        if self.lacks and not given:
+            raise ScenarioError(
+                "server_map.lacks: only a server map given as a file or survey lacks obstacles"
+                " as it is; hide one from a map derived from the world with a hide attack"
+                f" (got {', '.join(self.lacks)})"
+            )
         named = [a for a in self.attacks if a.region is None]
         if given and named:
             raise ScenarioError(

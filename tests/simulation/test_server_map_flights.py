@@ -18,6 +18,8 @@ def test_mesh_server_map_in_closed_loop(planner: str, tmp_path: Path) -> None:
     assert (tmp_path / "run.png").stat().st_size > 10_000
     if planner == "secure":
         assert not r.collided and r.reached_goal
+        # the mesh predates the crate (server_map.lacks): its first sight is reported
+        assert r.detection_time is not None and 0.0 < r.detection_time < r.time_to_goal
     else:
         assert r.collided and "crate" in r.collision_obstacles
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -548,3 +549,31 @@ def test_an_unknown_key_with_blanks_is_quoted_on_one_line(key: str) -> None:
         scenario_from_dict(data, MAPS, label="blind_corner.yaml")
     text = str(info.value)
     assert "\n" not in text and f"{key!r}: unknown key" in text
+
+
+def test_what_a_server_map_file_lacks_is_checked(tmp_path: Path) -> None:
+    """server_map.lacks names world obstacles a file or survey lacks (reported as hidden); a map
+    derived from the world hides one with an attack instead."""
+    text = (MAPS / "mesh_server.yaml").read_text()
+    assert "lacks: [crate]" in text
+    (tmp_path / "meshes").mkdir()
+    name = "blind_corner_building.obj"
+    (tmp_path / "meshes" / name).write_bytes((MAPS / "meshes" / name).read_bytes())
+    cases = [
+        (text, None),
+        (text.replace("lacks: [crate]", "lacks: [barrel]"), "server_map.lacks[0]"),
+        (text.replace("lacks: [crate]", "lacks: crate"), "server_map.lacks"),
+        (
+            text.replace("  mesh: meshes/blind_corner_building.obj\n", ""),
+            "server_map.lacks",
+        ),
+    ]
+    for i, (case, field) in enumerate(cases):
+        path = tmp_path / f"s{i}.yaml"
+        path.write_text(case)
+        if field is None:
+            assert load_scenario(path).hidden_obstacles == ("crate",)
+            continue
+        with pytest.raises(ScenarioError, match=rf"{re.escape(field)}") as info:
+            load_scenario(path)
+        assert "\n" not in str(info.value)
