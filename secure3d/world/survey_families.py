@@ -181,6 +181,11 @@ def _moved(prep: _Prepared, base: Scenario, rng: np.random.Generator) -> tuple:
     return tuple(named), f" {prep.named[k].name} stood {np.round(by, 2).tolist()} m away then."
 
 
+def _shifted_names(before: tuple, after: tuple) -> tuple[str, ...]:
+    """Names of the obstacles :func:`_moved` surveyed elsewhere than they stand."""
+    return tuple(a.name for a, b in zip(before, after, strict=True) if a is not b)
+
+
 def _poses(prep: _Prepared, named: tuple, base: Scenario, rng: np.random.Generator) -> list:
     a, b = np.asarray(base.start.position), np.asarray(base.goal.position)
     lo = np.array([o.lo for o in named] + [v[0] for v in prep.voxel_boxes]).reshape(-1, 3)
@@ -210,7 +215,9 @@ def _variant(prep: _Prepared, base: Scenario, rng: np.random.Generator, i: int) 
         attacks=regions,
         resolution=base.server_map.resolution,
         survey=write_scan_graph_bytes(scans),
-        lacks=v.hidden_obstacles,  # what the base's server hid, and the new obstacle
+        # what the base's server hid, the new obstacle, and one surveyed where it stood before
+        # (as a stale attack's target, hidden where it stands now)
+        lacks=tuple(dict.fromkeys((*v.hidden_obstacles, *_shifted_names(prep.named, named)))),
     )
     hidden = ", ".join(b.name for b in v.world.boxes[len(base.world.boxes) :])
     note = (

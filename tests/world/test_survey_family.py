@@ -48,6 +48,8 @@ def test_survey_variants_are_pure_posed_scans_of_the_world_before_it_changed(map
         assert len(hidden) == 1
         # the survey predates it: the variant says so, and a flight reports its first sight
         assert hidden[0].name in v.server_map.lacks and hidden[0].name in v.hidden_obstacles
+        moved = [n for n in base.world.obstacle_names if f" {n} stood " in v.description]
+        assert set(moved) <= set(v.server_map.lacks)  # surveyed where it stood before
         lo, hi = np.array(hidden[0].lo), np.array(hidden[0].hi)
         # the survey predates it: returns inside it, and occupied claims there, lie on an
         # obstacle it touches (the scene's own), never on it alone
