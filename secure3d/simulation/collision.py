@@ -29,7 +29,7 @@ import trimesh
 
 from secure3d._deps import fcl as _fcl
 from secure3d.errors import GeometryError
-from secure3d.simulation.scene import VOXEL_NAME, check_voxel_boxes
+from secure3d.simulation.scene import VOXEL_NAME, merged_voxel_boxes
 from secure3d.world.spec import Box, MeshObstacle
 
 #: Segments shorter than this (m) are checked as a sphere: a capsule of zero length is a sphere and
@@ -79,50 +79,6 @@ def rotation_z_to(direction: np.ndarray) -> np.ndarray:
     return np.array([[x0, y0, z0], [x1, y1, z1], [x2, y2, z2]])
 
 
-#: Most grid cells :func:`merged_voxel_boxes` expands voxel boxes into before it merges them.
-MERGE_CELL_LIMIT = 20_000_000
-
-
-def merged_voxel_boxes(voxel_boxes: np.ndarray) -> np.ndarray:
-    """Fewer boxes (m, 2, 3) with the same union as ``voxel_boxes`` (n, 2, 3), when those lie on
-    one grid: every corner a multiple of the smallest edge, as an OctoMap's leaves are (its pruned
-    leaves are 2, 4, ... voxels wide). Boxes that do not (or more than :data:`MERGE_CELL_LIMIT`
-    cells) come back as they are. A scanned office floor (geb079, 143,729 leaves) becomes 33,621
-    boxes: fcl builds its broad phase in a third of the time. The corners are multiples of the
-    edge, so they move by float rounding only (under 1e-10 m within 100 m of the origin)."""
-    vb = np.asarray(voxel_boxes, dtype=float)
-    if len(vb) < 2:
-        return vb
-    edge = float(np.min(vb[:, 1] - vb[:, 0]))
-    k_lo, k_hi = np.round(vb[:, 0] / edge), np.round(vb[:, 1] / edge)
-    tol = 1e-6 * edge
-    on_grid = np.allclose(k_lo * edge, vb[:, 0], rtol=0, atol=tol) and np.allclose(
-        k_hi * edge, vb[:, 1], rtol=0, atol=tol
-    )
-    span = (k_hi - k_lo).astype(np.int64)
-    if not on_grid or np.prod(span, axis=1).sum() > MERGE_CELL_LIMIT:
-        return vb
-    from secure3d.mapping.boxes import merge_cells
-
-    k_lo = k_lo.astype(np.int64)
-    cells = []
-    wide = int(span.max()) + 1
-    size = span[:, 0] + wide * (span[:, 1] + wide * span[:, 2])  # one number per box size
-    for key in np.unique(size):  # boxes of one size at a time (a pruned leaf: n cells wide)
-        same = size == key
-        n = span[np.argmax(same)]
-        offsets = np.stack(np.meshgrid(*(np.arange(a) for a in n), indexing="ij"), -1)
-        cells.append((k_lo[same, None, :] + offsets.reshape(1, -1, 3)).reshape(-1, 3))
-    cells = np.concatenate(cells)
-    # each cell once (merge_cells needs unique cells), by a 1D key
-    base = cells.min(axis=0)
-    dims = cells.max(axis=0) - base + 1
-    flat = np.ravel_multi_index(tuple((cells - base).T), tuple(dims))
-    cells = np.stack(np.unravel_index(np.unique(flat), tuple(dims)), -1) + base
-    lo, hi = merge_cells(cells)
-    return np.stack([lo * edge, (hi + 1) * edge], axis=1)
-
-
 class CollisionWorld:
     """The true obstacles in an fcl broad-phase manager.
 
@@ -164,7 +120,7 @@ class CollisionWorld:
             names.append(m.name)
             surface.append(is_surface)
         if voxel_boxes is not None:
-            vb = merged_voxel_boxes(check_voxel_boxes(voxel_boxes))
+            vb = merged_voxel_boxes(voxel_boxes)  # checked, then merged
             for lo, hi in vb:
                 geoms.append(fcl.Box(*(hi - lo)))
                 transforms.append(fcl.Transform(0.5 * (lo + hi)))

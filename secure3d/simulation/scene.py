@@ -102,6 +102,53 @@ def _occupancy(cells: np.ndarray, span: np.ndarray) -> Callable[[np.ndarray], np
     )
 
 
+def _on_one_grid(lo: np.ndarray, hi: np.ndarray) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """(pitch, ilo, ihi) of boxes ``lo``, ``hi`` (n >= 1, 3) whose corners are multiples of their
+    smallest edge (the pitch), as OctoMap leaves are: the integer boxes [ilo, ihi) (n, 3) of
+    that grid; None if they are not."""
+    pitch = float(np.min(hi - lo))
+    ilo, ihi = np.rint(lo / pitch).astype(np.int64), np.rint(hi / pitch).astype(np.int64)
+    if not (
+        np.allclose(ilo * pitch, lo, rtol=0, atol=1e-6 * pitch)
+        and np.allclose(ihi * pitch, hi, rtol=0, atol=1e-6 * pitch)
+    ):
+        return None
+    return pitch, ilo, ihi
+
+
+#: Most grid cells :func:`merged_voxel_boxes` expands voxel boxes into before it merges them.
+MERGE_CELL_LIMIT = 20_000_000
+
+
+def merged_voxel_boxes(voxel_boxes: np.ndarray) -> np.ndarray:
+    """Fewer boxes (m, 2, 3) with the same union as ``voxel_boxes`` (n, 2, 3) ``[lo, hi]``, when
+    those lie on one grid (:func:`_on_one_grid`: an OctoMap's leaves, its pruned ones 2, 4, ...
+    voxels wide); boxes that do not, or cover more than :data:`MERGE_CELL_LIMIT` cells, come back
+    as they are. A scanned office floor (geb079, 143,729 leaves) becomes 28,312 boxes, which fcl
+    sets up in a third of the time. Corners are multiples of the pitch, so they move by float
+    rounding only."""
+    from secure3d.mapping.boxes import merge_cells
+
+    vb = check_voxel_boxes(voxel_boxes)
+    grid = _on_one_grid(vb[:, 0], vb[:, 1]) if len(vb) > 1 else None
+    if grid is None or np.prod(grid[2] - grid[1], axis=1).sum() > MERGE_CELL_LIMIT:
+        return vb
+    pitch, ilo, ihi = grid
+    cells = _grid_cells(ilo, ihi)[0]
+    # each cell once (merge_cells needs unique cells, and leaves given twice may overlap)
+    base = cells.min(axis=0)
+    dims = tuple(cells.max(axis=0) - base + 1)
+    flat = np.ravel_multi_index(tuple((cells - base).T), dims)
+    if int(np.prod(dims)) <= _DENSE_CELLS:  # a bitmap of the grid: cheaper than sorting
+        seen = np.zeros(int(np.prod(dims)), bool)
+        seen[flat] = True
+        flat = np.flatnonzero(seen)
+    else:
+        flat = np.unique(flat)
+    lo, hi = merge_cells(np.stack(np.unravel_index(flat, dims), -1) + base)
+    return np.stack([lo * pitch, (hi + 1) * pitch], axis=1)
+
+
 def exposed_sides(lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
     """(n, 6) bool: which sides (-x, +x, -y, +y, -z, +z) of grid-aligned boxes are not covered
     entirely by other boxes of the same set; None if the boxes are not cubes of one grid (whole
@@ -113,13 +160,10 @@ def exposed_sides(lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
     lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
     if not len(lo):
         return np.zeros((0, 6), bool)
-    pitch = float(np.min(hi - lo))
-    ilo, ihi = np.rint(lo / pitch).astype(np.int64), np.rint(hi / pitch).astype(np.int64)
-    if not (
-        np.allclose(ilo * pitch, lo, rtol=0, atol=1e-6 * pitch)
-        and np.allclose(ihi * pitch, hi, rtol=0, atol=1e-6 * pitch)
-    ):
+    grid = _on_one_grid(lo, hi)
+    if grid is None:
         return None
+    _, ilo, ihi = grid
     base, span = ilo.min(axis=0) - 1, ihi.max(axis=0) - ilo.min(axis=0) + 3
     occupied = _occupancy(_grid_cells(ilo, ihi)[0] - base, span)
     exposed = np.zeros((len(lo), 6), bool)

@@ -344,7 +344,7 @@ class _HiddenPlacement:
 
     def _try_box(
         self, base: Scenario, rng: np.random.Generator, lo: np.ndarray, hi: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray] | None:
+    ) -> tuple[np.ndarray, np.ndarray]:
         path, r, b = self.path, base.vehicle.body_radius, base.world.bounds
         k = int(rng.choice(self.picks))
         tangent = path[min(k + 1, len(path) - 1)] - path[max(k - 1, 0)]
@@ -373,13 +373,12 @@ class _HiddenPlacement:
         for j in range(count):
             for _ in range(max_attempts):
                 box = self._try_box(base, rng, lo, hi)
-                if box is None or np.min(box[1] - box[0]) < base.planner.min_obstacle_size:
+                if np.min(box[1] - box[0]) < base.planner.min_obstacle_size:
                     continue  # squeezed between scanned clutter: smaller than the guarantee covers
                 if not _clear(box, lo, hi, touchable, self.ends, self.keep, closed):
                     continue
                 fat = self.grid.blocked_by(box[0][None] - grow, box[1][None] + grow) & free
                 if _connected(fat, self.a, self.g):
-                    trial = self.grid.blocked_by(box[0][None], box[1][None]) & free
                     break
             else:
                 raise ScenarioError(
@@ -390,7 +389,7 @@ class _HiddenPlacement:
             added.append(Box(name, tuple(box[0]), tuple(box[1])))
             lo, hi = np.vstack([lo, box[0]]), np.vstack([hi, box[1]])
             touchable = np.append(touchable, True)
-            free = trial
+            free = fat if grow == 0.0 else self.grid.blocked_by(box[0][None], box[1][None]) & free
         return _with_hidden(base, added, i, self.used)
 
 

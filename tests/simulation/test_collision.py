@@ -7,8 +7,8 @@ import pytest
 import trimesh
 
 from secure3d.errors import GeometryError
-from secure3d.simulation.collision import CollisionWorld, merged_voxel_boxes, rotation_z_to
-from secure3d.simulation.scene import VOXEL_NAME, voxel_boxes_from_centres
+from secure3d.simulation.collision import CollisionWorld, rotation_z_to
+from secure3d.simulation.scene import VOXEL_NAME, merged_voxel_boxes, voxel_boxes_from_centres
 from secure3d.world.spec import Box, MeshObstacle
 
 
