@@ -359,7 +359,11 @@ def tiles_in_box(
     keep: NDArray[np.int64],
 ) -> tuple[NDArray[np.int64], NDArray[np.uint64], NDArray[np.int64]]:
     """Tiles (``blocks`` (m,), ``masks`` (m,)) and codes (k,) less their voxels outside the key box
-    ``keep`` (2, 3) (rows lo, hi, inclusive): (blocks, masks, codes), the codes in their order."""
+    ``keep`` (2, 3) (rows lo, hi, inclusive): (blocks, masks, codes), the codes in their order.
+    Raises :class:`GeometryError` for a ``keep`` that is not a (2, 3) integer key box."""
+    keep = np.asarray(keep)
+    if keep.shape != (2, 3) or not np.issubdtype(keep.dtype, np.integer):
+        raise GeometryError(f"tiles_in_box: keep must be a (2, 3) integer key box, got {keep!r}")
     free = tiles_to_codes(blocks, masks)
     inside = [
         np.all((k >= keep[0]) & (k <= keep[1]), axis=1) for k in map(morton_decode, (free, codes))

@@ -124,3 +124,14 @@ def test_a_depth_image_inserted_in_a_box_leaves_the_rest_unknown():
     np.testing.assert_array_equal(boxed[inside], full[inside])
     assert np.all(boxed[~inside] == -1) and np.count_nonzero(full[~inside] >= 0) > 1000
     assert np.count_nonzero(full[~inside] == 1) > 0, "the wall lies partly outside the box"
+
+
+def test_tiles_in_box_refuses_a_bad_key_box():
+    from secure3d.mapping.morton import tiles_in_box
+
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.uint64), np.zeros(0, np.int64))
+    with pytest.raises(GeometryError, match="tiles_in_box: keep"):
+        tiles_in_box(*empty, np.zeros((2, 3)))  # floats: metres, not keys
+    with pytest.raises(GeometryError, match="tiles_in_box: keep"):
+        tiles_in_box(*empty, np.zeros(3, np.int64))
+    assert all(len(a) == 0 for a in tiles_in_box(*empty, np.zeros((2, 3), np.int64)))
