@@ -144,3 +144,16 @@ def _depth_points_kernel(
             out[i, 1] = o[1] + (rot[1, 0] * px + rot[1, 1] * py + rot[1, 2] * pz)
             out[i, 2] = o[2] + (rot[2, 0] * px + rot[2, 1] * py + rot[2, 2] * pz)
     return out
+
+
+def optical_axis(cam2world: ArrayLike) -> NDArray[np.float64]:
+    """(3,) the camera's optical axis (its z) in the world: the unit third column of
+    ``cam2world`` (3, 3)."""
+    R = np.asarray(cam2world, dtype=np.float64)
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+        raise GeometryError(f"cam2world: expected a finite (3, 3) rotation, got shape {R.shape}")
+    z = R[:, 2]
+    n = float(np.linalg.norm(z))
+    if not n > 0.0:
+        raise GeometryError("cam2world: its third column (the optical axis) is zero")
+    return z / n

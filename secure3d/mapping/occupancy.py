@@ -40,7 +40,7 @@ from secure3d.mapping.claim import (  # noqa: F401  (BOUNDARY_TOUCH, MAX_CLAIM_V
     MAX_CLAIM_VOXELS,
     ClaimLayer,
 )
-from secure3d.mapping.depth import depth_image_points, far_plane_reach
+from secure3d.mapping.depth import depth_image_points, far_plane_reach, optical_axis
 from secure3d.mapping.hits import HitLayer
 from secure3d.mapping.keys import (
     KEY_LIMIT,
@@ -58,6 +58,8 @@ from secure3d.mapping.occupancy_claims import ClaimEditing
 from secure3d.mapping.occupancy_files import OccupancyFiles
 from secure3d.mapping.occupancy_views import ObstacleViews
 from secure3d.mapping.octomap_header import MAX_FILE_BYTES  # noqa: F401  (re-exported)
+from secure3d.mapping.scan import ScanTiles
+from secure3d.mapping.scan_range import scan_tiles_free_range
 from secure3d.mapping.sensor_model import InsertStats, OccupancyParams, Trust
 from secure3d.mapping.store import LeafLayer
 from secure3d.validation import is_real
@@ -185,9 +187,12 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
         discretize: bool = False,
         clear_range: float | None = None,
         box: ArrayLike | None = None,
+        free_range: float | None = None,
+        free_axis: ArrayLike | None = None,
     ) -> InsertStats:
         """Insert one scan, exactly as OctoMap's ``insertPointCloud``; with ``box``, only its
-        updates of voxels that meet the box.
+        updates of voxels that meet the box; with ``free_range``, clearing space only near the
+        sensor.
 
         Parameters
         ----------
@@ -208,6 +213,14 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
             Corners (lo, hi) of the region of interest (m), such as the planning domain: voxels
             outside it are not updated (see :func:`secure3d.mapping.scan.scan_update`). Not
             OctoMap's BBX mode, which drops every ray whose end lies outside its box.
+        free_range : float or None
+            Each ray clears space only within this distance (m) of ``origin``; hits still count
+            out to ``max_range`` (:func:`secure3d.mapping.scan_range.scan_tiles_free_range`).
+            None: as OctoMap. The closed loop passes the camera's observed range, out to which a
+            frame surely hits an obstacle of the guaranteed size, so free means *seen* free.
+        free_axis : (3,) float or None
+            With ``free_range``: a unit vector along which ``free_range`` limits the depth (a
+            plane, a camera's z-depth) instead of the distance.
 
         Returns
         -------
@@ -221,10 +234,8 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
         ConfigError
             ``max_range`` is negative or NaN.
         """
-        mr = self._check_max_range(max_range)
-        cr = self._check_max_range(clear_range, "clear_range")
-        upd = scan_tiles(
-            points, origin, self._resolution, mr, bool(discretize), clear_range=cr, box=box
+        upd = self._scan(
+            points, origin, max_range, discretize, clear_range, box, free_range, free_axis
         )
         p = self._params
         self._sensor.add_logodds_tiles(
@@ -243,6 +254,27 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
             upd.occupied,
             upd.rays,
         )
+
+    def _scan(
+        self,
+        points: ArrayLike,
+        origin: ArrayLike,
+        max_range: float | None,
+        discretize: bool,
+        clear_range: float | None,
+        box: ArrayLike | None,
+        free_range: float | None,
+        free_axis: ArrayLike | None,
+    ) -> ScanTiles:
+        """The scan's updates (:meth:`insert_point_cloud`'s parameters, validated)."""
+        mr = self._check_max_range(max_range)
+        cr = self._check_max_range(clear_range, "clear_range")
+        res, disc = self._resolution, bool(discretize)
+        if free_range is None:
+            return scan_tiles(points, origin, res, mr, disc, clear_range=cr, box=box)
+        fr = self._check_max_range(free_range, "free_range")
+        fr = math.inf if fr is None else fr
+        return scan_tiles_free_range(points, origin, res, mr, fr, disc, cr, box, free_axis)
 
     @staticmethod
     def _check_max_range(max_range: float | None, what: str = "max_range") -> float | None:
@@ -265,6 +297,7 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
         discretize: bool = False,
         far_kind: str = "range",
         box: ArrayLike | None = None,
+        free_range: float | None = None,
     ) -> InsertStats:
         """Insert a z-depth image from a pinhole camera (see :func:`depth_image_points`).
 
@@ -299,6 +332,9 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
             What ``max_range`` limits (the scenario's ``camera.far_kind``).
         box : ((3,), (3,)) float or None
             Update only voxels that meet this box (see :meth:`insert_point_cloud`).
+        free_range : float or None
+            Clear space only within this distance (m) of ``origin``, in ``far_kind`` as
+            ``max_range``: a z-depth or a Euclidean range (see :meth:`insert_point_cloud`).
 
         Returns
         -------
@@ -306,11 +342,16 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
         """
         mr = self._check_max_range(max_range)
         points = depth_image_points(depth, intrinsics, cam2world, origin, mr, far_kind)
+        axis = None
+        if far_kind == "depth" and free_range is not None:
+            axis = optical_axis(cam2world)
         if far_kind != "depth" or mr is None:
-            return self.insert_point_cloud(points, origin, mr, discretize, box=box)
+            return self.insert_point_cloud(
+                points, origin, mr, discretize, None, box, free_range, axis
+            )
         # a discretised hit moves to its voxel's centre, up to half a diagonal farther
         reach = far_plane_reach(np.shape(depth), intrinsics, mr) + self._resolution
-        return self.insert_point_cloud(points, origin, reach, discretize, mr, box)
+        return self.insert_point_cloud(points, origin, reach, discretize, mr, box, free_range, axis)
 
     # ------------------------------------------------------------------ point queries
 

@@ -177,7 +177,7 @@ class Flight:
     def sense(self) -> tuple[np.ndarray, set[str]]:
         """Capture a frame, insert it, return (centres of the obstacle voxels it revealed outside
         the judged boxes, hidden obstacles seen)."""
-        loop, scenario = self.loop, self.loop.scenario
+        loop = self.loop
         R, o = self.model.camera_pose(self.x)
         R, o = np.asarray(R, float), np.asarray(o, float).ravel()
         frame = loop.camera.render(R, o)
@@ -185,15 +185,8 @@ class Flight:
         # Insert hits a hair (0.1 mm) in front of the surface: a wall lying exactly on a voxel
         # boundary then marks the voxel in front of it (which its claim covers) instead of flipping
         # between the two voxels with float rounding and carving the claim into fragments.
-        stats = loop.belief.insert_depth_image(
-            frame.depth - SURFACE_BIAS,
-            (cam.fx, cam.fy, cam.cx, cam.cy),
-            R,
-            o,
-            scenario.camera.max_range,
-            discretize=scenario.camera.discretize,
-            far_kind=scenario.camera.far_kind,
-            box=loop.map_box,
+        stats = loop.insert_frame(
+            frame.depth - SURFACE_BIAS, (cam.fx, cam.fy, cam.cx, cam.cy), R, o
         )
         if self.guard is not None:
             self.guard.add_view(R, o)

@@ -96,6 +96,12 @@ class Loop:
             scenario, belief=self.belief, obstacle_boxes=no_boxes, **options
         )
         self.model = self.problem.model
+        # A frame clears space only where it would surely have hit an obstacle of the guaranteed
+        # size: within the observed range, less a voxel diagonal so that every cleared voxel lies
+        # wholly inside it. Farther, rays pass either side of a thin obstacle, and the start region
+        # of a replan in flight (observed_box) would count its voxels as observed.
+        fr = self.problem.frustum
+        self.free_range = max(0.0, fr.far - float(np.sqrt(3.0)) * self.belief.resolution)
         self.brake = BrakingController(self.model)
         self.tracker = make_tracker(self.model)
         # the planner's module-wide cache by default: runs in one process share compiled NLPs
@@ -113,6 +119,25 @@ class Loop:
         # obstacle boxes the plan being followed was last planned or certified against
         self.judged_lo: np.ndarray | None = None
         self.judged_hi: np.ndarray | None = None
+
+    def insert_frame(
+        self, depth: np.ndarray, intrinsics: tuple, R: np.ndarray, o: np.ndarray
+    ) -> object:
+        """Insert a z-depth frame taken from pose (``R``, ``o``) into the belief: hits out to the
+        sensor's ``max_range``, free space out to :attr:`free_range` (in the camera's
+        ``far_kind``). Returns the insert statistics."""
+        cam = self.scenario.camera
+        return self.belief.insert_depth_image(
+            depth,
+            intrinsics,
+            R,
+            o,
+            cam.max_range,
+            discretize=cam.discretize,
+            far_kind=cam.far_kind,
+            box=self.map_box,
+            free_range=self.free_range,
+        )
 
     def refresh_obstacles(self) -> None:
         lo, hi = self.belief.known_obstacle_boxes(close_gaps=self.problem.options.close_gaps)
@@ -274,7 +299,9 @@ def observed_box(
     box stretches along a corridor even when the floor and ceiling near the robot were never in
     view. Voxels inside ``assumed`` (lo, hi) count as observed too: the start region of the flight,
     observed before take-off by the paper's premise. None if the voxel holding ``centre`` itself is
-    unobserved.
+    unobserved. Sound only if the frames cleared space no farther than the camera's observed range
+    (``free_range`` of :meth:`Loop.insert_frame`): beyond it, rays pass either side of a thin
+    obstacle and clear its voxels.
     """
     from secure3d.mapping.occupancy import Trust
 

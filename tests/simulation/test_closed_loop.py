@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -41,6 +43,41 @@ def test_only_what_the_camera_saw_counts_as_observed_around_the_robot():
         observed_box(m, np.array([np.nan, 0.0, 0.0]), 1.0)
     with pytest.raises(SimulationError, match="half_max"):
         observed_box(m, np.zeros(3), -1.0)
+
+
+def test_a_replan_counts_as_observed_only_space_cleared_within_the_observed_range(maps_dir):
+    """thin_pole: the 64 x 48 camera surely hits a 4 cm pole only within 0.89 m. Frames taken from
+    3 m away and more clear the pole's voxels under OctoMap's rule (its rays pass either side of
+    it), so a start region built from them would hold the pole; the closed loop's frames clear
+    space only within the observed range, and the box keeps out of the pole."""
+    from secure3d.mapping.occupancy import Trust
+    from secure3d.simulation.loop import Loop
+
+    scenario = secure3d.load_scenario(maps_dir / "thin_pole.yaml")
+    loop = Loop(scenario, "secure", 0, {}, NLPCache())
+    far = loop.problem.frustum.far
+    assert loop.free_range == pytest.approx(far - np.sqrt(3) * 0.1) and far < 1.0
+    octomap_rule = OccupancyMap(0.1)
+    cam, spec = loop.camera, scenario.camera
+    R = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # looking along +x
+    for x in np.arange(0.0, 3.0, 0.33):
+        o = np.array([x, 0.0, 1.0])
+        depth = cam.render(R, o).depth
+        intrinsics = (cam.fx, cam.fy, cam.cx, cam.cy)
+        loop.insert_frame(depth, intrinsics, R, o)
+        octomap_rule.insert_depth_image(depth, intrinsics, R, o, spec.max_range, far_kind="depth")
+    pole = np.array([[6.05, 0.01, 1.05], [6.05, -0.01, 1.05]])
+    assert np.all(octomap_rule.trust(pole) == Trust.SENSED_FREE), "cleared from afar"
+    assert np.all(loop.belief.trust(pole) == Trust.UNKNOWN)
+    near_pole = np.array([5.6, 0.05, 1.05])
+    lo, hi = observed_box(octomap_rule, near_pole, 1.0)  # the pole inside
+    assert np.all((pole >= lo) & (pole <= hi)), (lo, hi)
+    assert observed_box(loop.belief, near_pole, 1.0) is None
+    # what the frames cleared lies within the free range (a z-depth) plus a voxel diagonal
+    free = loop.belief.free_voxels()
+    assert len(free) and free[:, 0].max() <= 2.97 + far + 0.1
+    lo, hi = observed_box(loop.belief, np.array([2.9, 0.0, 1.0]), 1.0)
+    assert hi[0] - lo[0] >= 1.0 and hi[0] <= 2.97 + far + 1e-9, (lo, hi)
 
 
 @pytest.mark.slow
@@ -396,7 +433,6 @@ def test_a_flight_logs_a_heartbeat_and_its_events(maps_dir, monkeypatch, caplog)
 def test_closed_loop_solves_stop_at_their_own_iteration_limit(maps_dir, spec_limit, option, want):
     """A replan that has not converged in CLOSED_LOOP_MAX_ITER iterations is given up (the robot
     brakes and plans from rest) unless the scenario asks for fewer or the caller for another."""
-    import dataclasses
 
     from secure3d.simulation.loop import CLOSED_LOOP_MAX_ITER, Loop
 
