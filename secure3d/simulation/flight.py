@@ -468,9 +468,11 @@ class Flight:
             return u
         self.last_attempt = self.t
         self.replans += 1
-        plan = self.make_plan(self.x)
+        # near the goal, its ball's near side first: arriving anywhere inside counts, it is nearer,
+        # and it lies in what the robot observed where the goal point may not
+        plan = self.plan_to_goal_edge()
         if plan is None:
-            plan = self.plan_to_goal_edge()
+            plan = self.make_plan(self.x)
         if plan is not None:
             self.start_following(plan, Trigger.PLANNED)
             self.held_failures = 0
@@ -497,8 +499,9 @@ class Flight:
         return u
 
     def plan_to_goal_edge(self) -> PlanResult | None:
-        """At rest near the goal, the plan to the goal failed: plan to the near side of the goal's
-        tolerance ball instead (:func:`~secure3d.simulation.modes.goal_edge`)."""
+        """At rest near the goal (within the start region's half size of its tolerance ball), plan
+        to the near side of that ball (:func:`~secure3d.simulation.modes.goal_edge`) rather than
+        to the goal point; None when farther or when that plan fails."""
         p = np.asarray(self.model.position(self.x), dtype=float).ravel()
         reach = self.loop.problem.options.start_region_radius
         if (edge := goal_edge(p, self.s.goal, self.loop.scenario.goal.tolerance, reach)) is None:

@@ -322,3 +322,16 @@ def test_goal_edge_is_the_near_side_of_the_goal_tolerance():
     ):
         with pytest.raises(SimulationError, match=what):
             goal_edge(*args)
+
+
+@pytest.mark.slow
+def test_at_rest_near_the_goal_the_robot_aims_at_the_near_side_of_its_ball_first(maps_dir):
+    """warehouse_survey: the robot brakes short of the goal, which the barrel it has just seen
+    hides from every view; at rest its first plan goes to the goal ball's near side (arrival counts
+    anywhere inside) instead of first spending an IPOPT iteration limit on the goal point."""
+    run = simulate(secure3d.load_scenario(maps_dir / "warehouse_survey.yaml"), "secure", seed=0)
+    assert run.reached_goal and not run.collided, run.summary()
+    stop = next(i for i, e in enumerate(run.events) if e.kind == "stopped")
+    after = [e.kind for e in run.events[stop + 1 :]]
+    assert after[:2] == ["aim nearer", "plan"], after
+    assert "plan failed" not in after
