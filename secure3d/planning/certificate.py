@@ -62,6 +62,11 @@ class CertificateSettings:
             )
 
 
+#: :attr:`Certificate.views` of a point observed by a frame taken before the plan
+#: (``PlanningProblem.past_views``); -1: the start region, -2: not observed in time.
+PAST_VIEW = -3
+
+
 def _box_index(problem: object) -> BoxIndex:
     """The spatial index of the problem's known boxes (exact: the same answers as scanning them)."""
     index = getattr(problem, "box_index", None)
@@ -373,9 +378,12 @@ def certify(
     kept = np.flatnonzero(keep)
     flat, owner = flat[keep], owner[keep]
 
+    k, R, o = _with_past_views(problem, R, o)
     obstacle_margin, vis_margin, view, unresolved, occluded_only = _judge_in_chunks(
-        flat, owner, R, o, problem, r, tol
+        flat, owner + k, R, o, problem, r, tol
     )
+    # a plan camera's index in ``sampled``; a frame taken before the plan: PAST_VIEW
+    view = np.where(view >= k, view - k, np.where(view >= 0, PAST_VIEW, view))
     margin = np.minimum(vis_margin, obstacle_margin)
     bad = margin < -tol
     views = np.full(len(sampled.points), -2, dtype=np.int64)
@@ -395,6 +403,19 @@ def certify(
         views=views,
         sampled=sampled,
     )
+
+
+def _with_past_views(
+    problem: object, R: np.ndarray, o: np.ndarray
+) -> tuple[int, np.ndarray, np.ndarray]:
+    """(k, rotations, origins): the problem's ``past_views`` (k frames the camera took before the
+    plan, a replan in flight) put before the plan's cameras ``R`` (n, 3, 3), ``o`` (n, 3), so that
+    they count as earlier than every sample (the view search takes cameras before a point's
+    owner, whose index moves up by k)."""
+    past = getattr(problem, "past_views", None)
+    if past is None or not len(past[0]):
+        return 0, R, o
+    return len(past[0]), np.concatenate([past[0], R]), np.concatenate([past[1], o])
 
 
 def _first_violation(

@@ -240,7 +240,12 @@ class PlannerOptions:
 
 
 #: A start counted observed as a whole (take-off, ``plan()``): no separate observed box or path.
-_NOT_OBSERVED = {"observed_lo": None, "observed_hi": None, "observed_path": None}
+_NOT_OBSERVED = {
+    "observed_lo": None,
+    "observed_hi": None,
+    "observed_path": None,
+    "past_views": None,
+}
 
 
 @dataclass(frozen=True, eq=False)
@@ -268,6 +273,10 @@ class PlanningProblem:
     observed_path : (m, 3) body centres along the reactive manoeuvre from ``x0`` (a replan in
         flight): the body swept along it counts as observed too, besides the box
         (:meth:`start_margins`). None: the box alone.
+    past_views : (rotations (k, 3, 3), origins (k, 3)) of frames the camera took before the plan
+        starts, each inserted into the belief (a replan in flight). The certificate counts them as
+        views earlier than every point of the plan, as the tracking guard counts the frames
+        taken. None: only the plan's own camera poses.
     """
 
     model: VehicleModel
@@ -288,6 +297,7 @@ class PlanningProblem:
     observed_lo: np.ndarray | None = None
     observed_hi: np.ndarray | None = None
     observed_path: np.ndarray | None = None
+    past_views: tuple[np.ndarray, np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         for attr in (
@@ -320,6 +330,8 @@ class PlanningProblem:
                 raise ConfigError("observed_path: every point must be finite")
             path.flags.writeable = False
             object.__setattr__(self, "observed_path", path)
+        if self.past_views is not None:
+            object.__setattr__(self, "past_views", _camera_poses(self.past_views))
         if self.x0.shape != (self.model.nx,):
             raise ConfigError(f"x0: expected shape ({self.model.nx},), got {self.x0.shape}")
         if not np.all(np.isfinite(self.x0)):
@@ -407,6 +419,7 @@ class PlanningProblem:
         x0: np.ndarray,
         half_size: float | None = None,
         region: tuple[np.ndarray, np.ndarray] | None = None,
+        past_views: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> PlanningProblem:
         """A copy starting from another state (for replanning), keeping the obstacles.
 
@@ -416,7 +429,8 @@ class PlanningProblem:
         grown to contain S_r(x0) (see :func:`start_region`) for the NLP. With ``region``, the
         certificate and the guard count as observed only ``region`` and the body along the
         reactive manoeuvre from ``x0`` (:meth:`manoeuvre_path`; at rest, the body where it is), not
-        the fitted set's slack around it (``observed_lo/hi``, ``observed_path``).
+        the fitted set's slack around it (``observed_lo/hi``, ``observed_path``); and, given,
+        ``past_views`` (frames the camera took, inserted into the belief) count as earlier views.
         """
         from dataclasses import replace
 
@@ -439,10 +453,27 @@ class PlanningProblem:
                 observed_lo=r_lo,
                 observed_hi=r_hi,
                 observed_path=self.manoeuvre_path(x0),
+                past_views=past_views,
             )
         half = self.options.start_region_radius if half_size is None else half_size
         lo, hi = start_region(self.model, self.family, x0, half)
         return replace(self, x0=x0, start_region_lo=lo, start_region_hi=hi, **_NOT_OBSERVED)
+
+
+def _camera_poses(views: object) -> tuple[np.ndarray, np.ndarray]:
+    """(rotations (k, 3, 3), origins (k, 3)), finite and read-only, from ``views`` (two arrays)."""
+    try:
+        R, o = (np.array(v, dtype=float) for v in views)
+    except (TypeError, ValueError):
+        raise ConfigError(f"past_views: expected (rotations, origins), got {views!r}") from None
+    R, o = R.reshape(-1, 3, 3) if R.size else np.zeros((0, 3, 3)), o.reshape(-1, 3)
+    if len(R) != len(o) or not (np.all(np.isfinite(R)) and np.all(np.isfinite(o))):
+        raise ConfigError(
+            f"past_views: expected finite rotations (k, 3, 3) and origins (k, 3), got"
+            f" {len(R)} and {len(o)}"
+        )
+    R.flags.writeable = o.flags.writeable = False
+    return R, o
 
 
 def start_region(

@@ -10,7 +10,7 @@ problem and the compiled NLP; :func:`new_obstacle_voxels` tells what a frame rev
 from __future__ import annotations
 
 import dataclasses
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -43,6 +43,11 @@ CLOSED_LOOP_OBSTACLE_SLOTS = 12
 #: guess converged (plan calls of 10-41 s); the robot brakes safely when a replan fails and plans
 #: from rest instead (Algorithm 1, lines 4-7).
 CLOSED_LOOP_MAX_ITER = 200
+#: Frames (the latest) a replan's certificate counts as views taken before the plan: about a second
+#: of frames. The NLP plans with its start box; these let the certificate accept the first
+#: manoeuvres a frame just saw although they leave that box and the braking path (a quadrotor's
+#: replan in flight was refused 7e-5 m off the path; one at 3.3 m/s 4 mm beside it).
+PAST_FRAMES = 16
 
 
 class Loop:
@@ -102,6 +107,9 @@ class Loop:
         # of a replan in flight (observed_box) would count its voxels as observed.
         fr = self.problem.frustum
         self.free_range = max(0.0, fr.far - float(np.sqrt(3.0)) * self.belief.resolution)
+        #: the last PAST_FRAMES frames inserted (rotation, origin): a replan's certificate counts them
+        #: as views earlier than the plan (``PlanningProblem.past_views``)
+        self.frames: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=PAST_FRAMES)
         self.brake = BrakingController(self.model)
         self.tracker = make_tracker(self.model)
         # the planner's module-wide cache by default: runs in one process share compiled NLPs
@@ -127,6 +135,7 @@ class Loop:
         sensor's ``max_range``, free space out to :attr:`free_range` (in the camera's
         ``far_kind``). Returns the insert statistics."""
         cam = self.scenario.camera
+        self.frames.append((np.asarray(R, dtype=float), np.asarray(o, dtype=float)))
         return self.belief.insert_depth_image(
             depth,
             intrinsics,
@@ -170,7 +179,12 @@ class Loop:
                 problem.options.start_region_radius,
                 assumed=(first.start_region_lo, first.start_region_hi),
             )
-            problem = problem.with_start(x, region=box if box is not None else (p, p))
+            views = None
+            if self.frames:
+                R, o = zip(*self.frames, strict=True)
+                views = (np.stack(R), np.stack(o))
+            region = box if box is not None else (p, p)
+            problem = problem.with_start(x, region=region, past_views=views)
         if speed is not None:
             problem = problem.with_options(guess_speed_fraction=speed)
         if goal is not None:

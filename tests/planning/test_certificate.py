@@ -31,3 +31,47 @@ def test_certifying_in_chunks_gives_the_answers_of_one_pass(monkeypatch, maps_di
             assert getattr(chunked, name) == getattr(whole, name), name
         np.testing.assert_array_equal(chunked.views, whole.views)
         assert repr(chunked.first_violation) == repr(whole.first_violation)
+
+
+def test_frames_taken_before_the_plan_count_as_earlier_views(maps_dir):
+    """A replan's certificate counts the frames the camera took before it (``past_views``) as
+    views earlier than every plan point: with a start box too small for the first manoeuvres the
+    plan fails, a frame from behind the start that sees them makes it pass, and a frame that
+    looks away does not. The views record PAST_VIEW for the points it observed."""
+    import numpy as np
+    import pytest
+
+    import secure3d
+    from secure3d.errors import ConfigError
+    from secure3d.planning import certificate
+    from secure3d.planning.problem import problem_from_scenario
+
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    plan = secure3d.plan(scenario, "secure", certify=False)
+    problem = problem_from_scenario(scenario)
+    p0 = problem.x0[:3]
+    tight = dataclasses.replace(problem, start_region_lo=p0 - 0.25, start_region_hi=p0 + 0.25)
+    failed = certificate.certify(plan, tight)
+    assert not failed.ok and failed.first_violation.time < 0.5
+    heading = plan.states[3][:3] - p0  # where the plan sets off
+    heading[2] = 0.0
+    heading /= np.linalg.norm(heading)
+    behind = p0 - 0.8 * heading  # in the room, before its west wall
+
+    def looking(d: np.ndarray) -> np.ndarray:  # camera (x right, y down, z forward) to world
+        z = d / np.linalg.norm(d)
+        x = np.cross(z, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x)
+        return np.stack([x, np.cross(z, x), z], axis=1)
+
+    seen = dataclasses.replace(tight, past_views=(looking(heading)[None], behind[None]))
+    cert = certificate.certify(plan, seen, sampled=failed.sampled)
+    early = failed.sampled.times[failed.sampled.owner] < failed.first_violation.time + 0.1
+    assert np.any(cert.views[early] == certificate.PAST_VIEW)
+    assert cert.first_violation is None or cert.first_violation.time > failed.first_violation.time
+    away = dataclasses.replace(tight, past_views=(looking(-heading)[None], behind[None]))
+    again = certificate.certify(plan, away, sampled=failed.sampled)
+    assert repr(again.first_violation) == repr(failed.first_violation)
+    assert not np.any(again.views == certificate.PAST_VIEW)
+    with pytest.raises(ConfigError, match="past_views"):
+        dataclasses.replace(tight, past_views=(np.zeros((2, 3, 3)), np.zeros((1, 3))))

@@ -78,6 +78,13 @@ def test_a_replan_counts_as_observed_only_space_cleared_within_the_observed_rang
     assert len(free) and free[:, 0].max() <= 2.97 + far + 0.1
     lo, hi = observed_box(loop.belief, np.array([2.9, 0.0, 1.0]), 1.0)
     assert hi[0] - lo[0] >= 1.0 and hi[0] <= 2.97 + far + 1e-9, (lo, hi)
+    # a replan from here counts the frames taken as views earlier than its plan
+    x = loop.model.initial_state(np.array([2.9, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]), 0.0)
+    replan = loop.plan_problem_from(x, in_flight=True)
+    R_past, o_past = replan.past_views
+    assert len(o_past) == len(loop.frames) == 10
+    np.testing.assert_allclose(o_past[-1], [2.97, 0.0, 1.0])
+    assert loop.plan_problem_from(x, in_flight=False).past_views is None
 
 
 @pytest.mark.slow
