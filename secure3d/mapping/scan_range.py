@@ -54,10 +54,10 @@ def scan_tiles_free_range(
     cleared voxel lies within ``free_range`` plus a voxel diagonal of the sensor (in distance, or
     in depth), and is one the scan without ``free_range`` clears (but where a ray runs exactly
     along a voxel's edge: there the walk's choice of voxel may flip with the last bit of its
-    shortened end). A ray whose end lies outside the
-    key range is dropped whole, as without it. Returns the statistics of the scan without
-    ``free_range``; other parameters as ``scan_tiles``. Raises :class:`GeometryError` for a
-    ``free_range`` that is not a number >= 0 or a ``free_axis`` that is not a unit 3-vector."""
+    shortened end). A ray whose end lies outside the key range is dropped whole, as without it.
+    Returns the statistics of the scan without ``free_range``; other parameters as
+    ``scan_tiles``. Raises :class:`GeometryError` for a ``free_range`` that is not a number >= 0
+    or a ``free_axis`` that is not a unit 3-vector."""
     fr, axis = _check_free(free_range, free_axis)
     unlimited = max_range is None or not math.isfinite(max_range)
     mr = -1.0 if unlimited else float(max_range)

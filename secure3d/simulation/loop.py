@@ -43,8 +43,8 @@ CLOSED_LOOP_OBSTACLE_SLOTS = 12
 #: guess converged (plan calls of 10-41 s); the robot brakes safely when a replan fails and plans
 #: from rest instead (Algorithm 1, lines 4-7).
 CLOSED_LOOP_MAX_ITER = 200
-#: Frames (the latest) a replan's certificate counts as views taken before the plan: about a second
-#: of frames. The NLP plans with its start box; these let the certificate accept the first
+#: Frames (the latest) a replan's certificate counts as views taken before the plan: half a second
+#: to a second at 15-30 Hz. The NLP plans with its start box; these let the certificate accept the first
 #: manoeuvres a frame just saw although they leave that box and the braking path (a quadrotor's
 #: replan in flight was refused 7e-5 m off the path; one at 3.3 m/s 4 mm beside it).
 PAST_FRAMES = 16
@@ -135,8 +135,7 @@ class Loop:
         sensor's ``max_range``, free space out to :attr:`free_range` (in the camera's
         ``far_kind``). Returns the insert statistics."""
         cam = self.scenario.camera
-        self.frames.append((np.asarray(R, dtype=float), np.asarray(o, dtype=float)))
-        return self.belief.insert_depth_image(
+        stats = self.belief.insert_depth_image(
             depth,
             intrinsics,
             R,
@@ -147,6 +146,9 @@ class Loop:
             box=self.map_box,
             free_range=self.free_range,
         )
+        # a view counts only once its frame is in the map (whatever it hit is a known obstacle)
+        self.frames.append((np.asarray(R, dtype=float), np.asarray(o, dtype=float)))
+        return stats
 
     def refresh_obstacles(self) -> None:
         lo, hi = self.belief.known_obstacle_boxes(close_gaps=self.problem.options.close_gaps)
