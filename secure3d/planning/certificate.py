@@ -62,8 +62,9 @@ class CertificateSettings:
             )
 
 
-#: :attr:`Certificate.views` of a point observed by a frame taken before the plan
-#: (``PlanningProblem.past_views``); -1: the start region, -2: not observed in time.
+#: :attr:`Certificate.views` of a point observed by frame ``j`` of those taken before the plan
+#: (``PlanningProblem.past_views``) is ``PAST_VIEW - j``; -1: the start region, -2: not observed in
+#: time, >= 0: a plan camera.
 PAST_VIEW = -3
 
 
@@ -382,8 +383,7 @@ def certify(
     obstacle_margin, vis_margin, view, unresolved, occluded_only = _judge_in_chunks(
         flat, owner + k, R, o, problem, r, tol
     )
-    # a plan camera's index in ``sampled``; a frame taken before the plan: PAST_VIEW
-    view = np.where(view >= k, view - k, np.where(view >= 0, PAST_VIEW, view))
+    view = _stored_views(view, k)
     margin = np.minimum(vis_margin, obstacle_margin)
     bad = margin < -tol
     views = np.full(len(sampled.points), -2, dtype=np.int64)
@@ -416,6 +416,26 @@ def _with_past_views(
     if past is None or not len(past[0]):
         return 0, R, o
     return len(past[0]), np.concatenate([past[0], R]), np.concatenate([past[1], o])
+
+
+def _stored_views(view: np.ndarray, k: int) -> np.ndarray:
+    """Views of the cameras ``[past frames (k), plan cameras]`` as :attr:`Certificate.views` holds
+    them: a plan camera's index in the sampled plan, ``PAST_VIEW - j`` for past frame ``j``."""
+    return np.where(view >= k, view - k, np.where(view >= 0, PAST_VIEW - view, view))
+
+
+def _view_origins(views: np.ndarray, sampled: SampledPlan, problem: object) -> np.ndarray | None:
+    """(n, 3) the camera origin of each stored view ``views`` (n,) (each >= 0 or <= PAST_VIEW), or
+    None when a past frame is named that ``problem`` does not hold."""
+    past = getattr(problem, "past_views", None)
+    j = PAST_VIEW - views[views <= PAST_VIEW]
+    if len(j) and (past is None or j.max() >= len(past[1])):
+        return None
+    out = np.empty((len(views), 3))
+    out[views >= 0] = sampled.origins[views[views >= 0]]
+    if len(j):
+        out[views <= PAST_VIEW] = past[1][j]
+    return out
 
 
 def _first_violation(
@@ -486,8 +506,51 @@ def views_after_adding(
     if views is None or len(views) != len(sampled.points):
         return None
     judge = np.flatnonzero(sampled.times[sampled.owner] >= t_from - 1e-9)
-    if np.any(views[judge] < -1):
+    if np.any(views[judge] == -2):
         return None
+    added_lo, added_hi = _added_boxes(added_lo, added_hi)
+    if not len(added_lo):
+        return views
+    points = sampled.points[judge]
+    if np.any(np.maximum(min_box_distance(points, added_lo, added_hi), 0.0) - r < -tol):
+        return None
+    seen = judge[(views[judge] >= 0) | (views[judge] <= PAST_VIEW)]
+    origins = _view_origins(views[seen], sampled, problem)
+    if origins is None:
+        return None
+    blocked = seen[
+        cone_box_blocked_any(
+            np.ascontiguousarray(origins),
+            np.ascontiguousarray(sampled.points[seen]),
+            added_lo,
+            added_hi,
+            float(r),
+        )
+    ]
+    if not len(blocked):
+        return views
+    k, R, o = _with_past_views(problem, sampled.rotations, sampled.origins)
+    found, best, _, view = _clear_views(
+        sampled.points[blocked],
+        sampled.owner[blocked] + k,
+        R,
+        o,
+        problem.frustum,
+        r,
+        problem.boxes_lo,
+        problem.boxes_hi,
+        tol,
+        _box_index(problem),
+    )
+    if not np.all(found & (best >= -tol)):
+        return None
+    out = views.copy()
+    out[blocked] = _stored_views(view, k)
+    return out
+
+
+def _added_boxes(added_lo: object, added_hi: object) -> tuple[np.ndarray, np.ndarray]:
+    """The boxes :func:`views_after_adding` is given, as contiguous (n, 3) arrays, validated."""
     added_lo = np.ascontiguousarray(np.asarray(added_lo, dtype=float))
     added_hi = np.ascontiguousarray(np.asarray(added_hi, dtype=float))
     if (
@@ -500,40 +563,7 @@ def views_after_adding(
             "views_after_adding: added boxes must be finite (n, 3) corners with hi >= lo, got"
             f" lo {added_lo.shape}, hi {added_hi.shape}"
         )
-    if not len(added_lo):
-        return views
-    points = sampled.points[judge]
-    if np.any(np.maximum(min_box_distance(points, added_lo, added_hi), 0.0) - r < -tol):
-        return None
-    seen = judge[views[judge] >= 0]
-    blocked = seen[
-        cone_box_blocked_any(
-            np.ascontiguousarray(sampled.origins[views[seen]]),
-            np.ascontiguousarray(sampled.points[seen]),
-            added_lo,
-            added_hi,
-            float(r),
-        )
-    ]
-    if not len(blocked):
-        return views
-    found, best, _, view = _clear_views(
-        sampled.points[blocked],
-        sampled.owner[blocked],
-        sampled.rotations,
-        sampled.origins,
-        problem.frustum,
-        r,
-        problem.boxes_lo,
-        problem.boxes_hi,
-        tol,
-        _box_index(problem),
-    )
-    if not np.all(found & (best >= -tol)):
-        return None
-    out = views.copy()
-    out[blocked] = view
-    return out
+    return added_lo, added_hi
 
 
 def failing_nodes(cert: Certificate, times: np.ndarray) -> np.ndarray:

@@ -59,8 +59,8 @@ class Certificate:
     n_samples : number of trajectory times checked; n_points : manoeuvre points checked.
     views : what observed each manoeuvre point of the sampled plan (its order, see
         :class:`~secure3d.planning.certificate.SampledPlan`): the sample whose camera saw it with a
-        clear sight cone, -1 the start region, -2 not judged (before ``t_from``) or failing, -3 a
-        frame taken before the plan (``PlanningProblem.past_views``).
+        clear sight cone, -1 the start region, -2 not judged (before ``t_from``) or failing, -3 - j
+        frame j of those taken before the plan (``PlanningProblem.past_views``).
     sampled : that sampled plan (:class:`~secure3d.planning.certificate.SampledPlan`: sample
         times, manoeuvre points, camera poses), so the views can be re-checked later
         (:func:`~secure3d.planning.certificate.views_after_adding`).

@@ -69,6 +69,21 @@ def test_frames_taken_before_the_plan_count_as_earlier_views(maps_dir):
     early = failed.sampled.times[failed.sampled.owner] < failed.first_violation.time + 0.1
     assert np.any(cert.views[early] == certificate.PAST_VIEW)
     assert cert.first_violation is None or cert.first_violation.time > failed.first_violation.time
+    # re-certified after boxes join the map: a box far away keeps every view, the past frame's
+    # too (the shortcut, no full certificate); a box in the frame's line of sight does not
+    assert cert.ok
+
+    def plus(lo: np.ndarray, hi: np.ndarray) -> object:
+        boxes = (np.vstack([seen.boxes_lo, lo]), np.vstack([seen.boxes_hi, hi]))
+        return dataclasses.replace(seen, boxes_lo=boxes[0], boxes_hi=boxes[1])
+
+    far = (np.array([[7.0, 7.0, 0.1]]), np.array([[7.1, 7.1, 0.2]]))
+    kept = certificate.views_after_adding(cert.views, cert.sampled, plus(*far), *far)
+    np.testing.assert_array_equal(kept, cert.views)
+    mid = behind + 0.4 * heading
+    block = ((mid - 0.02)[None], (mid + 0.02)[None])
+    assert certificate.views_after_adding(cert.views, cert.sampled, plus(*block), *block) is None
+    assert not certificate.certify(plan, plus(*block), sampled=cert.sampled).ok
     away = dataclasses.replace(tight, past_views=(looking(-heading)[None], behind[None]))
     again = certificate.certify(plan, away, sampled=failed.sampled)
     assert repr(again.first_violation) == repr(failed.first_violation)
