@@ -240,12 +240,7 @@ class PlannerOptions:
 
 
 #: A start counted observed as a whole (take-off, ``plan()``): no separate observed box or path.
-_NOT_OBSERVED = {
-    "observed_lo": None,
-    "observed_hi": None,
-    "observed_path": None,
-    "past_views": None,
-}
+_NOT_OBSERVED = dict.fromkeys(("observed_lo", "observed_hi", "observed_path", "past_views"))
 
 
 @dataclass(frozen=True, eq=False)
@@ -461,16 +456,22 @@ class PlanningProblem:
 
 
 def _camera_poses(views: object) -> tuple[np.ndarray, np.ndarray]:
-    """(rotations (k, 3, 3), origins (k, 3)), finite and read-only, from ``views`` (two arrays)."""
+    """(rotations (k, 3, 3), origins (k, 3)), read-only, from ``views`` (two arrays). A view's
+    frustum is read through its rotation: anything but a rotation would count unseen space seen."""
     try:
         R, o = (np.array(v, dtype=float) for v in views)
+        R, o = R.reshape(-1, 3, 3), o.reshape(-1, 3)
     except (TypeError, ValueError):
         raise ConfigError(f"past_views: expected (rotations, origins), got {views!r}") from None
-    R, o = R.reshape(-1, 3, 3) if R.size else np.zeros((0, 3, 3)), o.reshape(-1, 3)
-    if len(R) != len(o) or not (np.all(np.isfinite(R)) and np.all(np.isfinite(o))):
+    off = np.abs(np.einsum("kji,kjl->kil", R, R) - np.eye(3)).max(initial=0.0)
+    if (
+        len(R) != len(o)
+        or not (off <= 1e-6 and np.all(np.isfinite(o)))
+        or np.any(np.linalg.det(R) < 0)
+    ):
         raise ConfigError(
-            f"past_views: expected finite rotations (k, 3, 3) and origins (k, 3), got"
-            f" {len(R)} and {len(o)}"
+            f"past_views: expected k proper rotations (R^T R = I, det +1; off by {off:.2g}) and k"
+            f" finite origins, got {len(R)} and {len(o)}"
         )
     R.flags.writeable = o.flags.writeable = False
     return R, o

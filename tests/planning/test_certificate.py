@@ -90,3 +90,5 @@ def test_frames_taken_before_the_plan_count_as_earlier_views(maps_dir):
     assert not np.any(again.views == certificate.PAST_VIEW)
     with pytest.raises(ConfigError, match="past_views"):
         dataclasses.replace(tight, past_views=(np.zeros((2, 3, 3)), np.zeros((1, 3))))
+    with pytest.raises(ConfigError, match="proper rotations"):
+        dataclasses.replace(tight, past_views=(2.0 * looking(heading)[None], behind[None]))
