@@ -150,3 +150,25 @@ def test_only_frames_under_a_ctypes_callback_package_count_as_inside_one():
     scope: dict = {}
     exec(code, scope)
     assert inside_c_callback(scope["frame"])
+
+
+_CRASHING_COMMAND = """
+import ctypes, sys
+import secure3d.cli
+from secure3d.__main__ import run
+
+def crash_in_native_code(argv=None, **kwargs):
+    ctypes.string_at(0)  # reads address 0: SIGSEGV, as a crash inside a native library would
+
+secure3d.cli.main = crash_in_native_code
+sys.exit(run())
+"""
+
+
+def test_a_crash_in_native_code_prints_the_python_stack_before_the_process_dies():
+    """A segfault (seen once in CI on Ctrl-C, stderr empty) must leave a trace to debug from."""
+    program = [sys.executable, "-c", _CRASHING_COMMAND]
+    done = subprocess.run(program, capture_output=True, text=True, timeout=60)
+    assert done.returncode == -signal.SIGSEGV, (done.returncode, done.stderr[-1500:])
+    assert "Segmentation fault" in done.stderr, done.stderr[-1500:]
+    assert "crash_in_native_code" in done.stderr, done.stderr[-1500:]
