@@ -23,6 +23,10 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: Largest number of grid cells the graph search uses; the grid is coarsened to stay below it.
 MAX_GRID_CELLS = 120_000
+#: Slowest speed of a guess's time scaling (m/s): where no speed is visible, the guess crawls.
+CRAWL_SPEED = 0.05
+#: A held-altitude candidate replaces the guess when its time scaling is this much faster.
+HELD_ALTITUDE_GAIN = 0.8
 
 
 @dataclass(frozen=True)
@@ -427,7 +431,7 @@ def _speed_profile(
     cap = np.minimum(cap, 0.7 * yaw_rate / np.maximum(dyaw, 1e-6))
     if secure:
         cap = np.minimum(cap, secure_speed_caps(problem, pts, tang, yaw, speed_fraction * v_max))
-    cap = np.maximum(cap, 0.05)
+    cap = np.maximum(cap, CRAWL_SPEED)
     v = cap.copy()
     ds = np.diff(arc)
     v[0] = v_start
@@ -499,7 +503,31 @@ def initial_guess(
     for the secure planner)."""
     path = centre_path(problem, graph_path(problem))
     frac = problem.options.guess_speed_fraction if speed_fraction is None else speed_fraction
-    return profile_guess(problem, path, frac, secure)
+    guess = profile_guess(problem, path, frac, secure)
+    return (
+        _held_altitude_guess(problem, guess, frac) if secure and _crawls(problem, guess) else guess
+    )
+
+
+def _crawls(problem: PlanningProblem, guess: Guess) -> bool:
+    """Whether the guess crawls somewhere between its ends (no faster speed was visible there)."""
+    speeds = np.linalg.norm(np.asarray(problem.model.velocity(guess.states[1:-1])), axis=-1)
+    return bool(len(speeds)) and float(speeds.min()) <= 2.0 * CRAWL_SPEED
+
+
+def _held_altitude_guess(problem: PlanningProblem, guess: Guess, frac: float) -> Guess:
+    """The fastest of ``guess`` and the time scalings of its path held at the start's height for a
+    while (:func:`secure3d.planning.held_altitude.held_altitude_paths`), if a candidate's final time
+    is at most :data:`HELD_ALTITUDE_GAIN` times the guess's."""
+    from secure3d.planning.held_altitude import held_altitude_paths
+
+    pts, arc = _densify(guess.path, 0.1)
+    best = guess
+    for path in held_altitude_paths(problem, pts, arc):
+        g = profile_guess(problem, path, frac, True)
+        if g.final_time <= HELD_ALTITUDE_GAIN * best.final_time:
+            best = g
+    return best
 
 
 def clearance_field(problem: PlanningProblem) -> tuple[np.ndarray, np.ndarray, float]:
