@@ -25,8 +25,9 @@ if TYPE_CHECKING:  # pragma: no cover
 MAX_GRID_CELLS = 120_000
 #: Slowest speed of a guess's time scaling (m/s): where no speed is visible, the guess crawls.
 CRAWL_SPEED = 0.05
-#: A held-altitude candidate replaces the guess when its time scaling is this much faster.
-HELD_ALTITUDE_GAIN = 0.8
+#: A candidate of :mod:`secure3d.planning.visible_paths` replaces a crawling guess when its time
+#: scaling is this much faster.
+CANDIDATE_GAIN = 0.8
 
 
 @dataclass(frozen=True)
@@ -504,9 +505,7 @@ def initial_guess(
     path = centre_path(problem, graph_path(problem))
     frac = problem.options.guess_speed_fraction if speed_fraction is None else speed_fraction
     guess = profile_guess(problem, path, frac, secure)
-    return (
-        _held_altitude_guess(problem, guess, frac) if secure and _crawls(problem, guess) else guess
-    )
+    return _uncrawled_guess(problem, guess, frac) if secure and _crawls(problem, guess) else guess
 
 
 def _crawls(problem: PlanningProblem, guess: Guess) -> bool:
@@ -515,19 +514,18 @@ def _crawls(problem: PlanningProblem, guess: Guess) -> bool:
     return bool(len(speeds)) and float(speeds.min()) <= 2.0 * CRAWL_SPEED
 
 
-def _held_altitude_guess(problem: PlanningProblem, guess: Guess, frac: float) -> Guess:
-    """The fastest of ``guess`` and the time scalings of its path held at the start's height for a
-    while (:func:`secure3d.planning.held_altitude.held_altitude_paths`), if a candidate's final time
-    is at most :data:`HELD_ALTITUDE_GAIN` times the guess's."""
-    from secure3d.planning.held_altitude import held_altitude_paths
+def _uncrawled_guess(problem: PlanningProblem, guess: Guess, frac: float) -> Guess:
+    """The fastest of the time scalings of the candidate paths that let the camera see first
+    (:func:`secure3d.planning.visible_paths.candidate_paths`) if its final time is at most
+    :data:`CANDIDATE_GAIN` times the crawling ``guess``'s, else ``guess``."""
+    from secure3d.planning.visible_paths import candidate_paths
 
     pts, arc = _densify(guess.path, 0.1)
-    best = guess
-    for path in held_altitude_paths(problem, pts, arc):
-        g = profile_guess(problem, path, frac, True)
-        if g.final_time <= HELD_ALTITUDE_GAIN * best.final_time:
-            best = g
-    return best
+    tries = [
+        profile_guess(problem, path, frac, True) for path in candidate_paths(problem, pts, arc)
+    ]
+    best = min(tries, key=lambda g: g.final_time, default=guess)
+    return best if best.final_time <= CANDIDATE_GAIN * guess.final_time else guess
 
 
 def clearance_field(problem: PlanningProblem) -> tuple[np.ndarray, np.ndarray, float]:
