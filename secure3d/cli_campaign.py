@@ -10,7 +10,6 @@ from secure3d.cli_common import (
     _SCENARIO_HELP,
     _add_planner_options,
     _add_replan_defer,
-    _output_dir,
     _planner_options,
 )
 
@@ -110,7 +109,7 @@ def _campaign(args: argparse.Namespace) -> int:
         planners=args.planners,
         seed=args.seed,
         workers=args.workers,
-        out_dir=_output_dir(args.out),
+        out_dir=args.out,  # made once every argument is checked (nothing is left on an error)
         progress=not args.no_progress,
         kind=args.kind,
         count=args.count,

@@ -15,7 +15,7 @@ import logging
 import os
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -113,6 +113,8 @@ class CampaignPlan:
     replan_defer: float
     shard: tuple[int, int]
     out: Path
+    #: The family prepared over ``base`` (:attr:`~secure3d.world.families.Family.prepare`).
+    prepared: object = field(default=None, compare=False, repr=False)
 
     def params(self) -> dict[str, object]:
         """The parameters recorded in ``runs.csv``."""
@@ -142,7 +144,7 @@ def _job_stream(
     from secure3d.world.families import variant_rng
 
     family = campaign_family(plan.base, plan.kind, plan.count, plan.options)
-    prepared = family.prepare(plan.base)
+    prepared = family.prepare(plan.base) if plan.prepared is None else plan.prepared
     options = dict(plan.options, replan_defer=plan.replan_defer)
     for i in plan.variants():
         todo = [p for p in plan.planners if (i, p) not in done]
@@ -273,14 +275,18 @@ def plan_campaign(
         from secure3d.world.scenario import load_scenario
 
         base = load_scenario(base)
-    # Bad planner options would otherwise surface as one error row per run.
+    # Bad planner options, or a family the base cannot take (a deadend on a single route, a 3D
+    # family on a planar robot), would otherwise surface as one error row per run.
     problem_from_scenario(base, **options)
+    prepared = campaign_family(base, kind, count, options).prepare(base)
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"out_dir: cannot create {str(out)!r}: {exc.strerror or exc}") from None
-    return CampaignPlan(base, n, planners, seed, kind, count, dict(options), defer, shard_kn, out)
+    return CampaignPlan(
+        base, n, planners, seed, kind, count, dict(options), defer, shard_kn, out, prepared
+    )
 
 
 def execute(plan: CampaignPlan, ex: Execution) -> CampaignResult:

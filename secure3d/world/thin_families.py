@@ -174,6 +174,19 @@ def _z_range(base: Scenario) -> tuple[float, float]:
     return float(base.world.bounds.lo[2]), float(base.world.bounds.hi[2])
 
 
+def placeable(prep: Placement, base: Scenario, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """Whether a hidden box [lo, hi] keeps the start and the goal clear (body radius plus
+    :data:`PLACEMENT_CLEARANCE`) and the goal reachable from the start on the placement grid."""
+    keep = base.vehicle.body_radius + PLACEMENT_CLEARANCE
+    ends = np.array([base.start.position, base.goal.position])
+    if not np.all(hi > lo) or not _clear(
+        (lo, hi), prep.lo, prep.hi, prep.touchable, ends, keep, closed=keep
+    ):
+        return False
+    trial = prep.grid.blocked_by(lo[None], hi[None]) & prep.grid.free
+    return bool(_connected(trial, prep.start_cell, prep.goal_cell))
+
+
 def place_hidden(
     prep: Placement,
     base: Scenario,
@@ -181,20 +194,12 @@ def place_hidden(
     draw: Callable[[Placement, Scenario, np.random.Generator], tuple[str, tuple] | None],
 ) -> tuple[str, Box]:
     """Draw candidates until one keeps start and goal clear and the goal reachable."""
-    r = base.vehicle.body_radius
-    ends = np.array([base.start.position, base.goal.position])
-    keep = r + PLACEMENT_CLEARANCE
     for _ in range(MAX_ATTEMPTS):
         cand = draw(prep, base, rng)
         if cand is None or cand[1] is None:
             continue
         kind, (lo, hi) = cand
-        if not np.all(hi > lo) or not _clear(
-            (lo, hi), prep.lo, prep.hi, prep.touchable, ends, keep, closed=keep
-        ):
-            continue
-        trial = prep.grid.blocked_by(lo[None], hi[None]) & prep.grid.free
-        if _connected(trial, prep.start_cell, prep.goal_cell):
+        if placeable(prep, base, lo, hi):
             name = _fresh_name(base.world, [], f"hidden_{kind}")
             return kind, Box(name, tuple(map(float, lo)), tuple(map(float, hi)))
     raise ScenarioError(

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -43,10 +46,22 @@ def test_walls_close_the_route_keep_another_and_are_pure(maps_dir):
     )
 
 
-def test_a_base_with_one_route_is_refused_by_name(maps_dir):
+def test_a_base_with_one_route_is_refused_by_name_once_when_the_family_is_prepared(maps_dir):
     base = secure3d.load_scenario(maps_dir / "planar_blind_corner.yaml")
-    prep = DEAD_END.prepare(base)
     with pytest.raises(
         ScenarioError, match="planar_blind_corner.*needs a base with a second route"
     ):
-        DEAD_END.variant(prep, base, variant_rng(0, 0), 0)
+        DEAD_END.prepare(base)
+
+
+def test_a_campaign_over_a_single_route_base_stops_before_any_run_with_one_line(maps_dir, tmp_path):
+    """It wrote one identical error row per variant (300 placement attempts each), exit 0."""
+    out = tmp_path / "camp"
+    cmd = [sys.executable, "-m", "secure3d", "campaign", str(maps_dir / "narrow_passage_20cm.yaml")]
+    cmd += ["-n", "3", "--kind", "deadend", "--out", str(out), "--no-progress"]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, (done.returncode, done.stderr)
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "narrow_passage_20cm" in lines[0], done.stderr
+    assert "second route" in lines[0] and "Traceback" not in done.stderr
+    assert not out.exists()  # nothing half-made
