@@ -51,7 +51,7 @@ __all__ = [
 #: Where the height ramp starts and how long it is, in units of :func:`level_distance`.
 RAMP_STARTS = (1.3, 2.6)
 RAMP_LENGTHS = (2.0, 4.0)
-#: How far a stepped-back candidate backs away, as fractions of the farthest the start region allows.
+#: How far a stepped-back candidate backs away: fractions of the farthest the start region allows.
 BACK_OFF_FRACTIONS = (0.5, 1.0)
 #: Fastest start (m/s) a stepped-back candidate is made for.
 AT_REST = 0.05
@@ -72,8 +72,8 @@ def held_altitude_paths(
     whose height is the start's up to ``s0`` and the path's own from ``s0 + L`` on, linear in
     between, for every (s0, L) of :data:`RAMP_STARTS` x :data:`RAMP_LENGTHS` times
     :func:`level_distance`. Only candidates whose height differs from the path's by a body radius
-    somewhere (less keeps the reactive set about as high as before), end where it ends, stay inside the bounds and keep its clearance are
-    returned (none for a planar model)."""
+    somewhere (less keeps the reactive set about as high as before), end where it ends, stay
+    inside the bounds and keep its clearance are returned (none for a planar model)."""
     pts = np.asarray(points, dtype=float)
     s = np.asarray(arc, dtype=float)
     if problem.model.planar or len(pts) < 3:
@@ -120,7 +120,8 @@ def stepped_back_paths(problem: PlanningProblem, points: np.ndarray) -> list[np.
         return []
     yaw = float(model.yaw(problem.x0))
     back = -np.array([np.cos(yaw), np.sin(yaw), 0.0])
-    steps = np.arange(1, int(np.ceil(2.0 * problem.options.start_region_radius / BACK_OFF_STEP)))
+    span = float(np.linalg.norm(problem.start_region_hi - problem.start_region_lo))
+    steps = np.arange(1, int(np.ceil(span / BACK_OFF_STEP)) + 1)
     along = pts[0] + (BACK_OFF_STEP * steps)[:, None] * back
     rest = model.initial_states(along, np.zeros_like(along), np.full(len(along), yaw))
     inside = start_margins(problem, node_geometry(problem, rest)) >= problem.options.margin
