@@ -34,6 +34,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from secure3d.errors import PlanningError
+
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.problem import PlanningProblem
 
@@ -59,6 +61,22 @@ AT_REST = 0.05
 MIN_BACK_OFF, BACK_OFF_STEP = 0.1, 0.05
 
 
+def _path(points: object, arc: object = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """``points`` as (n, 3) finite floats and ``arc`` as (n,) finite, non-decreasing floats from
+    0 (if given); a :class:`PlanningError` names the bad argument."""
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 3 or not np.all(np.isfinite(pts)):
+        raise PlanningError(f"points: must be a finite (n, 3) array, got shape {pts.shape}")
+    if arc is None:
+        return pts, None
+    s = np.asarray(arc, dtype=float)
+    if s.shape != (len(pts),) or not np.all(np.isfinite(s)):
+        raise PlanningError(f"arc: must be {len(pts)} finite arc lengths, got shape {s.shape}")
+    if len(s) and (s[0] != 0.0 or np.any(np.diff(s) < 0.0)):
+        raise PlanningError("arc: must start at 0 and never decrease")
+    return pts, s
+
+
 def level_distance(problem: PlanningProblem) -> float:
     """Distance (m) from which the body's sphere fits the camera's vertical field of view:
     ``body_radius / sin(vfov / 2)``."""
@@ -74,8 +92,7 @@ def held_altitude_paths(
     :func:`level_distance`. Only candidates whose height differs from the path's by a body radius
     somewhere (less keeps the reactive set about as high as before), end where it ends, stay
     inside the bounds and keep its clearance are returned (none for a planar model)."""
-    pts = np.asarray(points, dtype=float)
-    s = np.asarray(arc, dtype=float)
+    pts, s = _path(points, arc)
     if problem.model.planar or len(pts) < 3:
         return []
     d = level_distance(problem)
@@ -114,7 +131,7 @@ def stepped_back_paths(problem: PlanningProblem, points: np.ndarray) -> list[np.
     from secure3d.planning.lookback import node_geometry, start_margins
 
     model = problem.model
-    pts = np.asarray(points, dtype=float)
+    pts, _ = _path(points)
     moving = float(np.linalg.norm(model.velocity(problem.x0))) > AT_REST
     if model.heading_follows_path or moving or len(pts) < 2:
         return []

@@ -151,3 +151,19 @@ def test_a_moving_robot_gets_no_stepped_back_candidate(maps_dir):
     moving[3] = 1.0  # 1 m/s along x (the quadrotor's state: position, velocity, ...)
     np.testing.assert_allclose(problem.model.velocity(moving), [1.0, 0.0, 0.0])
     assert stepped_back_paths(dataclasses.replace(problem, x0=moving), path) == []
+
+
+def test_malformed_paths_are_refused_by_name(maps_dir):
+    from secure3d.errors import PlanningError
+
+    _, problem = _beam_known(maps_dir)
+    arc = np.linspace(0.0, 2.0, 5)
+    pts = np.stack([arc, np.ones(5), np.ones(5)], 1)
+    with pytest.raises(PlanningError, match="points: must be a finite \\(n, 3\\) array"):
+        held_altitude_paths(problem, pts[:, :2], arc)
+    with pytest.raises(PlanningError, match="points: must be a finite"):
+        stepped_back_paths(problem, np.where(pts > 1.5, np.nan, pts))
+    with pytest.raises(PlanningError, match="arc: must be 5 finite arc lengths"):
+        held_altitude_paths(problem, pts, arc[:4])
+    with pytest.raises(PlanningError, match="arc: must start at 0 and never decrease"):
+        held_altitude_paths(problem, pts, arc[::-1])
