@@ -125,6 +125,21 @@ class BoxIndex:
         cap = np.array(cap, dtype=float)  # writable (see _points)
         return _kern().min_signed_distance(p, cap, self.lo, self.hi, *self.tree)
 
+    def clearance(self, points: object, lo: object, hi: object, dims: int = 3) -> np.ndarray:
+        """(n,) distance of each point to the boxes and to the faces of the bounds ``lo``, ``hi``
+        (3,) along their first ``dims`` axes, exactly: negative inside a box or outside the
+        bounds. Raises :class:`GeometryError` for bounds that are not two 3-vectors or ``dims``
+        not in 1..3."""
+        b_lo, b_hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+        if b_lo.shape != (3,) or b_hi.shape != (3,) or dims not in (1, 2, 3):
+            raise GeometryError(
+                f"clearance: bounds lo, hi must be 3-vectors and dims 1-3, got shapes"
+                f" {b_lo.shape}, {b_hi.shape} and dims {dims!r}"
+            )
+        p = _points(points)
+        inside = np.minimum(p - b_lo, b_hi - p)
+        return self.min_distance(p, inside[:, :dims].min(axis=1))
+
     def inside_any(self, points: object) -> np.ndarray:
         """(n,) whether each point lies strictly inside some box; equal to
         ``polytope.inside_any_box(points, lo, hi)`` (a signed distance < 0 is exactly

@@ -457,13 +457,9 @@ def centre_path(
     planar = _planar(problem) is not None
     dims = 2 if planar else 3
     r = problem.model.body_radius
-    lo_b, hi_b = problem.bounds_lo, problem.bounds_hi
 
     def clearance(q: np.ndarray) -> np.ndarray:
-        c = np.minimum(q - lo_b, hi_b - q)[:, :dims].min(axis=1)
-        if len(problem.boxes_lo):
-            c = problem.box_index.min_distance(q, c)  # min(bounds, boxes), exactly
-        return c
+        return problem.box_index.clearance(q, problem.bounds_lo, problem.bounds_hi, dims)
 
     eps = 1e-3
     steps = np.zeros((dims, 3))

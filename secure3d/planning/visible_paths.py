@@ -96,7 +96,7 @@ def held_altitude_paths(
     if problem.model.planar or len(pts) < 3:
         return []
     d = level_distance(problem)
-    clear = _clearance(problem, pts)
+    clear = problem.box_index.clearance(pts, problem.bounds_lo, problem.bounds_hi)
     need = np.minimum(clear, problem.model.body_radius + problem.options.margin)
     out: list[np.ndarray] = []
     for start in RAMP_STARTS:
@@ -107,17 +107,11 @@ def held_altitude_paths(
                 continue
             cand = pts.copy()
             cand[:, 2] = z
-            if np.all(_clearance(problem, cand) >= need):
+            if np.all(
+                problem.box_index.clearance(cand, problem.bounds_lo, problem.bounds_hi) >= need
+            ):
                 out.append(cand)
     return out
-
-
-def _clearance(problem: PlanningProblem, pts: np.ndarray) -> np.ndarray:
-    """(n,) distance of each point to the bounds and the known obstacles (negative inside)."""
-    c = np.minimum(pts - problem.bounds_lo, problem.bounds_hi - pts).min(axis=1)
-    if len(problem.boxes_lo):
-        c = problem.box_index.min_distance(pts, c)
-    return c
 
 
 def stepped_back_paths(problem: PlanningProblem, points: np.ndarray) -> list[np.ndarray]:

@@ -113,8 +113,10 @@ class CampaignPlan:
     replan_defer: float
     shard: tuple[int, int]
     out: Path
-    #: The family prepared over ``base`` (:attr:`~secure3d.world.families.Family.prepare`).
-    prepared: object = field(default=None, compare=False, repr=False)
+    #: The campaign's family (:func:`campaign_family`) and what it prepared over ``base``
+    #: (:attr:`~secure3d.world.families.Family.prepare`), once, while the arguments were checked.
+    family: Family = field(compare=False, repr=False)
+    prepared: object = field(compare=False, repr=False)
 
     def params(self) -> dict[str, object]:
         """The parameters recorded in ``runs.csv``."""
@@ -143,15 +145,13 @@ def _job_stream(
     ``scenarios`` keeps each variant's scenario until its runs are written."""
     from secure3d.world.families import variant_rng
 
-    family = campaign_family(plan.base, plan.kind, plan.count, plan.options)
-    prepared = family.prepare(plan.base) if plan.prepared is None else plan.prepared
     options = dict(plan.options, replan_defer=plan.replan_defer)
     for i in plan.variants():
         todo = [p for p in plan.planners if (i, p) not in done]
         if not todo:
             continue
         try:
-            scenario = family.variant(prepared, plan.base, variant_rng(plan.seed, i), i)
+            scenario = plan.family.variant(plan.prepared, plan.base, variant_rng(plan.seed, i), i)
         except Secure3DError as exc:
             for p in todo:
                 yield RunRecord(
@@ -278,14 +278,15 @@ def plan_campaign(
     # Bad planner options, or a family the base cannot take (a deadend on a single route, a 3D
     # family on a planar robot), would otherwise surface as one error row per run.
     problem_from_scenario(base, **options)
-    prepared = campaign_family(base, kind, count, options).prepare(base)
+    family = campaign_family(base, kind, count, options)
+    prepared = family.prepare(base)
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"out_dir: cannot create {str(out)!r}: {exc.strerror or exc}") from None
     return CampaignPlan(
-        base, n, planners, seed, kind, count, dict(options), defer, shard_kn, out, prepared
+        base, n, planners, seed, kind, count, dict(options), defer, shard_kn, out, family, prepared
     )
 
 

@@ -180,3 +180,28 @@ def test_hull_nearest_returns_each_rows_smallest_entries(rng):
             assert np.array_equal(vs[ks == k], want)
             assert np.array_equal(row[js[ks == k]], want)
             assert len(set(js[ks == k])) == len(want)
+
+
+def test_clearance_is_the_nearer_of_the_boxes_and_the_bounds_faces():
+    from secure3d.geometry.polytope import min_box_distance
+
+    rng = np.random.default_rng(7)
+    lo = rng.uniform(0.0, 4.0, (30, 3))
+    hi = lo + rng.uniform(0.05, 1.0, (30, 3))
+    p = rng.uniform(-0.5, 5.5, (200, 3))
+    b_lo, b_hi = np.zeros(3), np.full(3, 5.0)
+    faces = np.minimum(p - b_lo, b_hi - p)
+    for dims in (3, 2):
+        want = np.minimum(faces[:, :dims].min(axis=1), min_box_distance(p, lo, hi))
+        got = BoxIndex(lo, hi).clearance(p, b_lo, b_hi, dims)
+        np.testing.assert_allclose(got, want, atol=1e-12)
+    empty = BoxIndex(np.zeros((0, 3)), np.zeros((0, 3)))
+    np.testing.assert_array_equal(empty.clearance(p, b_lo, b_hi), faces.min(axis=1))
+
+
+def test_clearance_refuses_malformed_bounds_by_name():
+    index = BoxIndex(np.zeros((1, 3)), np.ones((1, 3)))
+    with pytest.raises(GeometryError, match="clearance: bounds lo, hi must be 3-vectors"):
+        index.clearance(np.zeros((2, 3)), np.zeros(2), np.ones(3))
+    with pytest.raises(GeometryError, match="dims 1-3"):
+        index.clearance(np.zeros((2, 3)), np.zeros(3), np.ones(3), dims=4)
