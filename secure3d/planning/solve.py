@@ -16,6 +16,7 @@ Pipeline (each step a function, the problem itself in :mod:`.problem`):
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -271,10 +272,12 @@ def _solve_rounds(
     warm_time: float,
     cache: NLPCache,
     dual_start: bool = True,
+    max_final_time: float = np.inf,
 ) -> tuple[_Solve, SolveCost]:
     """Assign look-backs on the guess, solve, and (adaptive rule) re-assign and re-solve. A warm
     replan starts from the previous plan's multipliers too, with the warm-start solver, unless
-    ``dual_start`` is False (then the cold solver's barrier schedule from the primal guess)."""
+    ``dual_start`` is False (then the cold solver's barrier schedule from the primal guess). A
+    solution longer than ``max_final_time`` is returned at once (no slot refresh, no round)."""
     o = problem.options
     assignment, multipliers, L0, prev_slots = _first_round(
         problem, planner, guess, warm, dual_start
@@ -303,6 +306,8 @@ def _solve_rounds(
         )
         built = s.nlp.build_time if cache.misses > n_before else 0.0
         cost = cost + SolveCost(built + s.warm_build, s.solve_time, s.iterations)
+        if s.status.ok and s.T > max_final_time:
+            return s, cost
         s, c = _refresh_slots(problem, planner, s, cache)
         cost = cost + c
         if best is None or (s.status.ok and (not best.status.ok or s.T < best.T)):
@@ -336,6 +341,7 @@ def plan_problem(
     warm_time: float = 0.0,
     cache: NLPCache | None = None,
     solve_rounds: Callable[..., tuple[_Solve, SolveCost]] | None = None,
+    max_final_time: float = np.inf,
 ) -> PlanResult:
     """Solve a :class:`PlanningProblem` (see :func:`plan` for the scenario-level entry point).
 
@@ -351,9 +357,17 @@ def plan_problem(
     cache : compiled NLPs to reuse; default: a module-wide cache.
     solve_rounds : one solve from a guess with its look-back rounds (default the real one); a
         seam for tests that make solves fail.
+    max_final_time : the longest plan (s) the caller would use (a closed loop's replan that must
+        beat braking). A solution longer than that ends the call with status ``TOO_SLOW``, before
+        its slot refreshes, look-back rounds and certificate: they would cost a solve or more
+        each for a plan nobody flies.
     """
     if planner not in tuple(Planner):
         raise ConfigError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
+    if isinstance(max_final_time, bool) or not (
+        isinstance(max_final_time, (int, float)) and max_final_time > 0
+    ):
+        raise ConfigError(f"max_final_time: must be a time > 0 (s), got {max_final_time!r}")
     cache = DEFAULT_CACHE if cache is None else cache
     pin_blas_threads()  # the same iterates whatever the machine's cores (planning/blas.py)
     budget = problem.options.plan_budget
@@ -361,7 +375,7 @@ def plan_problem(
     reserve = min(CERTIFY_RESERVE * budget, CERTIFY_RESERVE_MAX) if certifies else 0.0
     with deadline(budget - min(BUDGET_RESERVE * budget, BUDGET_RESERVE_MAX), reserve):
         return _plan_within_budget(
-            problem, planner, warm, warm_time, cache, solve_rounds or _solve_rounds
+            problem, planner, warm, warm_time, cache, solve_rounds or _solve_rounds, max_final_time
         )
 
 
@@ -372,6 +386,7 @@ def _plan_within_budget(
     warm_time: float,
     cache: NLPCache,
     solve_rounds: Callable[..., tuple[_Solve, SolveCost]],
+    max_final_time: float = np.inf,
 ) -> PlanResult:
     o = problem.options
     reason = _precheck(problem)
@@ -425,11 +440,15 @@ def _plan_within_budget(
             break
         if isinstance(g, float):
             g = initial_guess(problem, secure=planner == Planner.SECURE, speed_fraction=g)
-        s, c = solve_rounds(problem, planner, g, warm, warm_time, cache, dual_start)
+        s, c = solve_rounds(
+            problem, planner, g, warm, warm_time, cache, dual_start, max_final_time=max_final_time
+        )
         cost = cost + c
         if s.status.ok:
             break
-    result = _judged(problem, planner, s, cost, cache)
+    if s.status.ok and s.T > max_final_time:
+        return _too_slow(problem, planner, s.T, max_final_time, cost)
+    result = _judged(problem, planner, s, cost, cache, max_final_time)
     if warm is None and o.extra_starts:
         result = _extra_starts(problem, planner, result, cost, cache, solve_rounds)
     return result
@@ -446,8 +465,6 @@ def _extra_starts(
     """Minimum-time NLPs have many local optima (the paper: "poor guesses stop convergence"):
     further cold starts at the cruise speeds ``options.extra_starts``, keeping the fastest plan
     that passes; the result reports what every start cost."""
-    from dataclasses import replace
-
     for frac in problem.options.extra_starts:
         if budget_spent():
             break
@@ -466,15 +483,15 @@ def _judged(
     s: _Solve,
     cost: SolveCost,
     cache: NLPCache,
+    max_final_time: float = np.inf,
 ) -> PlanResult:
     """The result of a solve, certified (secure planner): a rejected solution is re-solved warm
     with the rows of the nodes around its failing points tightened (:data:`CERTIFY_TIGHTENING`)
-    before it is reported NOT_CERTIFIED."""
+    before it is reported NOT_CERTIFIED (at once if a re-solve is longer than
+    ``max_final_time``)."""
     result = _result(problem, planner, s, cost)
     if not (result.ok and planner == Planner.SECURE and problem.options.certify):
         return result
-    from dataclasses import replace
-
     from secure3d.planning.certificate import certify, failing_nodes
 
     def out_of_time(exc: BudgetSpent) -> PlanResult:
@@ -497,7 +514,7 @@ def _judged(
             extra = np.maximum(extra, level * failing_nodes(cert, result.times))
             t_, c = _tightened_solve(problem, planner, s, cache, extra)
             cost = cost + c
-            if not t_.status.ok:
+            if not t_.status.ok or t_.T > max_final_time:
                 break
             s = t_
             result = _result(problem, planner, s, cost)
@@ -510,6 +527,15 @@ def _judged(
     status = result.status if cert.ok else PlanStatus.NOT_CERTIFIED
     msg = result.message if cert.ok else f"solver: {result.message}; certificate: {cert}"
     return replace(result, certificate=cert, status=status, message=msg, rejections=tuple(rejected))
+
+
+def _too_slow(
+    problem: PlanningProblem, planner: str, T: float, limit: float, cost: SolveCost
+) -> PlanResult:
+    """The TOO_SLOW result of a call whose solution takes ``T`` > ``limit`` seconds."""
+    msg = f"final time {T:.2f} s over the limit of {limit:.2f} s"
+    failed = _failed(problem, planner, PlanStatus.TOO_SLOW, msg)
+    return replace(failed, build_time=cost.build, solve_time=cost.solve, iterations=cost.iterations)
 
 
 def _tightened_solve(

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from secure3d.errors import SimulationError
+from secure3d.planning.result import PlanStatus
 from secure3d.simulation.explore import LOOK_FROM, nearer_look
 from secure3d.simulation.loop import (
     CERT_STEP,
@@ -55,11 +56,11 @@ from secure3d.simulation.modes import (
     Mode,
     RunSettings,
     Trigger,
-    detour_reason,
     goal_edge,
     hold_after,
     log,
-    slow_replan_reason,
+    replan_refusal,
+    replan_time_limit,
 )
 from secure3d.simulation.recheck import plan_unsafe
 from secure3d.simulation.recording import Recorder
@@ -345,10 +346,17 @@ class Flight:
         problem = loop.plan_problem_from(x, in_flight=self.t != 0.0, speed=speed, goal=goal)
         loop.start_problem = problem
         t0 = time.perf_counter()
-        result = plan_problem(problem, loop.planner, cache=loop.cache)
+        # a replan the robot would fly: not too long a detour, nor slower than braking
+        p0, vmax = np.asarray(self.model.position(x), float).ravel(), self.model.limits.max_speed
+        slow = self.braking_instead(x) if self.t != 0.0 else None
+        limit = replan_time_limit(p0, problem.goal, vmax, slow) if self.t != 0.0 else np.inf
+        result = plan_problem(problem, loop.planner, cache=loop.cache, max_final_time=limit)
         self.solve_times.append(time.perf_counter() - t0)
         self.log_certificates(result)
-        why = None if not result.ok or self.t == 0.0 else self.refusal(x, result, problem.goal)
+        why = f"replan refused: {result.message}" if result.status is PlanStatus.TOO_SLOW else None
+        if result.ok and self.t != 0.0:
+            positions = np.asarray(self.model.position(result.states), dtype=float)
+            why = replan_refusal(positions, result.final_time, p0, problem.goal, vmax, slow)
         if not result.ok or why is not None:
             self.failures += 1
             what = why or f"{result.status.value}: {result.message}"
@@ -361,17 +369,13 @@ class Flight:
         self.rec.log_scalar(self.t, "solve_time_ms", 1e3 * self.solve_times[-1])
         return result
 
-    def refusal(self, x: np.ndarray, result: PlanResult, goal: np.ndarray) -> str | None:
-        """Why a certified replan from state ``x`` is not flown, or None: too long a detour, or
-        (a moving robot replanning its way to the goal) slower than braking and planning from rest."""
-        p0 = np.asarray(self.model.position(x), dtype=float).ravel()
-        positions = np.asarray(self.model.position(result.states), dtype=float)
-        why = detour_reason(positions, result.final_time, p0, goal, self.model.limits.max_speed)
+    def braking_instead(self, x: np.ndarray) -> tuple[float, float] | None:
+        """(braking time, time left on the current plan) when a replan from state ``x`` must
+        beat braking and planning from rest (moving, on the way to the goal), else None."""
         cur, speed = self.current, float(np.linalg.norm(self.model.velocity(x)))
-        if why is None and cur is not None and self.aim() is None and speed >= STOP_SPEED:
-            left = cur.plan.final_time - (self.t - cur.start)
-            why = slow_replan_reason(result.final_time, self.loop.stop_time(x), left)
-        return why
+        if cur is None or self.aim() is not None or speed < STOP_SPEED:
+            return None
+        return self.loop.stop_time(x), cur.plan.final_time - (self.t - cur.start)
 
     def log_certificates(self, result: PlanResult) -> None:
         """Count the certificate's verdicts on this plan call (issue 16's first-try rate) and say

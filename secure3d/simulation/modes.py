@@ -185,6 +185,44 @@ def hold_after(model: object, plan: PlanResult) -> tuple[np.ndarray, np.ndarray]
     return x, model.nominal_control(x)
 
 
+def detour_time_limit(line: float, max_speed: float) -> float:
+    """The longest replan (s) :func:`detour_reason` accepts for ``line`` m to the goal."""
+    return DETOUR_FACTOR * line / (DETOUR_SLOWEST * max_speed) + DETOUR_SLACK_S
+
+
+def slow_replan_limit(stop_time: float, time_left: float) -> float:
+    """The longest replan (s) :func:`slow_replan_reason` accepts (arguments as there)."""
+    return stop_time + SLOW_REPLAN_FACTOR * max(time_left, 0.0) + SLOW_REPLAN_SLACK_S
+
+
+def replan_time_limit(
+    p0: np.ndarray, goal: np.ndarray, max_speed: float, braking: tuple[float, float] | None
+) -> float:
+    """The longest replan (s) from ``p0`` (3,) to ``goal`` (3,) that neither
+    :func:`detour_reason` nor, given ``braking`` = (stop time, time left on the old plan),
+    :func:`slow_replan_reason` refuses for its duration."""
+    line = float(np.linalg.norm(np.asarray(goal, dtype=float) - np.asarray(p0, dtype=float)))
+    top = detour_time_limit(line, max_speed)
+    return top if braking is None else min(top, slow_replan_limit(*braking))
+
+
+def replan_refusal(
+    positions: np.ndarray,
+    final_time: float,
+    p0: np.ndarray,
+    goal: np.ndarray,
+    max_speed: float,
+    braking: tuple[float, float] | None,
+) -> str | None:
+    """Why a certified replan is not flown, or None: too long a detour (:func:`detour_reason`,
+    arguments as there), or, given ``braking`` = (stop time, time left on the old plan) for a
+    moving robot on its way to the goal, slower than braking and planning from rest."""
+    why = detour_reason(positions, final_time, p0, goal, max_speed)
+    if why is None and braking is not None:
+        why = slow_replan_reason(final_time, *braking)
+    return why
+
+
 def detour_reason(
     positions: np.ndarray, final_time: float, p0: np.ndarray, goal: np.ndarray, max_speed: float
 ) -> str | None:
@@ -197,7 +235,7 @@ def detour_reason(
     length = float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
     if length > DETOUR_FACTOR * line + DETOUR_SLACK_M:
         return f"replan refused: path {length:.1f} m for {line:.1f} m to the goal"
-    top = DETOUR_FACTOR * line / (DETOUR_SLOWEST * max_speed) + DETOUR_SLACK_S
+    top = detour_time_limit(line, max_speed)
     if final_time > top:
         return f"replan refused: {final_time:.1f} s for {line:.1f} m (at most {top:.1f} s)"
     return None
@@ -217,7 +255,7 @@ def slow_replan_reason(final_time: float, stop_time: float, time_left: float) ->
                 f"slow_replan_reason: {name} must be a finite time (s), got {value!r}"
             )
     left = max(time_left, 0.0)  # a plan past its end has nothing left
-    top = stop_time + SLOW_REPLAN_FACTOR * left + SLOW_REPLAN_SLACK_S
+    top = slow_replan_limit(stop_time, left)
     if final_time > top:
         return (
             f"replan refused: {final_time:.1f} s in flight, against {stop_time:.1f} s of braking "

@@ -294,6 +294,43 @@ def test_failed_cold_solves_fall_back_to_slower_guesses(corner_problem):
     assert result.ok and result.certificate.ok
 
 
+def test_a_plan_longer_than_the_callers_limit_stops_before_refresh_and_certificate(corner_problem):
+    """max_final_time: a solution longer than it ends the call (TOO_SLOW) after that one solve:
+    no slot refresh, look-back round, slower start or certificate; a limit above the plan's
+    duration changes nothing."""
+    from secure3d.planning import solve as solve_mod
+
+    cache = NLPCache()
+    free = plan_problem(corner_problem, "secure", cache=cache)
+    assert free.ok
+    calls = []
+    real = solve_mod._solve_once
+
+    def counted(*args, **kwargs):
+        calls.append(kwargs.get("left_out_limit"))
+        return real(*args, **kwargs)
+
+    solve_mod._solve_once = counted
+    try:
+        capped = plan_problem(
+            corner_problem, "secure", cache=cache, max_final_time=0.5 * free.final_time
+        )
+        assert capped.status is PlanStatus.TOO_SLOW and not capped.ok
+        assert calls == [None]  # the first solve only
+        assert capped.certificate is None and capped.iterations > 0
+        assert f"over the limit of {0.5 * free.final_time:.2f} s" in capped.message
+        calls.clear()
+        loose = plan_problem(
+            corner_problem, "secure", cache=cache, max_final_time=1.01 * free.final_time
+        )
+    finally:
+        solve_mod._solve_once = real
+    assert loose.ok and loose.final_time == pytest.approx(free.final_time, rel=1e-9)
+    for bad in (0.0, -1.0, float("nan"), True, "5"):
+        with pytest.raises(secure3d.errors.ConfigError, match="max_final_time"):
+            plan_problem(corner_problem, "secure", cache=cache, max_final_time=bad)
+
+
 def test_without_slower_guesses_a_failed_first_solve_ends_the_call(corner_problem):
     """``slower_guesses=False`` (the closed loop's replans from a moving state, which brake
     instead): one start, and the call reports the first solve's failure."""

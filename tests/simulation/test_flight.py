@@ -201,6 +201,22 @@ def test_a_moving_robots_replan_slower_than_stopping_is_refused():
             slow_replan_reason(*args)
 
 
+def test_the_replan_time_limit_is_where_the_refusal_starts():
+    """replan_time_limit (what the planner is told) is the longest duration replan_refusal
+    accepts: a straight replan just under it is flown, just over it refused, with and without a
+    moving robot's braking alternative."""
+    from secure3d.simulation.modes import replan_refusal, replan_time_limit
+
+    p0, goal = np.zeros(3), np.array([5.0, 0, 0])
+    straight = np.column_stack([np.linspace(0, 5, 11), np.zeros((11, 2))])
+    for braking in (None, (1.07, 2.16), (1.0, -0.5)):
+        top = replan_time_limit(p0, goal, 2.0, braking)
+        assert np.isfinite(top) and top > 0
+        assert replan_refusal(straight, top - 1e-6, p0, goal, 2.0, braking) is None
+        assert "replan refused" in replan_refusal(straight, top + 1e-3, p0, goal, 2.0, braking)
+    assert replan_time_limit(p0, goal, 2.0, (1.07, 2.16)) < replan_time_limit(p0, goal, 2.0, None)
+
+
 def test_stop_time_is_the_braking_manoeuvres_length(maps_dir):
     """Loop.stop_time: 0 at rest; from speed the real braking controller's stop, longer from a
     higher speed and within the controller's manoeuvre horizon."""
