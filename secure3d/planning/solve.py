@@ -447,7 +447,7 @@ def _plan_within_budget(
         if s.status.ok:
             break
     if s.status.ok and s.T > max_final_time:
-        return _too_slow(problem, planner, s.T, max_final_time, cost)
+        return _too_slow(problem, planner, s, max_final_time, cost)
     result = _judged(problem, planner, s, cost, cache, max_final_time)
     if warm is None and o.extra_starts:
         result = _extra_starts(problem, planner, result, cost, cache, solve_rounds)
@@ -530,12 +530,12 @@ def _judged(
 
 
 def _too_slow(
-    problem: PlanningProblem, planner: str, T: float, limit: float, cost: SolveCost
+    problem: PlanningProblem, planner: str, s: _Solve, limit: float, cost: SolveCost
 ) -> PlanResult:
-    """The TOO_SLOW result of a call whose solution takes ``T`` > ``limit`` seconds."""
-    msg = f"final time {T:.2f} s over the limit of {limit:.2f} s"
-    failed = _failed(problem, planner, PlanStatus.TOO_SLOW, msg)
-    return replace(failed, build_time=cost.build, solve_time=cost.solve, iterations=cost.iterations)
+    """The TOO_SLOW result of a call whose solution ``s`` is longer than ``limit`` seconds (its
+    trajectory kept for the record, not certified)."""
+    msg = f"final time {s.T:.2f} s over the limit of {limit:.2f} s"
+    return replace(_result(problem, planner, s, cost), status=PlanStatus.TOO_SLOW, message=msg)
 
 
 def _tightened_solve(

@@ -318,6 +318,7 @@ def test_a_plan_longer_than_the_callers_limit_stops_before_refresh_and_certifica
         assert capped.status is PlanStatus.TOO_SLOW and not capped.ok
         assert calls == [None]  # the first solve only
         assert capped.certificate is None and capped.iterations > 0
+        assert capped.final_time > 0.5 * free.final_time  # the refused plan, kept for the record
         assert f"over the limit of {0.5 * free.final_time:.2f} s" in capped.message
         calls.clear()
         loose = plan_problem(
