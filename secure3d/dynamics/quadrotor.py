@@ -193,6 +193,25 @@ class Quadrotor(VehicleModel):
         h = 0.5 * float(yaw)
         return np.concatenate([p, v, [math.cos(h), 0.0, 0.0, math.sin(h)]])
 
+    def initial_states(
+        self, positions: np.ndarray, velocities: np.ndarray, yaws: np.ndarray
+    ) -> np.ndarray:
+        """:meth:`initial_state` of N rows at once (the same values): (N, 3), (N, 3), (N,) ->
+        (N, 10)."""
+        p = np.asarray(positions, dtype=float).reshape(-1, 3)
+        v = np.asarray(velocities, dtype=float).reshape(-1, 3)
+        h = 0.5 * np.asarray(yaws, dtype=float).reshape(-1)
+        if not (len(p) == len(v) == len(h)):
+            raise ConfigError(
+                f"initial_states: {len(p)} positions, {len(v)} velocities and {len(h)} yaws"
+            )
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(v))):
+            raise ConfigError("initial_states: positions and velocities must be finite")
+        q = np.zeros((len(h), 4))
+        q[:, 0] = [math.cos(a) for a in h.tolist()]  # math's, as initial_state: the same bits
+        q[:, 3] = [math.sin(a) for a in h.tolist()]
+        return np.concatenate([p, v, q], axis=1)
+
     def nominal_control(self, x: np.ndarray) -> np.ndarray:
         """Hover thrust ``gravity`` and zero body rates: (4,) or (N, 4)."""
         u = np.zeros((*np.shape(x)[:-1], self.nu))

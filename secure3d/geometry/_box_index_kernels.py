@@ -169,9 +169,33 @@ def min_signed_distance(
 
 
 @numba.njit(cache=True)
+def _segment_touches(
+    a0, a1, a2, d0, d1, d2, lo, hi, perm, nlo, nhi, child, start, count, stack
+):  # pragma: no cover - compiled
+    """Whether the segment from (a0, a1, a2) along (d0, d1, d2) touches some closed box (the slab
+    test of ``_box_kernels.segment_box_any``, nodes whose bounds it misses skipped). ``stack``
+    (_STACK,) int64 is scratch."""
+    stack[0] = 0
+    top = 1
+    while top > 0:
+        top -= 1
+        node = stack[top]
+        if not _hits(a0, a1, a2, d0, d1, d2, nlo[node], nhi[node]):
+            continue
+        c = child[node]
+        if c >= 0:
+            stack[top], stack[top + 1] = c, c + 1
+            top += 2
+            continue
+        for k in range(start[node], start[node] + count[node]):
+            if _hits(a0, a1, a2, d0, d1, d2, lo[perm[k]], hi[perm[k]]):
+                return True
+    return False
+
+
+@numba.njit(cache=True)
 def segment_any(p0, p1, lo, hi, perm, nlo, nhi, child, start, count):  # pragma: no cover
-    """(n,) whether segment [p0[i], p1[i]] touches some closed box (the slab test of
-    ``_box_kernels.segment_box_any``, nodes whose bounds it misses skipped)."""
+    """(n,) whether segment [p0[i], p1[i]] touches some closed box."""
     n = p0.shape[0]
     out = np.zeros(n, dtype=np.bool_)
     stack = np.empty(_STACK, dtype=np.int64)
@@ -180,22 +204,37 @@ def segment_any(p0, p1, lo, hi, perm, nlo, nhi, child, start, count):  # pragma:
     for i in range(n):
         a0, a1, a2 = p0[i, 0], p0[i, 1], p0[i, 2]
         d0, d1, d2 = p1[i, 0] - a0, p1[i, 1] - a1, p1[i, 2] - a2
-        stack[0] = 0
-        top = 1
-        while top > 0 and not out[i]:
-            top -= 1
-            node = stack[top]
-            if not _hits(a0, a1, a2, d0, d1, d2, nlo[node], nhi[node]):
-                continue
-            c = child[node]
-            if c >= 0:
-                stack[top], stack[top + 1] = c, c + 1
-                top += 2
-                continue
-            for k in range(start[node], start[node] + count[node]):
-                if _hits(a0, a1, a2, d0, d1, d2, lo[perm[k]], hi[perm[k]]):
-                    out[i] = True
+        out[i] = _segment_touches(
+            a0, a1, a2, d0, d1, d2, lo, hi, perm, nlo, nhi, child, start, count, stack
+        )
+    return out
+
+
+@numba.njit(cache=True)
+def fans_clear(
+    origins, tips, indptr, cols, lo, hi, perm, nlo, nhi, child, start, count
+):  # pragma: no cover - compiled
+    """(r,) whether, for row i, some origin ``origins[cols[k]]``, k in ``indptr[i]:indptr[i+1]``
+    (tried in that order, stopping at the first), sees every point ``tips[i, t]``: no segment from
+    it to them touches a box (each segment the test of :func:`segment_any`)."""
+    r = tips.shape[0]
+    out = np.zeros(r, dtype=np.bool_)
+    stack = np.empty(_STACK, dtype=np.int64)
+    for i in range(r):
+        for k in range(indptr[i], indptr[i + 1]):
+            o = cols[k]
+            a0, a1, a2 = origins[o, 0], origins[o, 1], origins[o, 2]
+            clear = True
+            for t in range(tips.shape[1]):
+                d0, d1, d2 = tips[i, t, 0] - a0, tips[i, t, 1] - a1, tips[i, t, 2] - a2
+                if lo.shape[0] > 0 and _segment_touches(
+                    a0, a1, a2, d0, d1, d2, lo, hi, perm, nlo, nhi, child, start, count, stack
+                ):
+                    clear = False
                     break
+            if clear:
+                out[i] = True
+                break
     return out
 
 

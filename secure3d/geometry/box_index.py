@@ -155,6 +155,27 @@ class BoxIndex:
             raise GeometryError(f"segments: end arrays differ in shape, {a.shape} vs {b.shape}")
         return _kern().segment_any(a, b, self.lo, self.hi, *self.tree)
 
+    def fans_clear(self, origins: object, tips: object, indptr: object, cols: object) -> np.ndarray:
+        """(r,) for each row i, whether some candidate origin ``origins[cols[k]]`` (k in
+        ``indptr[i]:indptr[i + 1]``, CSR rows) sees all of ``tips[i]``: equal to ``any over k of
+        not segments_blocked(origin, tips[i, t]) for every t``, tried in order, stopping at the
+        first clear one. origins (m, 3), tips (r, t, 3), indptr (r + 1,) int, cols int into
+        origins."""
+        o = _points(origins)
+        tp, ip, cl = (
+            np.require(np.asarray(a, dtype=t), requirements=["C", "W"])
+            for a, t in ((tips, float), (indptr, np.int64), (cols, np.int64))
+        )
+        if tp.ndim != 3 or tp.shape[2] != 3 or not np.all(np.isfinite(tp)):
+            raise GeometryError(f"fans: tips must be finite (r, t, 3), got shape {tp.shape}")
+        if ip.shape != (len(tp) + 1,) or ip[0] != 0 or np.any(np.diff(ip) < 0) or ip[-1] != len(cl):
+            raise GeometryError(
+                "fans: indptr must be r + 1 non-decreasing offsets from 0 to len(cols)"
+            )
+        if len(cl) and (cl.min() < 0 or cl.max() >= len(o)):
+            raise GeometryError(f"fans: cols must index the {len(o)} origins")
+        return _kern().fans_clear(o, tp, ip, cl, self.lo, self.hi, *self.tree)
+
     def cones_blocked(self, apex: object, centre: object, radius: float) -> np.ndarray:
         """(n,) whether some box meets conv({apex_i} ∪ B(centre_i, radius)); equal to
         ``polytope.cones_blocked(apex, centre, lo, hi, radius)``."""

@@ -113,14 +113,21 @@ def _graph_path(problem: PlanningProblem, resolution: float, clearance_pad: floa
     if height is not None:
         lo[2] = height
 
-    flat_clear = clearance.ravel()
+    weight = clearance_weight(clearance.ravel(), r, clearance_pad)
 
     def cost(src: np.ndarray, dst: np.ndarray, length: np.ndarray) -> np.ndarray:
-        near = np.minimum(flat_clear[src], flat_clear[dst])
-        return length * (1.0 + 1.0 / (0.25 + np.maximum(near - r, 0.0) / max(clearance_pad, 1e-3)))
+        return length * np.maximum(weight[src], weight[dst])
 
     pts = grid_route(centres, lo, res, free, cost, start, goal)
     return _shortcut(pts, lambda p: _clear_at(p, clearance, lo, res) > r + 0.5 * clearance_pad)
+
+
+def clearance_weight(clearance: np.ndarray, radius: float, pad: float) -> np.ndarray:
+    """Cost per metre (>= 1) of a grid edge whose nearer end has ``clearance`` (m), for a body of
+    ``radius``: it grows as the clearance falls to the body within ``pad``. It never rises with the
+    clearance, in floating point too (every operation is monotone), so an edge's weight, that of
+    its ends' smaller clearance, is the larger of its ends' weights: one per cell, not per edge."""
+    return 1.0 + 1.0 / (0.25 + np.maximum(clearance - radius, 0.0) / max(pad, 1e-3))
 
 
 def grid_route(
@@ -284,21 +291,18 @@ def secure_speed_caps(
     geo_e = node_geometry(problem, X)
     geo_c = node_geometry(problem, cams)
     geo = {"C": geo_e["C"], "M": geo_e["M"], "R": geo_c["R"], "o": geo_c["o"]}
-    fm = frustum_margins(problem, geo)  # (n*levels, n)
     owner = np.repeat(np.arange(n), levels)
+    fm = frustum_margins(problem, geo, owner)  # (n*levels, n), the earlier cameras only
     seen = (fm >= o.margin) & (np.arange(n)[None, :] < owner[:, None])
+    visible = seen.any(axis=1)
     if o.occlusion and len(problem.boxes_lo):
-        rows, cols = np.nonzero(seen)
-        tips = [geo["C"][rows]]
-        for a in range(3):
-            for sign in (1.0, -1.0):
-                tips.append(geo["C"][rows] + sign * 0.9 * geo["M"][rows, :, a])
-        p1 = np.concatenate(tips)
-        p0 = np.tile(geo["o"][cols], (7, 1))
-        hit = problem.box_index.segments_blocked(p0, p1)
-        blocked = hit.reshape(7, -1).any(axis=0)
-        seen[rows[blocked], cols[blocked]] = False
-    ok = seen.any(axis=1) | (start_margins(problem, geo) >= o.margin)
+        # a clear sight from one of the cameras that frame it: the nearest tried first
+        C, M = geo["C"], geo["M"]
+        tips = np.stack([C] + [C + s * 0.9 * M[:, :, a] for a in range(3) for s in (1.0, -1.0)], 1)
+        indptr = np.concatenate([[0], np.cumsum(seen.sum(axis=1))])
+        cols = np.nonzero(seen[:, ::-1])[1]
+        visible = problem.box_index.fans_clear(geo["o"], tips, indptr, n - 1 - cols)
+    ok = visible | (start_margins(problem, geo) >= o.margin)
     ok = ok.reshape(n, levels)
     ok[:, 0] = True  # at rest the robot can always wait (its reactive set is its own body)
     # the largest level such that every slower one is feasible too

@@ -231,3 +231,25 @@ def test_rk4_step_works_symbolically():
         np.testing.assert_allclose(
             np.array(step(xi, ui)).ravel(), rk4_step(model.f, xi, ui, 0.05), atol=1e-12
         )
+
+
+def test_batched_initial_states_equal_the_single_ones_bit_for_bit():
+    """Every model's initial_states(N rows) is its initial_state row by row, to the last bit,
+    and refuses rows that do not match or are not finite."""
+    from secure3d.errors import ConfigError
+
+    rng = np.random.default_rng(3)
+    p, v = rng.uniform(-5, 5, (50, 3)), rng.uniform(-3, 3, (50, 3))
+    yaw = rng.uniform(-7, 7, 50)
+    for name in ("point_mass", "quadrotor", "diff_drive"):
+        model = make_model(name)
+        want = np.stack([model.initial_state(a, b, c) for a, b, c in zip(p, v, yaw, strict=True)])
+        assert np.array_equal(model.initial_states(p, v, yaw), want), name
+        assert model.initial_states(p[:0], v[:0], yaw[:0]).shape == (0, model.nx)
+    quad = make_model("quadrotor")
+    with pytest.raises(ConfigError, match="positions"):
+        quad.initial_states(p, v[:3], yaw)
+    bad = p.copy()
+    bad[4, 1] = np.nan
+    with pytest.raises(ConfigError, match="finite"):
+        quad.initial_states(bad, v, yaw)

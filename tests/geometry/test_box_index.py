@@ -205,3 +205,47 @@ def test_clearance_refuses_malformed_bounds_by_name():
         index.clearance(np.zeros((2, 3)), np.zeros(2), np.ones(3))
     with pytest.raises(GeometryError, match="dims 1-3"):
         index.clearance(np.zeros((2, 3)), np.zeros(3), np.ones(3), dims=4)
+
+
+@pytest.mark.parametrize("m", [0, 3, 400])
+def test_fans_clear_is_any_candidate_with_every_segment_clear(rng, m):
+    """fans_clear: row i is clear iff some listed origin reaches all of its tips with no segment
+    blocked (the brute force over every (row, candidate, tip) segment), whatever the order."""
+    lo, hi = _voxel_boxes(rng, max(m, 1))
+    lo, hi = lo[:m], hi[:m]
+    index = BoxIndex(lo, hi)
+    origins = rng.uniform(-1.0, 7.0, (30, 3))
+    tips = rng.uniform(-1.0, 7.0, (200, 7, 3))
+    tips[::9] = origins[0]  # segments of zero length
+    counts = rng.integers(0, 6, 200)
+    counts[::11] = 0  # rows with no candidate: never clear
+    indptr = np.concatenate([[0], np.cumsum(counts)])
+    cols = rng.integers(0, 30, indptr[-1])
+    want = np.zeros(200, bool)
+    for i in range(200):
+        for c in cols[indptr[i] : indptr[i + 1]]:
+            p0 = np.repeat(origins[c][None], 7, axis=0)
+            if not segments_blocked(p0, tips[i], lo, hi).any():
+                want[i] = True
+    got = index.fans_clear(origins, tips, indptr, cols)
+    assert np.array_equal(got, want)
+    assert 0 < want.sum() < 200 or m == 0
+    flipped = np.concatenate(
+        [cols[a:b][::-1] for a, b in zip(indptr[:-1], indptr[1:], strict=True)]
+    )
+    assert np.array_equal(index.fans_clear(origins, tips, indptr, flipped), want)
+
+
+def test_fans_clear_refuses_malformed_rows_by_name(rng):
+    lo, hi = _voxel_boxes(rng, 5)
+    index = BoxIndex(lo, hi)
+    o, tips = np.zeros((4, 3)), np.zeros((2, 7, 3))
+    for args, what in (
+        ((o, np.zeros((2, 7)), [0, 1, 2], [0, 1]), "tips"),
+        ((o, np.full((2, 7, 3), np.nan), [0, 1, 2], [0, 1]), "tips"),
+        ((o, tips, [0, 2], [0, 1]), "indptr"),
+        ((o, tips, [0, 2, 1], [0, 1]), "indptr"),
+        ((o, tips, [0, 1, 2], [0, 4]), "cols"),
+    ):
+        with pytest.raises(GeometryError, match=what):
+            index.fans_clear(*args)

@@ -142,3 +142,98 @@ def test_the_grid_graph_names_a_free_mask_that_does_not_fit_its_shape():
         grid_graph(np.ones(24, int), (2, 3, 4), 0.1, cost)
     with pytest.raises(PlanningError, match="shape must be 3 positive"):
         grid_graph(np.ones(0, bool), (0, 3, 4), 0.1, cost)
+
+
+def test_an_edge_weighs_its_nearer_ends_clearance_bit_for_bit():
+    """The grid's per-cell weights: max over an edge's ends equals the weight of their smaller
+    clearance, exactly (ties, inf, clearances inside the body and just above it)."""
+    from secure3d.planning.guess import clearance_weight
+
+    rng = np.random.default_rng(5)
+    c = np.concatenate([rng.uniform(0.0, 2.0, 5000), [np.inf, 0.2, 0.2 + 1e-15, 0.0]])
+    s, d = rng.integers(0, len(c), 20000), rng.integers(0, len(c), 20000)
+    length = rng.uniform(0.1, 0.4, 20000)
+    for r, pad in ((0.2, 0.15), (0.3, 0.0), (0.05, 0.6)):
+        w = clearance_weight(c, r, pad)
+        near = np.minimum(c[s], c[d])
+        want = length * (1.0 + 1.0 / (0.25 + np.maximum(near - r, 0.0) / max(pad, 1e-3)))
+        assert np.array_equal(length * np.maximum(w[s], w[d]), want)
+
+
+def _speed_caps_every_pair(problem, points, tangents, yaws, v_cap, levels=12):
+    """secure_speed_caps as it was: margins for every (point, camera) pair, every seen pair's
+    seven segments tested (the reference the faster one must equal)."""
+    from secure3d.planning.lookback import frustum_margins, node_geometry, start_margins
+
+    model, o = problem.model, problem.options
+    n = len(points)
+    speeds = np.linspace(0.0, v_cap, levels)
+    X = np.stack(
+        [
+            model.initial_state(p, s * t, y)
+            for p, t, y in zip(points, tangents, yaws, strict=True)
+            for s in speeds
+        ]
+    )
+    cams = np.stack(
+        [model.initial_state(p, 0.0 * t, y) for p, t, y in zip(points, tangents, yaws, strict=True)]
+    )
+    geo_e, geo_c = node_geometry(problem, X), node_geometry(problem, cams)
+    geo = {"C": geo_e["C"], "M": geo_e["M"], "R": geo_c["R"], "o": geo_c["o"]}
+    fm = frustum_margins(problem, geo)
+    owner = np.repeat(np.arange(n), levels)
+    seen = (fm >= o.margin) & (np.arange(n)[None, :] < owner[:, None])
+    rows, cols = np.nonzero(seen)
+    tips = [geo["C"][rows]] + [
+        geo["C"][rows] + s * 0.9 * geo["M"][rows, :, a] for a in range(3) for s in (1.0, -1.0)
+    ]
+    hit = problem.box_index.segments_blocked(np.tile(geo["o"][cols], (7, 1)), np.concatenate(tips))
+    blocked = hit.reshape(7, -1).any(axis=0)
+    seen[rows[blocked], cols[blocked]] = False
+    ok = (seen.any(axis=1) | (start_margins(problem, geo) >= o.margin)).reshape(n, levels)
+    ok[:, 0] = True
+    first_bad = np.where(ok.all(axis=1), levels, np.argmin(ok, axis=1))
+    return speeds[np.maximum(first_bad - 1, 0)]
+
+
+@pytest.mark.parametrize("name", ["forest.yaml", "blind_corner_quadrotor.yaml", "warehouse.yaml"])
+def test_secure_speed_caps_equal_testing_every_camera_pair(maps_dir, name, monkeypatch):
+    """The caps (only earlier cameras' margins; the nearest clear sight found first) are those of
+    testing every pair, on the guesses' own paths; and some caps are partial (the test bites)."""
+    from secure3d.planning import guess as guess_mod
+
+    problem = problem_from_scenario(secure3d.load_scenario(maps_dir / name))
+    calls = []
+    real = guess_mod.secure_speed_caps
+
+    def spy(*args, **kwargs):
+        calls.append((args, kwargs))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(guess_mod, "secure_speed_caps", spy)
+    initial_guess(problem, secure=True)
+    assert calls
+    for (prob, points, tangents, yaws, v_cap), kwargs in calls:
+        got = real(prob, points, tangents, yaws, v_cap, **kwargs)
+        want = _speed_caps_every_pair(prob, points, tangents, yaws, v_cap, **kwargs)
+        assert np.array_equal(got, want)
+        assert 0.0 < got.min() < v_cap or name != "forest.yaml"
+
+
+def test_frustum_margins_of_earlier_cameras_are_the_full_matrixs(maps_dir):
+    """frustum_margins(owner=...): the full matrix's values where the camera comes before the
+    ellipsoid's owner, -inf elsewhere; an owner that is not sorted is refused."""
+    from secure3d.errors import PlanningError
+    from secure3d.planning.lookback import frustum_margins, node_geometry
+
+    problem = problem_from_scenario(secure3d.load_scenario(maps_dir / "forest.yaml"))
+    g = initial_guess(problem, secure=True)
+    geo = node_geometry(problem, g.states)
+    K = len(g.states)
+    owner = np.repeat(np.arange(0, K, 4), 4)[:K]
+    full, part = frustum_margins(problem, geo), frustum_margins(problem, geo, owner)
+    earlier = np.arange(K)[None, :] < owner[:, None]
+    assert np.array_equal(part[earlier], full[earlier])
+    assert np.all(np.isneginf(part[~earlier])) and np.isfinite(full).all()
+    with pytest.raises(PlanningError, match="owner"):
+        frustum_margins(problem, geo, owner[::-1])
