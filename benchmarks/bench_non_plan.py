@@ -48,12 +48,13 @@ def fly(tree: Path, scenario: Path, planners: str) -> dict:
 
 
 def rows(results: dict, planner: str) -> list[list[str]]:
-    """Table rows: scenario, outcome (same?), simulated, rest before/after, ratio, RTFs."""
+    """Table rows: scenario, outcome (same?), simulated, plan calls and rest before/after, the
+    rest's ratio, RTFs."""
     out = []
     for name, r in results.items():
         b, a = r["before"].get(planner), r["after"].get(planner)
         if b is None or a is None:
-            out.append([name, "error", "", "", "", "", "", ""])
+            out.append([name, "error", "", "", "", "", "", "", "", ""])
             continue
         same = b["outcome"] == a["outcome"] and abs(b["sim"] - a["sim"]) < 1e-9
         out.append(
@@ -61,6 +62,8 @@ def rows(results: dict, planner: str) -> list[list[str]]:
                 name,
                 a["outcome"] + ("" if same else f" (before: {b['outcome']}, {b['sim']:.2f} s)"),
                 fmt(a["sim"]),
+                fmt(b["plan"]),
+                fmt(a["plan"]),
                 fmt(b["rest"]),
                 fmt(a["rest"]),
                 fmt(b["rest"] / max(a["rest"], 1e-9)),
@@ -94,6 +97,8 @@ def main() -> None:
         "scenario",
         "outcome (after)",
         "simulated (s)",
+        "plan calls before (s)",
+        "plan calls after (s)",
         "rest before (s)",
         "rest after (s)",
         "rest ratio",

@@ -1,9 +1,10 @@
 """Look-back assignment and obstacle-slot selection, evaluated in numpy on the current iterate.
 
 The paper ties node i to node j = i - Δi (eq. NLP) and leaves relaxing this as future work. The
-adaptive rule assigns each node the latest earlier node whose camera frustum contains its reactive
-set with nearly the largest margin (:data:`VIEW_MARGIN_FRACTION`), penalising views blocked by a
-known obstacle, and the planner can re-solve until the assignment is stable. Both rules keep the NLP's constraint a *sufficient* condition for the
+adaptive rule assigns each node the earlier node whose camera frustum contains its reactive set with
+the largest margin, penalising views blocked by a known obstacle (or, as a cold plan's second try,
+the latest with nearly that margin: :data:`NEAR_VIEW_FRACTION`), and the planner can re-solve
+until the assignment is stable. Both rules keep the NLP's constraint a *sufficient* condition for the
 paper's eq. FullConstraint, so the certificate judges them equally.
 """
 
@@ -114,30 +115,36 @@ def best_views(
     return best_j, table[np.arange(K), best_col], table
 
 
-#: The adaptive rule ties a node to the latest earlier view whose margin on the guess is at least
-#: this fraction of its best view's. The best view alone is often the earliest (a far camera frames
-#: the set with the most room), and long look-backs tie far-apart nodes together: measured on
-#: cold plans (``benchmarks/results/closed_loop_session30.md``), a quadrotor plan from rest before
-#: a gap that ran out of every 10 s budget with every node tied to the start's view solves in 40
-#: iterations (T 3.09 s), a warehouse plan 8.48 -> 5.26 s, a forest plan 92 -> 46 iterations.
-VIEW_MARGIN_FRACTION = 0.9
+#: The adaptive rule's second choice of views, which a cold plan tries when the solve from its
+#: first choice fails (``solve.plan_problem``): each node tied to the latest earlier view holding at
+#: least this fraction of its best view's margin on the guess. The best view is often the earliest
+#: (a far camera frames the set with the most room), and long look-backs tie far-apart nodes
+#: together. Measured (``benchmarks/results/closed_loop_session30.md``): a quadrotor's plans from
+#: rest before a 0.83 m gap, every node tied to the start's view, ran out of every 10 s budget in
+#: three of 200 campaign runs; with the near views they solve in 40 iterations. As the first choice
+#: it lost eight other runs of the same campaign (certificate rejections between the first nodes).
+NEAR_VIEW_FRACTION = 0.9
 
 
 def adaptive_assignment(
-    problem: PlanningProblem, states: np.ndarray
+    problem: PlanningProblem, states: np.ndarray, near_fraction: float | None = None
 ) -> tuple[tuple[int, ...], np.ndarray]:
-    """Each node's view on ``states``: the start region where it is the best view; else the latest
-    earlier node whose frustum holds the node's reactive set with at least
-    :data:`VIEW_MARGIN_FRACTION` of the best view's margin (the best itself where that margin is
-    below the planner's). Returns (assignment, the chosen views' margins)."""
+    """Each node's view on ``states``: its best earlier view (the start region or the camera whose
+    frustum holds its reactive set with the largest margin); with ``near_fraction`` (in (0, 1]),
+    for a node whose best view is a camera with more than the planner's margin, the latest earlier
+    camera holding at least that fraction of the best margin. Returns (assignment, the chosen
+    views' margins)."""
     best_j, best, table = best_views(problem, states)
     K, margin = len(states), problem.options.margin
     out = best_j.copy()
     out[0] = -1
-    for i in range(1, K):
-        if out[i] >= 0 and best[i] > margin:
-            near = np.flatnonzero(table[i, :K] >= max(margin, VIEW_MARGIN_FRACTION * best[i]))
-            out[i] = int(near.max())
+    if near_fraction is not None:
+        if not 0.0 < near_fraction <= 1.0:
+            raise PlanningError(f"near_fraction: must be in (0, 1], got {near_fraction!r}")
+        for i in range(1, K):
+            if out[i] >= 0 and best[i] > margin:
+                near = np.flatnonzero(table[i, :K] >= max(margin, near_fraction * best[i]))
+                out[i] = int(near.max())
     chosen = table[np.arange(K), np.where(out < 0, K, out)]
     return tuple(int(j) for j in out), chosen
 

@@ -70,9 +70,9 @@ class PlannerOptions:
     nodes : collocation nodes K (the paper's K).
     collocation : ``"trapezoidal"`` (default) or ``"hermite_simpson"``.
     lookback : ``"fixed"`` (the paper's constant Δi, eq. NLP) or ``"adaptive"`` (node i is tied to the
-        latest earlier node whose frustum holds its reactive set on the guess with nearly the best
-        margin, ``lookback.VIEW_MARGIN_FRACTION``; optionally re-assigned on the solution and
-        re-solved, ``lookback_rounds``: the relaxation the paper leaves open).
+        earlier node whose frustum holds its reactive set with the largest margin on the guess, and
+        if that solve fails, to the latest with nearly that margin; optionally re-assigned on the
+        solution, ``lookback_rounds``: the relaxation the paper leaves open).
     lookback_steps : the paper's Δi for the fixed rule.
     lookback_rounds : most re-assignments for the adaptive rule.
     lookback_max_span : farthest look-back (nodes) the adaptive rule may pick; None: any earlier

@@ -41,8 +41,9 @@ from secure3d.planning.nlp_solve import (  # noqa: F401  (the constants: re-expo
     _Solve,
     _solve_once,
 )
+from secure3d.planning.outcome import failed_result, precheck, solution_result
 from secure3d.planning.problem import Planner, PlanningProblem, problem_from_scenario
-from secure3d.planning.result import Certificate, PlanResult, PlanStatus, WarmStart
+from secure3d.planning.result import Certificate, PlanResult, PlanStatus
 
 if TYPE_CHECKING:  # pragma: no cover
     from secure3d.mapping.occupancy import OccupancyMap
@@ -79,104 +80,17 @@ SLOT_REFRESHES = 3
 CERTIFY_TIGHTENING = (0.03, 0.08)
 
 
-def _precheck(problem: PlanningProblem) -> str | None:
-    """Reasons the problem cannot be solved at all (start/goal in obstacles or outside the map)."""
-    r = problem.model.body_radius
-    for label, p in (("start", problem.start_position), ("goal", problem.goal)):
-        if np.any(p < problem.bounds_lo + r - 1e-9) or np.any(p > problem.bounds_hi - r + 1e-9):
-            return f"{label} {np.round(p, 3).tolist()} is outside the map bounds (with the body radius {r} m)"
-        if len(problem.boxes_lo):
-            d = lb.min_box_distance_all(p[None], problem.boxes_lo, problem.boxes_hi)[0]
-            if d.min() < r:
-                k = int(np.argmin(d))
-                return (
-                    f"{label} {np.round(p, 3).tolist()} is inside a known obstacle (box"
-                    f" {np.round(problem.boxes_lo[k], 2).tolist()}..{np.round(problem.boxes_hi[k], 2).tolist()},"
-                    f" distance {d.min():.3f} m < body radius {r} m)"
-                )
-    return None
-
-
-def _failed(
-    problem: PlanningProblem, planner: str, status: PlanStatus, message: str, build: float = 0.0
-) -> PlanResult:
-    model = problem.model
-    z = np.zeros
-    return PlanResult(
-        status=status,
-        message=message,
-        planner=planner,
-        model_name=model.name,
-        times=z(0),
-        states=z((0, model.nx)),
-        controls=z((0, model.nu)),
-        camera_rotations=z((0, 3, 3)),
-        camera_origins=z((0, 3)),
-        ellipsoid_centers=z((0, 3)),
-        ellipsoid_shapes=z((0, 3, 3)),
-        positions=z((0, 3)),
-        speeds=z(0),
-        lookback=z(0, int),
-        lookback_rule=problem.options.lookback,
-        build_time=build,
-        solve_time=0.0,
-        iterations=0,
-        solver=problem.options.solver,
-    )
-
-
-def _result(problem: PlanningProblem, planner: str, s: _Solve, cost: SolveCost) -> PlanResult:
-    model = problem.model
-    K = problem.options.nodes
-    times = s.T * (np.linspace(0.0, 1.0, K) if s.grid is None else s.grid)
-    geo = lb.node_geometry(problem, s.X)
-    speeds = np.linalg.norm(np.asarray(model.velocity(s.X), dtype=float), axis=1)
-    return PlanResult(
-        status=s.status,
-        message=s.message,
-        planner=planner,
-        model_name=model.name,
-        times=times,
-        states=s.X,
-        controls=s.U,
-        camera_rotations=geo["R"],
-        camera_origins=geo["o"],
-        ellipsoid_centers=geo["C"],
-        ellipsoid_shapes=geo["M"],
-        positions=geo["P"],
-        speeds=speeds,
-        lookback=np.array(s.assignment if planner == Planner.SECURE else [-1] * K, dtype=int),
-        lookback_rule=problem.options.lookback if planner == Planner.SECURE else "none",
-        build_time=cost.build,
-        solve_time=cost.solve,
-        iterations=cost.iterations,
-        solver=problem.options.solver,
-        violations={k: v for k, v in s.violations.items() if v > FEASIBILITY_TOL},
-        warm=WarmStart(
-            key=s.nlp.key,
-            w=s.w,
-            lam_x=s.lam_x,
-            lam_g=s.lam_g,
-            L=s.L,
-            assignment=s.assignment,
-            slots=s.slots,
-            T=s.T,
-            X=s.X,
-            U=s.U,
-            grid=s.grid,
-        ),
-    )
-
-
 def _first_round(
     problem: PlanningProblem,
     planner: str,
     guess: Guess,
     warm: PlanResult | None,
     dual_start: bool,
+    near_fraction: float | None = None,
 ) -> tuple[tuple[int, ...], tuple | None, np.ndarray | None, np.ndarray | None]:
-    """The first round's look-back assignment, and from a warm plan its multipliers (with
-    ``dual_start``), obstacle duals and slots: ``(assignment, multipliers, L, slots)``."""
+    """The first round's look-back assignment (``near_fraction``: see
+    :func:`~secure3d.planning.lookback.adaptive_assignment`), and from a warm plan its multipliers
+    (with ``dual_start``), obstacle duals and slots: ``(assignment, multipliers, L, slots)``."""
     o = problem.options
     K = o.nodes
     if planner == Planner.BASELINE:
@@ -184,7 +98,7 @@ def _first_round(
     elif o.lookback == "fixed":
         assignment = lb.fixed_assignment(K, o.lookback_steps)
     else:
-        assignment, _ = lb.adaptive_assignment(problem, guess.states)
+        assignment, _ = lb.adaptive_assignment(problem, guess.states, near_fraction)
     multipliers = None
     L0 = None
     prev_slots = None
@@ -273,6 +187,7 @@ def _solve_rounds(
     cache: NLPCache,
     dual_start: bool = True,
     max_final_time: float = np.inf,
+    near_fraction: float | None = None,
 ) -> tuple[_Solve, SolveCost]:
     """Assign look-backs on the guess, solve, and (adaptive rule) re-assign and re-solve. A warm
     replan starts from the previous plan's multipliers too, with the warm-start solver, unless
@@ -280,7 +195,7 @@ def _solve_rounds(
     solution longer than ``max_final_time`` is returned at once (no slot refresh, no round)."""
     o = problem.options
     assignment, multipliers, L0, prev_slots = _first_round(
-        problem, planner, guess, warm, dual_start
+        problem, planner, guess, warm, dual_start, near_fraction
     )
     cost = SolveCost()
     T, X, U = guess.final_time, guess.states, guess.controls
@@ -389,9 +304,9 @@ def _plan_within_budget(
     max_final_time: float = np.inf,
 ) -> PlanResult:
     o = problem.options
-    reason = _precheck(problem)
+    reason = precheck(problem)
     if reason is not None:
-        return _failed(problem, planner, PlanStatus.INVALID_INPUT, reason)
+        return failed_result(problem, planner, PlanStatus.INVALID_INPUT, reason)
     from_other = None
     if warm is not None and warm.ok and warm.planner != planner and len(warm.times) >= 2:
         # The other planner's plan (e.g. the secure planner from the baseline's solution): its
@@ -411,37 +326,32 @@ def _plan_within_budget(
         # fragile: planar_passage_20cm ran to the 60 s limit from the multipliers and solves in
         # 1.4 s / 77 iterations without them; the point mass's are not: blind_corner 6
         # iterations with them, 17 without.)
-        attempts: list[tuple[Guess | float, bool]] = [(guess, True), (guess, False)]
+        attempts: list[tuple[Guess | float, bool, float | None]] = [
+            (guess, True, None),
+            (guess, False, None),
+        ]
     else:
         warm = None
-        try:
-            if from_other is not None:
-                guess = guess_along_plan(problem, planner, from_other, warm_time)
-            else:
-                guess = initial_guess(
-                    problem,
-                    secure=planner == Planner.SECURE,
-                    speed_fraction=1.0 if planner == Planner.BASELINE else None,
-                )
-        except NoPathError as exc:
-            return _failed(problem, planner, PlanStatus.INFEASIBLE, str(exc))
-        # The paper: poor guesses stop convergence. Slower flights along the same path are more
-        # conservative (more feasible) starts; they are tried when the first one fails. The
-        # baseline too: paper_blind_corner's baseline hit the iteration limit from its first
-        # guess with 12 obstacle slots (the closed loop's) and solves from the next in 0.2 s.
-        attempts = [(guess, True)]
-        first = o.guess_speed_fraction if planner == Planner.SECURE else 1.0
-        if o.slower_guesses:
-            attempts += [(frac * first, True) for frac in RETRY_GUESS_SPEEDS]
+        attempts = _cold_attempts(problem, planner, from_other, warm_time)
+        if isinstance(attempts, str):
+            return failed_result(problem, planner, PlanStatus.INFEASIBLE, attempts)
     s = None
     cost = SolveCost()
-    for g, dual_start in attempts:
+    for g, dual_start, near in attempts:
         if s is not None and budget_spent():
             break
         if isinstance(g, float):
             g = initial_guess(problem, secure=planner == Planner.SECURE, speed_fraction=g)
         s, c = solve_rounds(
-            problem, planner, g, warm, warm_time, cache, dual_start, max_final_time=max_final_time
+            problem,
+            planner,
+            g,
+            warm,
+            warm_time,
+            cache,
+            dual_start,
+            max_final_time=max_final_time,
+            near_fraction=near,
         )
         cost = cost + c
         if s.status.ok:
@@ -452,6 +362,47 @@ def _plan_within_budget(
     if warm is None and o.extra_starts:
         result = _extra_starts(problem, planner, result, cost, cache, solve_rounds)
     return result
+
+
+def _cold_attempts(
+    problem: PlanningProblem, planner: str, from_other: PlanResult | None, warm_time: float
+) -> list[tuple[Guess | float, bool, float | None]] | str:
+    """A cold plan's starts, in turn until one solves: (guess or a slower guess's speed fraction,
+    dual start, near-view fraction); or why there is no guess (no path)."""
+    o = problem.options
+    try:
+        if from_other is not None:
+            guess = guess_along_plan(problem, planner, from_other, warm_time)
+        else:
+            guess = initial_guess(
+                problem,
+                secure=planner == Planner.SECURE,
+                speed_fraction=1.0 if planner == Planner.BASELINE else None,
+            )
+    except NoPathError as exc:
+        return str(exc)
+    # The paper: poor guesses stop convergence. Slower flights along the same path are more
+    # conservative (more feasible) starts; they are tried when the first one fails. The
+    # baseline too: paper_blind_corner's baseline hit the iteration limit from its first
+    # guess with 12 obstacle slots (the closed loop's) and solves from the next in 0.2 s.
+    # Before them, the same guess with nearer views (:data:`lookback.NEAR_VIEW_FRACTION`).
+    attempts: list[tuple[Guess | float, bool, float | None]] = [(guess, True, None)]
+    first = o.guess_speed_fraction if planner == Planner.SECURE else 1.0
+    if o.slower_guesses:
+        attempts += _near_views(problem, planner, guess)
+        attempts += [(frac * first, True, None) for frac in RETRY_GUESS_SPEEDS]
+    return attempts
+
+
+def _near_views(problem: PlanningProblem, planner: str, guess: Guess) -> list[tuple]:
+    """The retry of a secure cold plan from the same guess with the near views
+    (:data:`~secure3d.planning.lookback.NEAR_VIEW_FRACTION`), if they differ from the first's."""
+    if planner != Planner.SECURE or problem.options.lookback != "adaptive":
+        return []
+    near = lb.NEAR_VIEW_FRACTION
+    first, _ = lb.adaptive_assignment(problem, guess.states)
+    same = lb.adaptive_assignment(problem, guess.states, near)[0] == first
+    return [] if same else [(guess, True, near)]
 
 
 def _extra_starts(
@@ -489,13 +440,13 @@ def _judged(
     with the rows of the nodes around its failing points tightened (:data:`CERTIFY_TIGHTENING`)
     before it is reported NOT_CERTIFIED (at once if a re-solve is longer than
     ``max_final_time``)."""
-    result = _result(problem, planner, s, cost)
+    result = solution_result(problem, planner, s, cost)
     if not (result.ok and planner == Planner.SECURE and problem.options.certify):
         return result
     from secure3d.planning.certificate import certify, failing_nodes
 
     def out_of_time(exc: BudgetSpent) -> PlanResult:
-        failed = _failed(
+        failed = failed_result(
             problem, planner, PlanStatus.TIME_BUDGET, f"solver: {result.message}; {exc}"
         )
         return replace(
@@ -517,7 +468,7 @@ def _judged(
             if not t_.status.ok or t_.T > max_final_time:
                 break
             s = t_
-            result = _result(problem, planner, s, cost)
+            result = solution_result(problem, planner, s, cost)
             cert = certify(result, problem)
     except BudgetSpent as exc:
         return out_of_time(exc)
@@ -535,7 +486,9 @@ def _too_slow(
     """The TOO_SLOW result of a call whose solution ``s`` is longer than ``limit`` seconds (its
     trajectory kept for the record, not certified)."""
     msg = f"final time {s.T:.2f} s over the limit of {limit:.2f} s"
-    return replace(_result(problem, planner, s, cost), status=PlanStatus.TOO_SLOW, message=msg)
+    return replace(
+        solution_result(problem, planner, s, cost), status=PlanStatus.TOO_SLOW, message=msg
+    )
 
 
 def _tightened_solve(

@@ -240,3 +240,42 @@ def test_left_out_boxes_take_the_farthest_slots_nearest_first(maps_dir):
         assert rest_d[rest[:, 0] == k].min() >= np.sort(nearest_held)[S - 1] - 1e-12
     # nothing within the limit left out: the slots come back unchanged
     assert with_left_out_boxes(problem, X, assignment, filled, 1e-3) is filled
+
+
+@pytest.mark.parametrize("name", ["forest.yaml", "warehouse.yaml", "blind_corner_quadrotor.yaml"])
+def test_near_views_are_the_latest_with_nearly_the_best_margin(maps_dir, name):
+    """adaptive_assignment: by default each node's best view; with near_fraction, a node whose best
+    view is a camera with margin to spare takes the latest earlier camera holding at least that
+    fraction of the best margin (none later does), start-region nodes and nodes without margin
+    keep the best; on these guesses some node's view moves (the option changes something)."""
+    import secure3d
+    from secure3d.errors import PlanningError
+    from secure3d.planning import problem_from_scenario
+    from secure3d.planning.guess import initial_guess
+    from secure3d.planning.lookback import NEAR_VIEW_FRACTION, adaptive_assignment, best_views
+
+    problem = problem_from_scenario(secure3d.load_scenario(maps_dir / name))
+    states = initial_guess(problem, secure=True).states
+    best_j, best, table = best_views(problem, states)
+    K, m = len(states), problem.options.margin
+    first, margins = adaptive_assignment(problem, states)
+    assert first == (-1, *(int(j) for j in best_j[1:]))
+    assert np.array_equal(margins[1:], best[1:])
+    assignment, chosen = adaptive_assignment(problem, states, NEAR_VIEW_FRACTION)
+    assert assignment[0] == -1 and len(assignment) == K
+    moved = 0
+    for i in range(1, K):
+        j = assignment[i]
+        assert chosen[i] == table[i, K if j < 0 else j]
+        if best_j[i] < 0 or best[i] <= m:
+            assert j == best_j[i]
+            continue
+        limit = max(m, NEAR_VIEW_FRACTION * best[i])
+        assert 0 <= j < i and table[i, j] >= limit
+        assert not np.any(table[i, j + 1 : i] >= limit)
+        moved += j != best_j[i]
+    assert moved > 0
+    assert adaptive_assignment(problem, states, 1.0)[0] == first  # ties already go to the latest
+    for bad in (0.0, 1.5):
+        with pytest.raises(PlanningError, match="near_fraction"):
+            adaptive_assignment(problem, states, bad)

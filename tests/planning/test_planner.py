@@ -272,25 +272,35 @@ def test_one_sided_duals_option_is_validated(corner_problem):
         corner_problem.with_options(one_sided_duals="yes")
 
 
-def test_failed_cold_solves_fall_back_to_slower_guesses(corner_problem):
-    """A secure cold plan whose solve fails from the first guess is retried from slower ones
+def test_failed_cold_solves_fall_back_to_near_views_then_slower_guesses(corner_problem):
+    """A secure cold plan whose solve fails from the first guess is retried from the same guess
+    with the near views (lookback.NEAR_VIEW_FRACTION), then from slower guesses
     (``RETRY_GUESS_SPEEDS``), in turn, and the first that solves is kept."""
+    from secure3d.planning import lookback as lb
     from secure3d.planning import solve as solve_mod
 
     real = solve_mod._solve_rounds
-    finals = []
+    calls = []
 
-    def failing_twice(problem, planner, guess, *args, **kwargs):
-        finals.append(guess.final_time)
+    def failing(problem, planner, guess, *args, fail=3, **kwargs):
+        calls.append((guess.final_time, kwargs.get("near_fraction")))
         s, cost = real(problem, planner, guess, *args, **kwargs)
-        if len(finals) <= 2:
+        if len(calls) <= fail:
             s = dataclasses.replace(s, status=PlanStatus.ITERATION_LIMIT)
         return s, cost
 
-    result = plan_problem(corner_problem, "secure", cache=NLPCache(), solve_rounds=failing_twice)
-    assert len(finals) == 1 + len(solve_mod.RETRY_GUESS_SPEEDS) == 3
-    # each fallback flies the same path slower: a longer guess
-    assert finals[0] < finals[1] < finals[2]
+    result = plan_problem(corner_problem, "secure", cache=NLPCache(), solve_rounds=failing)
+    near = lb.adaptive_assignment(corner_problem, solve_mod.initial_guess(corner_problem).states)
+    assert (
+        near[0]
+        != lb.adaptive_assignment(
+            corner_problem, solve_mod.initial_guess(corner_problem).states, lb.NEAR_VIEW_FRACTION
+        )[0]
+    )  # the near views differ here, so they are tried
+    assert len(calls) == 2 + len(solve_mod.RETRY_GUESS_SPEEDS) == 4
+    (t0, n0), (t1, n1), (t2, n2), (t3, n3) = calls
+    assert n0 is None and n1 == lb.NEAR_VIEW_FRACTION and n2 is None and n3 is None
+    assert t0 == t1 < t2 < t3  # the same guess, then the same path slower and slower
     assert result.ok and result.certificate.ok
 
 
