@@ -342,6 +342,8 @@ def _plan_within_budget(
             break
         if isinstance(g, float):
             g = initial_guess(problem, secure=planner == Planner.SECURE, speed_fraction=g)
+        elif near is not None and not _near_views_differ(problem, g):
+            continue
         s, c = solve_rounds(
             problem,
             planner,
@@ -389,20 +391,17 @@ def _cold_attempts(
     attempts: list[tuple[Guess | float, bool, float | None]] = [(guess, True, None)]
     first = o.guess_speed_fraction if planner == Planner.SECURE else 1.0
     if o.slower_guesses:
-        attempts += _near_views(problem, planner, guess)
+        if planner == Planner.SECURE and o.lookback == "adaptive":
+            attempts.append((guess, True, lb.NEAR_VIEW_FRACTION))
         attempts += [(frac * first, True, None) for frac in RETRY_GUESS_SPEEDS]
     return attempts
 
 
-def _near_views(problem: PlanningProblem, planner: str, guess: Guess) -> list[tuple]:
-    """The retry of a secure cold plan from the same guess with the near views
-    (:data:`~secure3d.planning.lookback.NEAR_VIEW_FRACTION`), if they differ from the first's."""
-    if planner != Planner.SECURE or problem.options.lookback != "adaptive":
-        return []
-    near = lb.NEAR_VIEW_FRACTION
+def _near_views_differ(problem: PlanningProblem, guess: Guess) -> bool:
+    """Whether the near views (:data:`~secure3d.planning.lookback.NEAR_VIEW_FRACTION`) on the
+    guess differ from the best ones (else a retry with them repeats the failed solve)."""
     first, _ = lb.adaptive_assignment(problem, guess.states)
-    same = lb.adaptive_assignment(problem, guess.states, near)[0] == first
-    return [] if same else [(guess, True, near)]
+    return lb.adaptive_assignment(problem, guess.states, lb.NEAR_VIEW_FRACTION)[0] != first
 
 
 def _extra_starts(
