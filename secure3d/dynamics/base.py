@@ -448,6 +448,23 @@ def _frozen(values: list[float]) -> np.ndarray:
     return arr
 
 
+def state_rows(
+    positions: np.ndarray, velocities: np.ndarray, yaws: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows of a batched ``initial_states`` call, checked: positions (N, 3), velocities
+    (N, 3), both finite, and yaws (N,) as floats; :class:`ConfigError` otherwise."""
+    p = np.asarray(positions, dtype=float).reshape(-1, 3)
+    v = np.asarray(velocities, dtype=float).reshape(-1, 3)
+    y = np.asarray(yaws, dtype=float).reshape(-1)
+    if not (len(p) == len(v) == len(y)):
+        raise ConfigError(
+            f"initial_states: {len(p)} positions, {len(v)} velocities and {len(y)} yaws"
+        )
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(v))):
+        raise ConfigError("initial_states: positions and velocities must be finite")
+    return p, v, y
+
+
 def vec3(value: Any, what: str) -> np.ndarray:
     """``value`` as a finite (3,) float array, or :class:`ConfigError` naming ``what``."""
     try:

@@ -16,7 +16,13 @@ from typing import Any, Literal
 import numpy as np
 
 from secure3d.dynamics import _symbolic as sym
-from secure3d.dynamics.base import VehicleModel, normalise_fields, sample_unit_vectors, vec3
+from secure3d.dynamics.base import (
+    VehicleModel,
+    normalise_fields,
+    sample_unit_vectors,
+    state_rows,
+    vec3,
+)
 from secure3d.errors import ConfigError
 from secure3d.geometry.transforms import yaw_matrix
 
@@ -106,17 +112,8 @@ class PointMass(VehicleModel):
     ) -> np.ndarray:
         """:meth:`initial_state` of N rows at once (the same values): (N, 3), (N, 3), (N,) ->
         (N, 7)."""
-        p = np.asarray(positions, dtype=float).reshape(-1, 3)
-        v = np.asarray(velocities, dtype=float).reshape(-1, 3)
-        y = np.asarray(yaws, dtype=float).reshape(-1, 1)
-        if not (len(p) == len(v) == len(y)):
-            raise ConfigError(
-                f"initial_states: {len(p)} positions, {len(v)} velocities and {len(y)} yaws"
-            )
-        out = np.concatenate([p, v, y], axis=1)
-        if not np.all(np.isfinite(out[:, :6])):
-            raise ConfigError("initial_states: positions and velocities must be finite")
-        return out
+        p, v, y = state_rows(positions, velocities, yaws)
+        return np.concatenate([p, v, y[:, None]], axis=1)
 
     def sample_states(
         self, positions: np.ndarray, speeds: Any, rng: np.random.Generator

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from secure3d.dynamics import _symbolic as sym
-from secure3d.dynamics.base import VehicleModel, normalise_fields, vec3
+from secure3d.dynamics.base import VehicleModel, normalise_fields, state_rows, vec3
 from secure3d.errors import ConfigError
 from secure3d.geometry.transforms import quat_multiply, quat_to_matrix
 from secure3d.validation import is_real
@@ -198,15 +198,8 @@ class Quadrotor(VehicleModel):
     ) -> np.ndarray:
         """:meth:`initial_state` of N rows at once (the same values): (N, 3), (N, 3), (N,) ->
         (N, 10)."""
-        p = np.asarray(positions, dtype=float).reshape(-1, 3)
-        v = np.asarray(velocities, dtype=float).reshape(-1, 3)
-        h = 0.5 * np.asarray(yaws, dtype=float).reshape(-1)
-        if not (len(p) == len(v) == len(h)):
-            raise ConfigError(
-                f"initial_states: {len(p)} positions, {len(v)} velocities and {len(h)} yaws"
-            )
-        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(v))):
-            raise ConfigError("initial_states: positions and velocities must be finite")
+        p, v, y = state_rows(positions, velocities, yaws)
+        h = 0.5 * y
         q = np.zeros((len(h), 4))
         q[:, 0] = [math.cos(a) for a in h.tolist()]  # math's, as initial_state: the same bits
         q[:, 3] = [math.sin(a) for a in h.tolist()]
