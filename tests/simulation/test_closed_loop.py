@@ -396,11 +396,12 @@ def test_a_robot_stuck_at_rest_looks_around_once_then_holds(maps_dir, monkeypatc
     """Replans at rest that keep failing: after every retry start failed (STUCK_RETRIES) the robot
     turns to look around once, and after as many more it stops replanning and holds still."""
     import secure3d.planning.solve as solve_module
+    from secure3d.planning.outcome import failed_result
     from secure3d.planning.result import PlanStatus
     from secure3d.simulation.closed_loop import STUCK_RETRIES
 
     def no_plan(problem, planner, **_):
-        return solve_module._failed(problem, planner, PlanStatus.INFEASIBLE, "test: no plan")
+        return failed_result(problem, planner, PlanStatus.INFEASIBLE, "test: no plan")
 
     monkeypatch.setattr(solve_module, "plan_problem", no_plan)
     scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
