@@ -134,8 +134,29 @@ def adaptive_assignment(
     for a node whose best view is a camera with more than the planner's margin, the latest earlier
     camera holding at least that fraction of the best margin. Returns (assignment, the chosen
     views' margins)."""
-    best_j, best, table = best_views(problem, states)
-    K, margin = len(states), problem.options.margin
+    views = best_views(problem, states)
+    out = _assigned(views, problem.options.margin, near_fraction)
+    K = len(states)
+    chosen = views[2][np.arange(K), np.where(out < 0, K, out)]
+    return tuple(int(j) for j in out), chosen
+
+
+def near_views_differ(problem: PlanningProblem, states: np.ndarray, near_fraction: float) -> bool:
+    """Whether :func:`adaptive_assignment` with ``near_fraction`` ties some node on ``states`` to
+    another view than without it (one view table for both)."""
+    views = best_views(problem, states)
+    margin = problem.options.margin
+    return not np.array_equal(
+        _assigned(views, margin, None), _assigned(views, margin, near_fraction)
+    )
+
+
+def _assigned(
+    views: tuple[np.ndarray, np.ndarray, np.ndarray], margin: float, near_fraction: float | None
+) -> np.ndarray:
+    """(K,) views of :func:`adaptive_assignment` from :func:`best_views`' answer."""
+    best_j, best, table = views
+    K = len(best_j)
     out = best_j.copy()
     out[0] = -1
     if near_fraction is not None:
@@ -145,8 +166,7 @@ def adaptive_assignment(
             if out[i] >= 0 and best[i] > margin:
                 near = np.flatnonzero(table[i, :K] >= max(margin, near_fraction * best[i]))
                 out[i] = int(near.max())
-    chosen = table[np.arange(K), np.where(out < 0, K, out)]
-    return tuple(int(j) for j in out), chosen
+    return out
 
 
 def refine_assignment(
@@ -529,6 +549,7 @@ def min_box_distance_all(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> 
 
 __all__ = [
     "adaptive_assignment",
+    "near_views_differ",
     "constrained_sets",
     "empty_slot_lo",
     "empty_slots",

@@ -342,8 +342,8 @@ def _plan_within_budget(
             break
         if isinstance(g, float):
             g = initial_guess(problem, secure=planner == Planner.SECURE, speed_fraction=g)
-        elif near is not None and not _near_views_differ(problem, g):
-            continue
+        elif near is not None and not lb.near_views_differ(problem, g.states, near):
+            continue  # the same views: the same failed solve
         s, c = solve_rounds(
             problem,
             planner,
@@ -395,13 +395,6 @@ def _cold_attempts(
             attempts.append((guess, True, lb.NEAR_VIEW_FRACTION))
         attempts += [(frac * first, True, None) for frac in RETRY_GUESS_SPEEDS]
     return attempts
-
-
-def _near_views_differ(problem: PlanningProblem, guess: Guess) -> bool:
-    """Whether the near views (:data:`~secure3d.planning.lookback.NEAR_VIEW_FRACTION`) on the
-    guess differ from the best ones (else a retry with them repeats the failed solve)."""
-    first, _ = lb.adaptive_assignment(problem, guess.states)
-    return lb.adaptive_assignment(problem, guess.states, lb.NEAR_VIEW_FRACTION)[0] != first
 
 
 def _extra_starts(

@@ -252,7 +252,12 @@ def test_near_views_are_the_latest_with_nearly_the_best_margin(maps_dir, name):
     from secure3d.errors import PlanningError
     from secure3d.planning import problem_from_scenario
     from secure3d.planning.guess import initial_guess
-    from secure3d.planning.lookback import NEAR_VIEW_FRACTION, adaptive_assignment, best_views
+    from secure3d.planning.lookback import (
+        NEAR_VIEW_FRACTION,
+        adaptive_assignment,
+        best_views,
+        near_views_differ,
+    )
 
     problem = problem_from_scenario(secure3d.load_scenario(maps_dir / name))
     states = initial_guess(problem, secure=True).states
@@ -276,6 +281,8 @@ def test_near_views_are_the_latest_with_nearly_the_best_margin(maps_dir, name):
         moved += j != best_j[i]
     assert moved > 0
     assert adaptive_assignment(problem, states, 1.0)[0] == first  # ties already go to the latest
+    assert near_views_differ(problem, states, NEAR_VIEW_FRACTION)
+    assert not near_views_differ(problem, states, 1.0)
     for bad in (0.0, 1.5):
         with pytest.raises(PlanningError, match="near_fraction"):
             adaptive_assignment(problem, states, bad)
