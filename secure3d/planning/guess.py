@@ -275,7 +275,12 @@ def secure_speed_caps(
     """Largest speed at each path point whose reactive set is already observed: inside the start
     ball, or inside the frustum of an earlier path point with a clear line of sight (the paper's
     eq. FullConstraint along a geometric path, before any optimisation)."""
-    from secure3d.planning.lookback import frustum_margins, start_margins
+    from secure3d.planning.lookback import (
+        frustum_margins,
+        node_geometry,
+        sight_tips,
+        start_margins,
+    )
 
     model, o = problem.model, problem.options
     n = len(points)
@@ -286,19 +291,16 @@ def secure_speed_caps(
         np.repeat(yaws, levels),
     )
     cams = model.initial_states(points, 0.0 * tangents, yaws)
-    from secure3d.planning.lookback import node_geometry
-
     geo_e = node_geometry(problem, X)
     geo_c = node_geometry(problem, cams)
     geo = {"C": geo_e["C"], "M": geo_e["M"], "R": geo_c["R"], "o": geo_c["o"]}
     owner = np.repeat(np.arange(n), levels)
-    fm = frustum_margins(problem, geo, owner)  # (n*levels, n), the earlier cameras only
-    seen = (fm >= o.margin) & (np.arange(n)[None, :] < owner[:, None])
+    # (n*levels, n), the earlier cameras only (the later ones -inf: never seen)
+    seen = frustum_margins(problem, geo, owner) >= o.margin
     visible = seen.any(axis=1)
     if o.occlusion and len(problem.boxes_lo):
         # a clear sight from one of the cameras that frame it: the nearest tried first
-        C, M = geo["C"], geo["M"]
-        tips = np.stack([C] + [C + s * 0.9 * M[:, :, a] for a in range(3) for s in (1.0, -1.0)], 1)
+        tips = sight_tips(geo["C"], geo["M"])
         indptr = np.concatenate([[0], np.cumsum(seen.sum(axis=1))])
         cols = np.nonzero(seen[:, ::-1])[1]
         visible = problem.box_index.fans_clear(geo["o"], tips, indptr, n - 1 - cols)

@@ -76,15 +76,18 @@ def occluded(problem: PlanningProblem, geo: dict[str, np.ndarray]) -> np.ndarray
     K, n_cam = len(geo["C"]), len(geo["o"])
     if len(problem.boxes_lo) == 0:
         return np.zeros((K, n_cam), bool)
-    tips = [geo["C"]]
-    for a in range(3):
-        tips.append(geo["C"] + 0.9 * geo["M"][:, :, a])
-        tips.append(geo["C"] - 0.9 * geo["M"][:, :, a])
-    tips = np.stack(tips, axis=1)  # (K, 7, 3)
+    tips = sight_tips(geo["C"], geo["M"])  # (K, 7, 3)
     p0 = np.broadcast_to(geo["o"][None, :, None, :], (K, n_cam, 7, 3)).reshape(-1, 3)
     p1 = np.broadcast_to(tips[:, None, :, :], (K, n_cam, 7, 3)).reshape(-1, 3)
     hit = problem.box_index.segments_blocked(p0, p1)
     return hit.reshape(K, n_cam, 7).any(axis=2)
+
+
+def sight_tips(C: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """(n, 7, 3) the points a camera must see of each ellipsoid (centres C (n, 3), shapes
+    M (n, 3, 3)): its centre and 0.9 of the way to either end of each axis."""
+    tips = [C] + [C + s * 0.9 * M[:, :, a] for a in range(3) for s in (1.0, -1.0)]
+    return np.stack(tips, axis=1)
 
 
 def fixed_assignment(K: int, steps: int) -> tuple[int, ...]:
@@ -549,6 +552,7 @@ def min_box_distance_all(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> 
 
 __all__ = [
     "adaptive_assignment",
+    "sight_tips",
     "near_views_differ",
     "constrained_sets",
     "empty_slot_lo",
