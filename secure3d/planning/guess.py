@@ -127,6 +127,10 @@ def clearance_weight(clearance: np.ndarray, radius: float, pad: float) -> np.nda
     ``radius``: it grows as the clearance falls to the body within ``pad``. It never rises with the
     clearance, in floating point too (every operation is monotone), so an edge's weight, that of
     its ends' smaller clearance, is the larger of its ends' weights: one per cell, not per edge."""
+    if not (np.isfinite(radius) and radius >= 0 and np.isfinite(pad) and pad >= 0):
+        raise PlanningError(
+            f"clearance_weight: radius and pad must be >= 0 (m), got {radius!r}, {pad!r}"
+        )
     return 1.0 + 1.0 / (0.25 + np.maximum(clearance - radius, 0.0) / max(pad, 1e-3))
 
 

@@ -86,6 +86,10 @@ def occluded(problem: PlanningProblem, geo: dict[str, np.ndarray]) -> np.ndarray
 def sight_tips(C: np.ndarray, M: np.ndarray) -> np.ndarray:
     """(n, 7, 3) the points a camera must see of each ellipsoid (centres C (n, 3), shapes
     M (n, 3, 3)): its centre and 0.9 of the way to either end of each axis."""
+    if np.ndim(C) != 2 or np.shape(C)[1:] != (3,) or np.shape(M) != (len(C), 3, 3):
+        raise PlanningError(
+            f"sight_tips: C (n, 3) and M (n, 3, 3), got {np.shape(C)}, {np.shape(M)}"
+        )
     tips = [C] + [C + s * 0.9 * M[:, :, a] for a in range(3) for s in (1.0, -1.0)]
     return np.stack(tips, axis=1)
 

@@ -201,7 +201,16 @@ def replan_time_limit(
     """The longest replan (s) from ``p0`` (3,) to ``goal`` (3,) that neither
     :func:`detour_reason` nor, given ``braking`` = (stop time, time left on the old plan),
     :func:`slow_replan_reason` refuses for its duration."""
-    line = float(np.linalg.norm(np.asarray(goal, dtype=float) - np.asarray(p0, dtype=float)))
+    p, g = np.asarray(p0, dtype=float), np.asarray(goal, dtype=float)
+    if p.shape != (3,) or g.shape != (3,) or not np.all(np.isfinite([*p, *g])):
+        raise SimulationError(
+            f"replan_time_limit: p0 and goal must be 3 finite numbers, got {p0!r}, {goal!r}"
+        )
+    if not (np.isfinite(max_speed) and max_speed > 0):
+        raise SimulationError(f"replan_time_limit: max_speed must be > 0 (m/s), got {max_speed!r}")
+    if braking is not None and not np.all(np.isfinite(braking)):
+        raise SimulationError(f"replan_time_limit: braking times must be finite, got {braking!r}")
+    line = float(np.linalg.norm(g - p))
     top = detour_time_limit(line, max_speed)
     return top if braking is None else min(top, slow_replan_limit(*braking))
 

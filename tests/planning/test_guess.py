@@ -158,6 +158,11 @@ def test_an_edge_weighs_its_nearer_ends_clearance_bit_for_bit():
         near = np.minimum(c[s], c[d])
         want = length * (1.0 + 1.0 / (0.25 + np.maximum(near - r, 0.0) / max(pad, 1e-3)))
         assert np.array_equal(length * np.maximum(w[s], w[d]), want)
+    from secure3d.errors import PlanningError
+
+    for r, pad in ((-0.1, 0.15), (0.2, np.nan)):
+        with pytest.raises(PlanningError, match="clearance_weight"):
+            clearance_weight(c, r, pad)
 
 
 def _speed_caps_every_pair(problem, points, tangents, yaws, v_cap, levels=12):
@@ -237,3 +242,10 @@ def test_frustum_margins_of_earlier_cameras_are_the_full_matrixs(maps_dir):
     assert np.all(np.isneginf(part[~earlier])) and np.isfinite(full).all()
     with pytest.raises(PlanningError, match="owner"):
         frustum_margins(problem, geo, owner[::-1])
+    from secure3d.planning.lookback import sight_tips
+
+    tips = sight_tips(geo["C"], geo["M"])
+    assert tips.shape == (K, 7, 3) and np.array_equal(tips[:, 0], geo["C"])
+    np.testing.assert_allclose(tips[:, 1] + tips[:, 2], 2 * geo["C"], atol=1e-12)
+    with pytest.raises(PlanningError, match="sight_tips"):
+        sight_tips(geo["C"], geo["M"][:-1])

@@ -215,6 +215,14 @@ def test_the_replan_time_limit_is_where_the_refusal_starts():
         assert replan_refusal(straight, top - 1e-6, p0, goal, 2.0, braking) is None
         assert "replan refused" in replan_refusal(straight, top + 1e-3, p0, goal, 2.0, braking)
     assert replan_time_limit(p0, goal, 2.0, (1.07, 2.16)) < replan_time_limit(p0, goal, 2.0, None)
+    for args, what in (
+        ((p0[:2], goal, 2.0, None), "p0 and goal"),
+        ((p0, goal * np.nan, 2.0, None), "p0 and goal"),
+        ((p0, goal, 0.0, None), "max_speed"),
+        ((p0, goal, 2.0, (np.inf, 1.0)), "braking"),
+    ):
+        with pytest.raises(SimulationError, match=what):
+            replan_time_limit(*args)
 
 
 def test_stop_time_is_the_braking_manoeuvres_length(maps_dir):
