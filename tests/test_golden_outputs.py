@@ -1,19 +1,21 @@
-"""Plans, certificates and a 20-run campaign, pinned bit for bit (issue 22's refactor must not move
-a single float).
+"""Plans, certificates and a 20-run campaign, pinned (issue 22's refactor must not move them).
 
 The golden values in ``tests/data/golden_outputs.json`` were written by this module from the code
 before the redesign; regenerate them only when a change of behaviour is intended::
 
     python tests/test_golden_outputs.py --write
 
-Arrays are pinned by the SHA-256 of their float64 bytes (plus a few values written with
-``float.hex`` so that a failure says how far it moved); campaign rows are pinned as written to the
-CSV, minus the wall-clock columns.
+Everything discrete is pinned exactly: statuses, messages, iteration counts, look-back
+assignments, certificate verdicts, sample counts, campaign outcomes. Floats are pinned to
+:data:`PLAN_RTOL` (arrays as their values, scalars with ``float.hex``): the same code gives other
+last bits on another CPU (NumPy's vector sin and cos, OpenBLAS's and MUMPS's kernels are chosen by
+the CPU's instruction sets). On an AMD EPYC without AVX-512 the five plans of the values written
+on another machine came out with the same iterations and look-backs and final times equal to
+1e-10, but not one array bit-identical; a change of behaviour moves them by far more.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import subprocess
 import sys
@@ -43,9 +45,61 @@ CAMPAIGN_VARIANTS = 10  # x 2 planners = 20 runs
 CAMPAIGN_SEED = 3
 
 
-def _digest(array: np.ndarray) -> str:
-    a = np.ascontiguousarray(np.asarray(array, dtype=np.float64))
-    return f"{a.shape}:{hashlib.sha256(a.tobytes()).hexdigest()[:32]}"
+#: Relative tolerance on every pinned float of the plans and the campaign, with an absolute floor of
+#: :data:`PLAN_ATOL` (m, m/s, s) for values near zero: a certificate margin is a small difference of
+#: large distances (the planar plan's moved by 3.5e-7 m between two machines, its final time by
+#: 1e-10 relative).
+PLAN_RTOL = 1e-6
+PLAN_ATOL = 1e-6
+
+
+def _array(array: np.ndarray) -> dict[str, object]:
+    """An array as its shape and values (float64, written exactly: JSON keeps a float's repr)."""
+    a = np.asarray(array, dtype=np.float64)
+    return {"shape": list(a.shape), "values": [float(v) for v in a.ravel()]}
+
+
+def _hexfloat(value: object) -> float | None:
+    """The float a ``float.hex`` string holds, else None."""
+    if not isinstance(value, str) or "0x" not in value:
+        return None
+    try:
+        return float.fromhex(value)
+    except ValueError:
+        return None
+
+
+def _floats_close(a: float, b: float) -> bool:
+    if np.isnan(a) or np.isnan(b):
+        return bool(np.isnan(a) and np.isnan(b))
+    return abs(a - b) <= PLAN_ATOL + PLAN_RTOL * max(abs(a), abs(b))
+
+
+def difference(got: object, want: object, where: str = "") -> str | None:
+    """Where ``got`` and ``want`` (JSON values) differ beyond the float tolerance, or None: floats
+    (and ``float.hex`` strings) within PLAN_RTOL / PLAN_ATOL, everything else exactly."""
+    if isinstance(got, dict) and isinstance(want, dict):
+        if got.keys() != want.keys():
+            return f"{where}: keys {sorted(got)} != {sorted(want)}"
+        for key in want:
+            found = difference(got[key], want[key], f"{where}.{key}")
+            if found:
+                return found
+        return None
+    if isinstance(got, list) and isinstance(want, list):
+        if len(got) != len(want):
+            return f"{where}: {len(got)} items != {len(want)}"
+        for i, (g, w) in enumerate(zip(got, want, strict=True)):
+            found = difference(g, w, f"{where}[{i}]")
+            if found:
+                return found
+        return None
+    a, b = _hexfloat(got), _hexfloat(want)
+    if a is not None and b is not None:
+        return None if _floats_close(a, b) else f"{where}: {a!r} != {b!r}"
+    if type(got) is float and type(want) is float:
+        return None if _floats_close(got, want) else f"{where}: {got!r} != {want!r}"
+    return None if got == want else f"{where}: {got!r} != {want!r}"
 
 
 def _hex(x: float | None) -> str | None:
@@ -101,7 +155,7 @@ def plan_snapshot() -> dict[str, object]:
             "ellipsoid_centers",
             "ellipsoid_shapes",
         ):
-            entry[name] = _digest(getattr(result, name))
+            entry[name] = _array(getattr(result, name))
         if result.certificate is not None:
             entry["certificate"] = _certificate(result.certificate)
         # The independent check of every plan against its own problem (the baseline's fails).
@@ -163,27 +217,19 @@ def current() -> dict[str, object]:
 
 
 @pytest.mark.parametrize("label", [p[0] for p in PLANS])
-def test_plans_and_certificates_are_bit_identical_to_the_golden_values(golden, current, label):
-    assert current["plans"][label] == golden["plans"][label], label
-
-
-#: Relative tolerance on the campaign's pinned floats (``*.hex``). A flight's clearance sums many
-#: small BLAS products along the tracked path, and OpenBLAS picks its kernels by CPU: on an AVX-512
-#: machine one clearance of the golden values (written on another) moved by 2e-15 m in the last
-#: bits, every other value bit-identical. A change of behaviour moves these by far more than this.
-CAMPAIGN_FLOAT_RTOL = 1e-12
+def test_plans_and_certificates_match_the_golden_values(golden, current, label):
+    found = difference(current["plans"][label], golden["plans"][label], label)
+    assert found is None, found
 
 
 def _same_row(row: dict[str, str], want: dict[str, str]) -> bool:
+    """A campaign row as written: the CSV's text exactly (it keeps 6 significant digits), the
+    records' floats (``*.hex``) within the tolerance (a flight's clearance sums many small BLAS
+    products along the tracked path: on another CPU they moved by up to 2e-12 relative)."""
     if row.keys() != want.keys():
         return False
     for key, value in row.items():
-        if value == want[key]:
-            continue
-        if not key.endswith(".hex") or value is None or want[key] is None:
-            return False
-        a, b = float.fromhex(value), float.fromhex(want[key])
-        if abs(a - b) > CAMPAIGN_FLOAT_RTOL * max(abs(a), abs(b)):
+        if value != want[key] and (not key.endswith(".hex") or difference(value, want[key])):
             return False
     return True
 
@@ -198,9 +244,24 @@ def test_a_20_run_campaign_writes_the_golden_rows(golden, current):
 def test_the_campaign_row_comparison_tolerates_only_the_last_bits():
     row = {"outcome": "reached goal", "min_clearance.hex": (0.088).hex()}
     assert _same_row(row, dict(row))
-    assert _same_row(row, {**row, "min_clearance.hex": (0.088 * (1 + 1e-14)).hex()})
-    assert not _same_row(row, {**row, "min_clearance.hex": (0.088 * (1 + 1e-9)).hex()})
+    assert _same_row(row, {**row, "min_clearance.hex": (0.088 + 5e-7).hex()})
+    assert not _same_row(row, {**row, "min_clearance.hex": (0.088 + 1e-5).hex()})
     assert not _same_row(row, {**row, "outcome": "collided"})
+    # no tolerance on text that is not a pinned float
+    assert not _same_row({"solves": "3"}, {"solves": "3.0000001"})
+
+
+def test_the_plan_comparison_tolerates_only_float_noise():
+    want = {"iterations": 22, "final_time": (4.17).hex(), "states": _array(np.eye(2))}
+    assert difference(want, want) is None
+    noisy = {**want, "final_time": (4.17 * (1 + 1e-12)).hex()}
+    noisy["states"] = _array(np.eye(2) + 1e-12)
+    assert difference(noisy, want) is None
+    assert "iterations" in difference({**want, "iterations": 23}, want)
+    assert "final_time" in difference({**want, "final_time": (4.18).hex()}, want)
+    moved = {**want, "states": _array(np.eye(2) * 1.001)}
+    assert "states.values[0]" in difference(moved, want)
+    assert "shape" in difference({**want, "states": _array(np.eye(3))}, want)
 
 
 if __name__ == "__main__":
