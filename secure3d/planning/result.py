@@ -149,6 +149,11 @@ class PlanResult:
     rejections : the certificate's verdicts on the solver successes it rejected before this result
         (secure planner; each re-solved with tightened rows), oldest first: empty when the first
         solution certified (issue 16's first-try rate).
+    route_length : length (m) of the route through the belief that the solver started from (the
+        cold guess's graph-search path, from the start to the goal); NaN when it started from an
+        earlier plan (warm) or never reached a solve. A closed loop judges detours by it
+        (:func:`secure3d.simulation.modes.detour_reason`): the straight line to a goal behind a
+        wall says nothing about how far the robot must go round.
     """
 
     status: PlanStatus
@@ -174,6 +179,7 @@ class PlanResult:
     certificate: Certificate | None = None
     warm: WarmStart | None = field(default=None, repr=False)
     rejections: tuple[Certificate, ...] = field(default=(), repr=False)
+    route_length: float = float("nan")
 
     @property
     def ok(self) -> bool:

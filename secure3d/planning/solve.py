@@ -335,6 +335,27 @@ def _plan_within_budget(
         attempts = _cold_attempts(problem, planner, from_other, warm_time)
         if isinstance(attempts, str):
             return failed_result(problem, planner, PlanStatus.INFEASIBLE, attempts)
+    args = (problem, planner, warm, warm_time, cache, solve_rounds, max_final_time)
+    result = _first_solved(*args, attempts)
+    if warm is None:  # a cold plan: the route its first guess follows through the belief
+        route = np.linalg.norm(np.diff(attempts[0][0].path, axis=0), axis=1).sum()
+        result = replace(result, route_length=float(route))
+    return result
+
+
+def _first_solved(
+    problem: PlanningProblem,
+    planner: str,
+    warm: PlanResult | None,
+    warm_time: float,
+    cache: NLPCache,
+    solve_rounds: Callable[..., tuple[_Solve, SolveCost]],
+    max_final_time: float,
+    attempts: list[tuple[Guess | float, bool, float | None]],
+) -> PlanResult:
+    """Solve from the ``attempts`` in turn until one solves (within the budget), then judge that
+    solution (TOO_SLOW over ``max_final_time``, else certified) and try the extra starts."""
+    o = problem.options
     s = None
     cost = SolveCost()
     for g, dual_start, near in attempts:

@@ -143,10 +143,29 @@ def _blocked_route(problem: object, belief: object) -> tuple[np.ndarray, int, fl
 def _view_of(
     problem: object, route: np.ndarray, block: int, res: float, look_from: float
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """(viewpoint, blocking point) ``look_from`` before ``route[block]``, or None."""
+    """(viewpoint, blocking point) ``look_from`` before ``route[block]``, or None. The viewpoint
+    keeps the body a voxel clear of every known obstacle, and the reactive set at rest there its
+    margin (:func:`rest_reach`): a plan must end at it."""
     r = problem.model.body_radius
-    view = _look_from(route, block, problem, look_from, 3 * res, r + res)
+    clearance = max(r + res, rest_reach(problem, route[block]))
+    view = _look_from(route, block, problem, look_from, 3 * res, clearance)
     return None if view is None else (view, route[block].copy())
+
+
+def rest_reach(problem: object, at: np.ndarray) -> float:
+    """How far (m) from ``at`` (3,) the planner's reactive set at rest there reaches (its largest
+    semi-axis plus how far its centre sits off the body), plus the planner's margin: a secure plan
+    can end at rest at a point only if every known obstacle is farther from it than this. (A
+    quadrotor's viewpoint 0.306 m from a wall, body radius plus a voxel, left its 0.295 m set
+    0.011 m from the wall against a 0.02 m margin: every plan to it ran into the iteration limit.)"""
+    at = np.asarray(at, dtype=float)
+    if at.shape != (3,) or not np.all(np.isfinite(at)):
+        raise SimulationError(f"rest_reach: at must be 3 finite numbers, got {at!r}")
+    x = problem.model.rest_state(at, 0.0)
+    c, M = problem.family.ellipsoid(x)
+    c, M = np.asarray(c, dtype=float).ravel(), np.asarray(M, dtype=float).reshape(3, 3)
+    reach = float(np.linalg.eigvalsh(M).max()) + float(np.linalg.norm(c - at))
+    return reach + float(problem.options.margin)
 
 
 def nearer_look(

@@ -346,17 +346,18 @@ class Flight:
         problem = loop.plan_problem_from(x, in_flight=self.t != 0.0, speed=speed, goal=goal)
         loop.start_problem = problem
         t0 = time.perf_counter()
-        # a replan the robot would fly: not too long a detour, nor slower than braking
+        # a replan the robot would fly: not too long a detour (round the planner's route), nor
+        # slower than braking
         p0, vmax = np.asarray(self.model.position(x), float).ravel(), self.model.limits.max_speed
         slow = self.braking_instead(x) if self.t != 0.0 else None
-        limit = replan_time_limit(p0, problem.goal, vmax, slow) if self.t != 0.0 else np.inf
+        limit = replan_time_limit(p0, problem.goal, vmax, slow, np.inf) if self.t else np.inf
         result = plan_problem(problem, loop.planner, cache=loop.cache, max_final_time=limit)
         self.solve_times.append(time.perf_counter() - t0)
         self.log_certificates(result)
         why = None  # TOO_SLOW: the planner stopped at a plan these rules refuse
         if self.t != 0.0 and (result.ok or result.status is PlanStatus.TOO_SLOW):
-            positions = np.asarray(self.model.position(result.states), dtype=float)
-            why = replan_refusal(positions, result.final_time, p0, problem.goal, vmax, slow)
+            positions, route = self.model.position(result.states), result.route_length
+            why = replan_refusal(positions, result.final_time, p0, problem.goal, vmax, slow, route)
         if not result.ok or why is not None:
             self.failures += 1
             what = why or f"{result.status.value}: {result.message}"

@@ -196,11 +196,16 @@ def slow_replan_limit(stop_time: float, time_left: float) -> float:
 
 
 def replan_time_limit(
-    p0: np.ndarray, goal: np.ndarray, max_speed: float, braking: tuple[float, float] | None
+    p0: np.ndarray,
+    goal: np.ndarray,
+    max_speed: float,
+    braking: tuple[float, float] | None,
+    route: float = float("nan"),
 ) -> float:
     """The longest replan (s) from ``p0`` (3,) to ``goal`` (3,) that neither
-    :func:`detour_reason` nor, given ``braking`` = (stop time, time left on the old plan),
-    :func:`slow_replan_reason` refuses for its duration."""
+    :func:`detour_reason` (with the same ``route``) nor, given ``braking`` = (stop time, time left
+    on the old plan), :func:`slow_replan_reason` refuses for its duration. A caller that learns
+    the route only from the plan passes ``route=np.inf``: then only braking limits it."""
     p, g = np.asarray(p0, dtype=float), np.asarray(goal, dtype=float)
     if p.shape != (3,) or g.shape != (3,) or not np.all(np.isfinite([*p, *g])):
         raise SimulationError(
@@ -210,8 +215,7 @@ def replan_time_limit(
         raise SimulationError(f"replan_time_limit: max_speed must be > 0 (m/s), got {max_speed!r}")
     if braking is not None and not np.all(np.isfinite(braking)):
         raise SimulationError(f"replan_time_limit: braking times must be finite, got {braking!r}")
-    line = float(np.linalg.norm(g - p))
-    top = detour_time_limit(line, max_speed)
+    top = detour_time_limit(_detour_reference(float(np.linalg.norm(g - p)), route), max_speed)
     return top if braking is None else min(top, slow_replan_limit(*braking))
 
 
@@ -222,31 +226,51 @@ def replan_refusal(
     goal: np.ndarray,
     max_speed: float,
     braking: tuple[float, float] | None,
+    route: float = float("nan"),
 ) -> str | None:
     """Why a certified replan is not flown, or None: too long a detour (:func:`detour_reason`,
     arguments as there), or, given ``braking`` = (stop time, time left on the old plan) for a
     moving robot on its way to the goal, slower than braking and planning from rest."""
-    why = detour_reason(positions, final_time, p0, goal, max_speed)
+    why = detour_reason(positions, final_time, p0, goal, max_speed, route)
     if why is None and braking is not None:
         why = slow_replan_reason(final_time, *braking)
     return why
 
 
+def _detour_reference(line: float, route: float) -> float:
+    """What a detour is measured against: the route through the map when known (it is never
+    shorter than the straight ``line``), else the line."""
+    if isinstance(route, bool) or not isinstance(route, (int, float)) or route < 0:
+        raise SimulationError(f"route: must be a length >= 0 (m) or NaN, got {route!r}")
+    return line if np.isnan(route) else max(line, float(route))
+
+
 def detour_reason(
-    positions: np.ndarray, final_time: float, p0: np.ndarray, goal: np.ndarray, max_speed: float
+    positions: np.ndarray,
+    final_time: float,
+    p0: np.ndarray,
+    goal: np.ndarray,
+    max_speed: float,
+    route: float = float("nan"),
 ) -> str | None:
     """Why a replan is too long a detour to fly (see DETOUR_FACTOR), or None.
 
     positions : (K, 3) the plan's node positions; final_time : its duration (s); p0 : (3,) where
-    the robot is; goal : (3,) where the plan goes; max_speed : the vehicle's top speed (m/s).
+    the robot is; goal : (3,) where the plan goes; max_speed : the vehicle's top speed (m/s);
+    route : the length (m) of the route through the robot's map the planner started from
+    (:attr:`~secure3d.planning.result.PlanResult.route_length`), NaN if unknown. The detour is
+    measured against that route, or the straight line when unknown: a goal 1.6 m away behind a
+    wall may be 12 m away round it (a dead end), and a plan going round is no detour.
     """
     line = float(np.linalg.norm(np.asarray(goal, dtype=float) - p0))
+    ref = _detour_reference(line, route)
+    what = f"{line:.1f} m to the goal" if ref == line else f"a {ref:.1f} m route to the goal"
     length = float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
-    if length > DETOUR_FACTOR * line + DETOUR_SLACK_M:
-        return f"replan refused: path {length:.1f} m for {line:.1f} m to the goal"
-    top = detour_time_limit(line, max_speed)
+    if length > DETOUR_FACTOR * ref + DETOUR_SLACK_M:
+        return f"replan refused: path {length:.1f} m for {what}"
+    top = detour_time_limit(ref, max_speed)
     if final_time > top:
-        return f"replan refused: {final_time:.1f} s for {line:.1f} m (at most {top:.1f} s)"
+        return f"replan refused: {final_time:.1f} s for {what} (at most {top:.1f} s)"
     return None
 
 

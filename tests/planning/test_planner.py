@@ -194,6 +194,23 @@ def test_warm_replan_reuses_the_compiled_nlp_and_is_faster(corner_problem, plans
     assert again.build_time < 1e-3 and warm.build_time > 10 * again.build_time
 
 
+def test_a_cold_plan_reports_the_route_its_guess_followed(corner_problem, plans):
+    """route_length: the length of the cold guess's graph route through the belief, from the start
+    to the goal round the corner (longer than the straight line, shorter than any detour); NaN for
+    a warm replan, which starts from the earlier plan instead."""
+    from secure3d.planning.guess import initial_guess
+
+    p = corner_problem
+    line = float(np.linalg.norm(p.goal - p.start_position))
+    for name, result in plans.items():
+        assert line * 1.05 < result.route_length < 2.0 * line, name
+    route = initial_guess(p, secure=True).path
+    expected = np.linalg.norm(np.diff(route, axis=0), axis=1).sum()
+    assert plans["secure"].route_length == pytest.approx(expected, rel=1e-12)
+    warm = plan_problem(p, "secure", cache=NLPCache(), warm=plans["secure"])
+    assert warm.ok and np.isnan(warm.route_length)
+
+
 def test_start_inside_an_obstacle_is_invalid_input(corner):
     with pytest.raises(secure3d.errors.ScenarioError, match="start"):
         dataclasses.replace(corner, start=StartSpec(position=(3.0, 3.0, 1.25)))

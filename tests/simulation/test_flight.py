@@ -179,6 +179,29 @@ def test_a_replan_that_detours_too_far_is_refused():
     assert "120.0 s for 5.0 m" in detour_reason(straight, 120.0, p0, goal, 2.0)
 
 
+def test_a_detour_is_measured_against_the_route_through_the_map():
+    """A goal 1.6 m away behind a wall: a plan 13.5 m round it is no detour when the planner's
+    route through the map is 12 m (the dead-end holdout variants held still 1.6 m from the goal),
+    but a plan four times that route is still refused; an unknown route (NaN) is the line."""
+    from secure3d.simulation.modes import detour_reason, replan_refusal
+
+    p0, goal = np.zeros(3), np.array([1.6, 0, 0])
+    around = np.array([[0, 0, 0], [0, 5.95, 0], [1.6, 5.95, 0], [1.6, 0, 0]], float)  # 13.5 m
+    assert "path 13.5 m for 1.6 m to the goal" in detour_reason(around, 12.0, p0, goal, 1.0)
+    assert detour_reason(around, 12.0, p0, goal, 1.0, 12.0) is None
+    assert replan_refusal(around, 12.0, p0, goal, 1.0, None, 12.0) is None
+    loops = np.tile(around, (5, 1))  # the same way round five times over: 5 x 13.5 m + returns
+    why = detour_reason(loops, 30.0, p0, goal, 1.0, 12.0)
+    assert why is not None and "for a 12.0 m route to the goal" in why
+    # the route never shortens the reference below the straight line
+    straight = np.column_stack([np.linspace(0, 1.6, 5), np.zeros((5, 2))])
+    assert detour_reason(straight, 1.0, p0, goal, 1.0, 0.5) is None
+    assert detour_reason(around, 12.0, p0, goal, 1.0, np.nan) is not None
+    for bad in (-1.0, "12", True):
+        with pytest.raises(SimulationError, match="route"):
+            detour_reason(straight, 1.0, p0, goal, 1.0, bad)
+
+
 def test_a_moving_robots_replan_slower_than_stopping_is_refused():
     from secure3d.simulation.modes import (
         SLOW_REPLAN_FACTOR,
@@ -205,7 +228,12 @@ def test_the_replan_time_limit_is_where_the_refusal_starts():
     """replan_time_limit (what the planner is told) is the longest duration replan_refusal
     accepts: a straight replan just under it is flown, just over it refused, with and without a
     moving robot's braking alternative."""
-    from secure3d.simulation.modes import replan_refusal, replan_time_limit
+    from secure3d.simulation.modes import (
+        SLOW_REPLAN_FACTOR,
+        SLOW_REPLAN_SLACK_S,
+        replan_refusal,
+        replan_time_limit,
+    )
 
     p0, goal = np.zeros(3), np.array([5.0, 0, 0])
     straight = np.column_stack([np.linspace(0, 5, 11), np.zeros((11, 2))])
@@ -215,6 +243,16 @@ def test_the_replan_time_limit_is_where_the_refusal_starts():
         assert replan_refusal(straight, top - 1e-6, p0, goal, 2.0, braking) is None
         assert "replan refused" in replan_refusal(straight, top + 1e-3, p0, goal, 2.0, braking)
     assert replan_time_limit(p0, goal, 2.0, (1.07, 2.16)) < replan_time_limit(p0, goal, 2.0, None)
+    # with a route the refusal starts where the limit says too; an unknown route (inf, the closed
+    # loop's before the plan) leaves only braking to limit it
+    for braking in (None, (1.07, 2.16)):
+        top = replan_time_limit(p0, goal, 2.0, braking, 12.0)
+        assert replan_refusal(straight, top - 1e-6, p0, goal, 2.0, braking, 12.0) is None
+        assert replan_refusal(straight, top + 1e-3, p0, goal, 2.0, braking, 12.0) is not None
+    assert replan_time_limit(p0, goal, 2.0, None, np.inf) == np.inf
+    assert replan_time_limit(p0, goal, 2.0, (1.07, 2.16), np.inf) == pytest.approx(
+        1.07 + SLOW_REPLAN_FACTOR * 2.16 + SLOW_REPLAN_SLACK_S
+    )
     for args, what in (
         ((p0[:2], goal, 2.0, None), "p0 and goal"),
         ((p0, goal * np.nan, 2.0, None), "p0 and goal"),
@@ -324,6 +362,34 @@ def test_a_diff_drive_braked_against_a_wall_turns_away_and_goes_on(maps_dir, mon
     creep = STOP_SPEED**2 / (2.0 * scenario.vehicle.limits["max_accel"])
     assert np.ptp(run.positions[span], axis=0).max() <= creep + 1e-9
     assert run.reached_goal, run.summary()
+
+
+@pytest.mark.slow
+def test_a_robot_past_a_dead_end_flies_the_long_way_round(maps_dir, tmp_path):
+    """A dead-end variant (holdout seed 3128, variant 1): the robot turns round, flies the other
+    corridor, brakes for a new wall 1.8 m from the goal and must go 12-14 m round. Measured
+    against the straight line that plan was "too long a detour" and the robot held still; against
+    the planner's route through the map it is flown, and the robot arrives."""
+    from secure3d.simulation.campaign_run import plan_campaign
+    from secure3d.simulation.modes import DETOUR_FACTOR, DETOUR_SLACK_M
+    from secure3d.world.families import variant_rng
+
+    base = secure3d.load_scenario(maps_dir / "planar_dead_end.yaml")
+    options = {"plan_budget": 10.0}
+    camp = plan_campaign(base, 2, ["secure"], 3128, tmp_path, "deadend", 1, None, None, options)
+    scenario = camp.family.variant(camp.prepared, base, variant_rng(3128, 1), 1)
+    run = simulate(scenario, "secure", seed=3129, plan_budget=10.0, replan_defer=0.5)
+    assert run.reached_goal and not run.collided, run.summary()
+    goal = np.asarray(scenario.goal.position, float)
+    round_about = []
+    for _, plan in run.plans:
+        line = float(np.linalg.norm(goal - plan.positions[0]))
+        length = float(np.linalg.norm(np.diff(plan.positions, axis=0), axis=1).sum())
+        if length > DETOUR_FACTOR * line + DETOUR_SLACK_M:
+            round_about.append((length, line, plan.route_length))
+    assert round_about, "no plan went the long way round: the variant no longer tests the rule"
+    for length, _line, route in round_about:
+        assert length <= DETOUR_FACTOR * route + DETOUR_SLACK_M
 
 
 def test_goal_edge_is_the_near_side_of_the_goal_tolerance():
