@@ -145,27 +145,32 @@ def _view_of(
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """(viewpoint, blocking point) ``look_from`` before ``route[block]``, or None. The viewpoint
     keeps the body a voxel clear of every known obstacle, and the reactive set at rest there its
-    margin (:func:`rest_reach`): a plan must end at it."""
+    margin (:func:`rest_set_clear`): a plan must end at it."""
     r = problem.model.body_radius
-    clearance = max(r + res, rest_reach(problem, route[block]))
-    view = _look_from(route, block, problem, look_from, 3 * res, clearance)
+    view = _look_from(route, block, problem, look_from, 3 * res, r + res)
     return None if view is None else (view, route[block].copy())
 
 
-def rest_reach(problem: object, at: np.ndarray) -> float:
-    """How far (m) from ``at`` (3,) the planner's reactive set at rest there reaches (its largest
-    semi-axis plus how far its centre sits off the body), plus the planner's margin: a secure plan
-    can end at rest at a point only if every known obstacle is farther from it than this. (A
-    quadrotor's viewpoint 0.306 m from a wall, body radius plus a voxel, left its 0.295 m set
-    0.011 m from the wall against a 0.02 m margin: every plan to it ran into the iteration limit.)"""
+def rest_set_clear(problem: object, at: np.ndarray) -> bool:
+    """Whether the planner's reactive set at rest at ``at`` (3,) keeps its margin from every known
+    obstacle box of ``problem`` (exact ellipsoid-to-box distances): a secure plan can end at rest
+    there only then. (A quadrotor's denial viewpoint 0.306 m from a wall, the body radius plus a
+    voxel, left its 0.295 m set 0.011 m from the wall against a 0.02 m margin: every plan to it ran
+    into the iteration limit and the robot held.)"""
+    from secure3d.geometry.polytope import box_halfspaces, ellipsoid_polytope_distance
+
     at = np.asarray(at, dtype=float)
     if at.shape != (3,) or not np.all(np.isfinite(at)):
-        raise SimulationError(f"rest_reach: at must be 3 finite numbers, got {at!r}")
-    x = problem.model.rest_state(at, 0.0)
-    c, M = problem.family.ellipsoid(x)
+        raise SimulationError(f"rest_set_clear: at must be 3 finite numbers, got {at!r}")
+    c, M = problem.family.ellipsoid(problem.model.rest_state(at, 0.0))
     c, M = np.asarray(c, dtype=float).ravel(), np.asarray(M, dtype=float).reshape(3, 3)
-    reach = float(np.linalg.eigvalsh(M).max()) + float(np.linalg.norm(c - at))
-    return reach + float(problem.options.margin)
+    margin = float(problem.options.margin)
+    reach = np.linalg.norm(M, axis=1) + margin  # E's bounding box, grown by the margin
+    lo, hi = problem.boxes_lo, problem.boxes_hi
+    near = np.flatnonzero(np.all((lo <= c + reach) & (hi >= c - reach), axis=1))
+    return all(
+        ellipsoid_polytope_distance(c, M, *box_halfspaces(lo[i], hi[i]))[0] >= margin for i in near
+    )
 
 
 def nearer_look(
@@ -215,6 +220,7 @@ def _look_from(
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))])
     before = np.flatnonzero((arc <= arc[block] - near) & (arc >= start))
     before = before[min_box_distance(route[before], problem.boxes_lo, problem.boxes_hi) > clearance]
+    before = before[np.array([rest_set_clear(problem, route[i]) for i in before], dtype=bool)]
     if not len(before):
         return None
     target = np.repeat(route[block][None], len(before), axis=0)

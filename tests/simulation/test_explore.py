@@ -114,28 +114,30 @@ def test_a_phantom_slab_before_open_space_is_looked_at_from_nearer_and_passed(ma
     assert claims[0] == claims[1], claims  # the same claim, looked at again
 
 
-def test_a_viewpoint_leaves_room_for_the_reactive_set_at_rest(maps_dir):
+def test_a_viewpoint_leaves_room_for_the_reactive_set_at_rest(maps_dir, monkeypatch):
     """Quadrotor denial variant (holdout seed 3128, variant 4): the viewpoint used to keep only the
     body and a voxel (0.3 m) clear of the wall, 0.306 m from it, where the 0.295 m reactive set at
     rest left 0.011 m against a 0.02 m margin: every plan to it hit the iteration limit and the
-    robot held. The viewpoint now keeps the set at rest its margin (rest_reach), and it arrives."""
-    from secure3d.geometry.polytope import min_box_distance
+    robot held. The viewpoint now keeps the set at rest its margin (rest_set_clear)."""
     from secure3d.planning.problem import problem_from_scenario
-    from secure3d.simulation.explore import rest_reach, viewpoint_for_denial
+    from secure3d.simulation import explore
     from secure3d.world.attacks import belief_map
 
     base = secure3d.load_scenario(maps_dir / "blind_corner_quadrotor.yaml")
     v = family_variants(FAMILIES["denial"], base, 5, seed=3128)[4]
     belief = belief_map(v)
     problem = problem_from_scenario(v, belief=belief, obstacle_boxes=belief.known_obstacle_boxes())
-    view, _ = viewpoint_for_denial(problem, belief)
-    reach = rest_reach(problem, view)
-    assert reach > problem.model.body_radius + belief.resolution  # the bound that now binds
-    lo, hi = problem.boxes_lo, problem.boxes_hi
-    assert min_box_distance(view[None], lo, hi)[0] > reach
+    view, block = explore.viewpoint_for_denial(problem, belief)
+    assert explore.rest_set_clear(problem, view)
+    monkeypatch.setattr(explore, "rest_set_clear", lambda problem, at: True)
+    old, same_block = explore.viewpoint_for_denial(problem, belief)
+    monkeypatch.undo()
+    np.testing.assert_array_equal(block, same_block)
+    assert not explore.rest_set_clear(problem, old)  # the body-and-voxel rule alone picks this
+    assert np.linalg.norm(old - view) > 0.0
     for bad in (np.zeros(2), np.array([np.nan, 0.0, 0.0])):
-        with pytest.raises(SimulationError, match="rest_reach"):
-            rest_reach(problem, bad)
+        with pytest.raises(SimulationError, match="rest_set_clear"):
+            explore.rest_set_clear(problem, bad)
 
 
 @pytest.mark.slow
