@@ -151,9 +151,9 @@ class PlanResult:
         solution certified (issue 16's first-try rate).
     route_length : length (m) of the route through the belief that the solver started from (the
         cold guess's graph-search path, from the start to the goal); NaN when it started from an
-        earlier plan (warm) or never reached a solve. A closed loop judges detours by it
-        (:func:`secure3d.simulation.modes.detour_reason`): the straight line to a goal behind a
-        wall says nothing about how far the robot must go round.
+        earlier plan (warm) or had no guess (invalid input, no path). A closed loop judges detours
+        by it (:func:`secure3d.simulation.modes.detour_reason`): the straight line to a goal behind
+        a wall says nothing about how far the robot must go round.
     """
 
     status: PlanStatus

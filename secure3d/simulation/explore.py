@@ -157,7 +157,7 @@ def rest_set_clear(problem: object, at: np.ndarray) -> bool:
     there only then. (A quadrotor's denial viewpoint 0.306 m from a wall, the body radius plus a
     voxel, left its 0.295 m set 0.011 m from the wall against a 0.02 m margin: every plan to it ran
     into the iteration limit and the robot held.)"""
-    from secure3d.geometry.polytope import box_halfspaces, ellipsoid_polytope_distance
+    from secure3d.geometry.polytope import box_pair_distances
 
     at = np.asarray(at, dtype=float)
     if at.shape != (3,) or not np.all(np.isfinite(at)):
@@ -168,9 +168,12 @@ def rest_set_clear(problem: object, at: np.ndarray) -> bool:
     reach = np.linalg.norm(M, axis=1) + margin  # E's bounding box, grown by the margin
     lo, hi = problem.boxes_lo, problem.boxes_hi
     near = np.flatnonzero(np.all((lo <= c + reach) & (hi >= c - reach), axis=1))
-    return all(
-        ellipsoid_polytope_distance(c, M, *box_halfspaces(lo[i], hi[i]))[0] >= margin for i in near
-    )
+    if not len(near):
+        return True
+    n = len(near)
+    cs, Ms = np.repeat(c[None], n, axis=0), np.repeat(M[None], n, axis=0)
+    dist = box_pair_distances(cs, cs, Ms, lo[near], hi[near], np.zeros(n, dtype=bool))
+    return bool(np.all(dist >= margin))
 
 
 def nearer_look(
@@ -212,19 +215,20 @@ def _look_from(
 ) -> np.ndarray | None:
     """The point of ``route`` (n, 3) to look at ``route[block]`` from: at least ``near`` metres
     before it along the route and ``start`` metres after the route's start, with the body
-    ``clearance`` from every known obstacle; among those, the first (nearest the robot) whose sight
-    line to the blocking point is clear and shorter than 0.8 of the observed range, else the one
-    nearest the claim."""
+    ``clearance`` from every known obstacle and the reactive set at rest its margin
+    (:func:`rest_set_clear`); among those, the first (nearest the robot) whose sight line to the
+    blocking point is clear and shorter than 0.8 of the observed range, else the one nearest the
+    claim. The set at rest is judged only on the points in turn until one passes."""
     from secure3d.geometry.polytope import segments_blocked
 
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))])
     before = np.flatnonzero((arc <= arc[block] - near) & (arc >= start))
     before = before[min_box_distance(route[before], problem.boxes_lo, problem.boxes_hi) > clearance]
-    before = before[np.array([rest_set_clear(problem, route[i]) for i in before], dtype=bool)]
     if not len(before):
         return None
     target = np.repeat(route[block][None], len(before), axis=0)
     in_reach = np.linalg.norm(target - route[before], axis=1) <= 0.8 * problem.frustum.far
     sight = in_reach & ~segments_blocked(route[before], target, problem.boxes_lo, problem.boxes_hi)
-    pick = before[np.argmax(sight)] if np.any(sight) else before[-1]
-    return route[pick].copy()
+    order = np.concatenate([before[sight], before[::-1]])  # in sight first, then nearest the claim
+    pick = next((i for i in order if rest_set_clear(problem, route[i])), None)
+    return None if pick is None else route[pick].copy()
