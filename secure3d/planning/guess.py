@@ -167,6 +167,11 @@ def grid_route(
 
     flat_free = free.ravel().copy()
     s_cell, g_cell = cell_of(start), cell_of(goal)
+    if s_cell == g_cell:
+        # One cell holds both: the route is the segment between them. (Its one cell, with the
+        # start then overwritten by the goal, made a path of no length and a guess of NaN
+        # tangents: a denial viewpoint 0.17 m away crashed a diff-drive flight.)
+        return np.array([start, goal], dtype=float)
     # The start/goal cells may be blocked by discretisation: free them.
     for c in (s_cell, g_cell):
         flat_free[c] = True

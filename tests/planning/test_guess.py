@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -249,3 +251,27 @@ def test_frustum_margins_of_earlier_cameras_are_the_full_matrixs(maps_dir):
     np.testing.assert_allclose(tips[:, 1] + tips[:, 2], 2 * geo["C"], atol=1e-12)
     with pytest.raises(PlanningError, match="sight_tips"):
         sight_tips(geo["C"], geo["M"][:-1])
+
+
+@pytest.mark.parametrize("name", ["blind_corner.yaml", "planar_blind_corner.yaml"])
+def test_a_goal_in_the_starts_grid_cell_gets_a_route_from_the_start(maps_dir, name):
+    """Start and goal in one cell of the guess's grid (a denial viewpoint 0.17 m ahead): the route
+    is the segment between them. It was the one cell with the start overwritten by the goal, a path
+    of no length whose tangents were NaN, and the flight stopped with an error."""
+    from secure3d.planning.guess import graph_path
+
+    problem = problem_from_scenario(secure3d.load_scenario(maps_dir / name))
+    start = problem.start_position
+    # A goal 0.05 m away, and for the diff drive one behind it (its guess turns round first).
+    for offset in ([0.05, 0.0, 0.0], [-0.04, 0.02, 0.0]):
+        goal = start + np.array(offset)
+        near = dataclasses.replace(problem, goal=goal)
+        path = graph_path(near)
+        np.testing.assert_array_equal(path, [start, goal])
+        g = initial_guess(near, secure=True)
+        assert np.all(np.isfinite(g.states)) and np.all(np.isfinite(g.controls)), (name, offset)
+        P = np.asarray(near.model.position(g.states))
+        np.testing.assert_allclose(P[-1], goal, atol=1e-6)
+        assert g.final_time > 0
+        result = secure3d.plan(near, "secure")
+        assert result.ok, (name, offset, result.message)
