@@ -10,12 +10,19 @@ from secure3d.planning.nlp_solve import FEASIBILITY_TOL, SolveCost, _Solve
 from secure3d.planning.problem import Planner, PlanningProblem
 from secure3d.planning.result import PlanResult, PlanStatus, WarmStart
 
-__all__ = ["failed_result", "precheck", "solution_result"]
+__all__ = ["SAME_POINT", "failed_result", "precheck", "solution_result"]
+
+#: A goal nearer the start than this (m) is the start: there is no trajectory to plan (the guess
+#: of a path of no length has no direction).
+SAME_POINT = 1e-6
 
 
 def precheck(problem: PlanningProblem) -> str | None:
     """Reasons the problem cannot be solved at all (start/goal in obstacles or outside the map)."""
     r = problem.model.body_radius
+    gap = float(np.linalg.norm(np.asarray(problem.goal)[:3] - problem.start_position))
+    if gap < SAME_POINT:
+        return f"goal {np.round(problem.goal, 3).tolist()} is the start ({gap:.1e} m away): nothing to plan"
     for label, p in (("start", problem.start_position), ("goal", problem.goal)):
         if np.any(p < problem.bounds_lo + r - 1e-9) or np.any(p > problem.bounds_hi - r + 1e-9):
             return f"{label} {np.round(p, 3).tolist()} is outside the map bounds (with the body radius {r} m)"

@@ -243,6 +243,17 @@ def test_goal_outside_the_map_is_invalid(corner):
     assert "outside the map" in r.message
 
 
+def test_a_goal_at_the_start_is_invalid_input_for_both_planners(corner):
+    """Nothing to plan, said in words (it was a ConfigError about non-finite states from the
+    guess of a path of no length)."""
+    problem = problem_from_scenario(corner, reactive_family="closed_form")
+    here = dataclasses.replace(problem, goal=problem.start_position + 1e-8)
+    for planner in ("secure", "baseline"):
+        r = plan_problem(here, planner)
+        assert r.status is PlanStatus.INVALID_INPUT, planner
+        assert "is the start" in r.message, r.message
+
+
 def test_extra_starts_keep_the_fastest_certified_plan(corner_problem, plans):
     cache = NLPCache()
     multi = plan_problem(
