@@ -141,13 +141,24 @@ def _blocked_route(problem: object, belief: object) -> tuple[np.ndarray, int, fl
 
 
 def _view_of(
-    problem: object, route: np.ndarray, block: int, res: float, look_from: float
+    problem: object,
+    route: np.ndarray,
+    block: int,
+    res: float,
+    look_from: float,
+    belief: object | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """(viewpoint, blocking point) ``look_from`` before ``route[block]``, or None. The viewpoint
     keeps the body a voxel clear of every known obstacle, and the reactive set at rest there its
-    margin (:func:`rest_set_clear`): a plan must end at it."""
+    margin (:func:`rest_set_clear`): a plan must end at it. With the ``belief``, a nearer look at
+    a claim seen before: see :func:`_look_from`."""
     r = problem.model.body_radius
-    view = _look_from(route, block, problem, look_from, 3 * res, r + res)
+    toward = None
+    if belief is not None:  # route points whose voxel the camera has seen free
+        from secure3d.mapping.occupancy import Trust
+
+        toward = belief.trust(route) == Trust.SENSED_FREE
+    view = _look_from(route, block, problem, look_from, 3 * res, r + res, toward)
     return None if view is None else (view, route[block].copy())
 
 
@@ -204,21 +215,33 @@ def nearer_look(
     # no point LOOK_FROM before the claim (the robot is nearer already), or the same claim again
     while look > MIN_LOOK_FROM:
         look = max(MIN_LOOK_FROM, NEARER * look)
-        nearer = _view_of(problem, *found, look)
+        nearer = _view_of(problem, *found, look, belief)
         if nearer is not None:
             return nearer, look
     return first, LOOK_FROM
 
 
 def _look_from(
-    route: np.ndarray, block: int, problem: object, near: float, start: float, clearance: float
+    route: np.ndarray,
+    block: int,
+    problem: object,
+    near: float,
+    start: float,
+    clearance: float,
+    toward: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """The point of ``route`` (n, 3) to look at ``route[block]`` from: at least ``near`` metres
     before it along the route and ``start`` metres after the route's start, with the body
     ``clearance`` from every known obstacle and the reactive set at rest its margin
     (:func:`rest_set_clear`); among those, the first (nearest the robot) whose sight line to the
     blocking point is clear and shorter than 0.8 of the observed range, else the one nearest the
-    claim. The set at rest is judged only on the points in turn until one passes."""
+    claim. With ``toward`` (n,) bool (a nearer look at a claim seen before: the route points the
+    camera has seen free), those of the points in sight nearest the claim come first, so that the
+    robot goes nearer: it already stands in sight of the claim, and the point in sight nearest it
+    was where it stood (a diff drive looked five times from points 0.17 m apart, 1.2-1.6 m from a
+    claim it refuted a few voxels at a time, and held). Only points seen free: one the server
+    alone called free is a goal no certified plan reaches (a diff drive's plans to one ended
+    infeasible twice). The set at rest is judged only on the points in turn until one passes."""
     from secure3d.geometry.polytope import segments_blocked
 
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))])
@@ -229,6 +252,9 @@ def _look_from(
     target = np.repeat(route[block][None], len(before), axis=0)
     in_reach = np.linalg.norm(target - route[before], axis=1) <= 0.8 * problem.frustum.far
     sight = in_reach & ~segments_blocked(route[before], target, problem.boxes_lo, problem.boxes_hi)
-    order = np.concatenate([before[sight], before[::-1]])  # in sight first, then nearest the claim
+    seen = before[sight]
+    if toward is not None:
+        seen = np.concatenate([seen[toward[seen]][::-1], seen[~toward[seen]]])
+    order = np.concatenate([seen, before[::-1]])  # in sight first, then nearest the claim
     pick = next((i for i in order if rest_set_clear(problem, route[i])), None)
     return None if pick is None else route[pick].copy()
