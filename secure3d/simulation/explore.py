@@ -239,9 +239,9 @@ def _look_from(
     camera has seen free), those of the points in sight nearest the claim come first, so that the
     robot goes nearer: it already stands in sight of the claim, and the point in sight nearest it
     was where it stood (a diff drive looked five times from points 0.17 m apart, 1.2-1.6 m from a
-    claim it refuted a few voxels at a time, and held). Only points seen free: one the server
-    alone called free is a goal no certified plan reaches (a diff drive's plans to one ended
-    infeasible twice). The set at rest is judged only on the points in turn until one passes."""
+    claim it refuted a few voxels at a time, and held). The points only the server calls free come
+    after them: the camera has not seen them, and the server may lie. The set at rest is judged
+    only on the points in turn until one passes."""
     from secure3d.geometry.polytope import segments_blocked
 
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))])

@@ -262,7 +262,7 @@ def test_a_goal_in_the_starts_grid_cell_gets_a_route_from_the_start(maps_dir, na
 
     problem = problem_from_scenario(secure3d.load_scenario(maps_dir / name))
     start = problem.start_position
-    # A goal 0.05 m away, and for the diff drive one behind it (its guess turns round first).
+    # A goal 0.05 m ahead, and one behind (a diff drive's guess turns round first).
     for offset in ([0.05, 0.0, 0.0], [-0.04, 0.02, 0.0]):
         goal = start + np.array(offset)
         near = dataclasses.replace(problem, goal=goal)
