@@ -172,3 +172,28 @@ def test_a_crash_in_native_code_prints_the_python_stack_before_the_process_dies(
     assert done.returncode == -signal.SIGSEGV, (done.returncode, done.stderr[-1500:])
     assert "Segmentation fault" in done.stderr, done.stderr[-1500:]
     assert "crash_in_native_code" in done.stderr, done.stderr[-1500:]
+
+
+_HOLD_PROBE = """
+import sys
+from secure3d import _deps
+held = _deps._interrupt_after
+def recording():
+    print(sorted(n for n in _deps.OPEN3D_PYTHON_DEPENDENCIES if n in sys.modules), flush=True)
+    return held()
+_deps._interrupt_after = recording
+assert "open3d" not in sys.modules
+print(_deps.open3d().__name__, flush=True)
+"""
+
+
+def test_open3d_holds_a_ctrl_c_only_through_its_own_import():
+    """The pure-Python modules open3d imports (plotly, dash) are imported before the held Ctrl-C,
+    so that a Ctrl-C is held only while open3d's own extension initialises (a fresh process)."""
+    from secure3d._deps import OPEN3D_PYTHON_DEPENDENCIES
+
+    run = subprocess.run(
+        [sys.executable, "-c", _HOLD_PROBE], capture_output=True, text=True, timeout=120
+    )
+    assert run.returncode == 0, run.stderr[-1500:]
+    assert run.stdout.splitlines() == [str(sorted(OPEN3D_PYTHON_DEPENDENCIES)), "open3d"]
