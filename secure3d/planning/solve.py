@@ -16,7 +16,7 @@ Pipeline (each step a function, the problem itself in :mod:`.problem`):
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -289,20 +289,25 @@ def plan_problem(
     certifies = planner == Planner.SECURE and problem.options.certify
     reserve = min(CERTIFY_RESERVE * budget, CERTIFY_RESERVE_MAX) if certifies else 0.0
     with deadline(budget - min(BUDGET_RESERVE * budget, BUDGET_RESERVE_MAX), reserve):
-        return _plan_within_budget(
-            problem, planner, warm, warm_time, cache, solve_rounds or _solve_rounds, max_final_time
-        )
+        call = _Call(problem, planner, warm, warm_time, cache, solve_rounds or _solve_rounds)
+        return _plan_within_budget(replace(call, max_final_time=max_final_time))
 
 
-def _plan_within_budget(
-    problem: PlanningProblem,
-    planner: str,
-    warm: PlanResult | None,
-    warm_time: float,
-    cache: NLPCache,
-    solve_rounds: Callable[..., tuple[_Solve, SolveCost]],
-    max_final_time: float = np.inf,
-) -> PlanResult:
+@dataclass(frozen=True)
+class _Call:
+    """What one plan call was given (see :func:`plan_problem`), as its steps read it."""
+
+    problem: PlanningProblem
+    planner: str
+    warm: PlanResult | None
+    warm_time: float
+    cache: NLPCache
+    solve_rounds: Callable[..., tuple[_Solve, SolveCost]]
+    max_final_time: float = np.inf
+
+
+def _plan_within_budget(call: _Call) -> PlanResult:
+    problem, planner, warm, warm_time = call.problem, call.planner, call.warm, call.warm_time
     o = problem.options
     reason = precheck(problem)
     if reason is not None:
@@ -335,8 +340,7 @@ def _plan_within_budget(
         attempts = _cold_attempts(problem, planner, from_other, warm_time)
         if isinstance(attempts, str):
             return failed_result(problem, planner, PlanStatus.INFEASIBLE, attempts)
-    args = (problem, planner, warm, warm_time, cache, solve_rounds, max_final_time)
-    result = _first_solved(*args, attempts)
+    result = _first_solved(replace(call, warm=warm), attempts)
     if warm is None:  # a cold plan: the route its first guess follows through the belief
         route = np.linalg.norm(np.diff(attempts[0][0].path, axis=0), axis=1).sum()
         result = replace(result, route_length=float(route))
@@ -344,17 +348,12 @@ def _plan_within_budget(
 
 
 def _first_solved(
-    problem: PlanningProblem,
-    planner: str,
-    warm: PlanResult | None,
-    warm_time: float,
-    cache: NLPCache,
-    solve_rounds: Callable[..., tuple[_Solve, SolveCost]],
-    max_final_time: float,
-    attempts: list[tuple[Guess | float, bool, float | None]],
+    call: _Call, attempts: list[tuple[Guess | float, bool, float | None]]
 ) -> PlanResult:
     """Solve from the ``attempts`` in turn until one solves (within the budget), then judge that
     solution (TOO_SLOW over ``max_final_time``, else certified) and try the extra starts."""
+    problem, planner, warm, cache = call.problem, call.planner, call.warm, call.cache
+    solve_rounds, max_final_time = call.solve_rounds, call.max_final_time
     o = problem.options
     s = None
     cost = SolveCost()
@@ -370,7 +369,7 @@ def _first_solved(
             planner,
             g,
             warm,
-            warm_time,
+            call.warm_time,
             cache,
             dual_start,
             max_final_time=max_final_time,

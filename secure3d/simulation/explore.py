@@ -146,18 +146,13 @@ def _view_of(
     block: int,
     res: float,
     look_from: float,
-    belief: object | None = None,
+    toward: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """(viewpoint, blocking point) ``look_from`` before ``route[block]``, or None. The viewpoint
     keeps the body a voxel clear of every known obstacle, and the reactive set at rest there its
-    margin (:func:`rest_set_clear`): a plan must end at it. With the ``belief``, a nearer look at
-    a claim seen before: see :func:`_look_from`."""
+    margin (:func:`rest_set_clear`): a plan must end at it. ``toward``: a nearer look at a claim
+    seen before (see :func:`_look_from`)."""
     r = problem.model.body_radius
-    toward = None
-    if belief is not None:  # route points whose voxel the camera has seen free
-        from secure3d.mapping.occupancy import Trust
-
-        toward = belief.trust(route) == Trust.SENSED_FREE
     view = _look_from(route, block, problem, look_from, 3 * res, r + res, toward)
     return None if view is None else (view, route[block].copy())
 
@@ -213,9 +208,12 @@ def nearer_look(
             return first, LOOK_FROM
         look = last_look_from  # the same claim again: nearer than last time
     # no point LOOK_FROM before the claim (the robot is nearer already), or the same claim again
+    from secure3d.mapping.occupancy import Trust
+
+    seen_free = belief.trust(found[0]) == Trust.SENSED_FREE  # the route points the camera saw free
     while look > MIN_LOOK_FROM:
         look = max(MIN_LOOK_FROM, NEARER * look)
-        nearer = _view_of(problem, *found, look, belief)
+        nearer = _view_of(problem, *found, look, seen_free)
         if nearer is not None:
             return nearer, look
     return first, LOOK_FROM

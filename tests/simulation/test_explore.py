@@ -182,7 +182,7 @@ def test_a_nearer_look_goes_nearer_the_claim_not_where_the_robot_stands(maps_dir
     # nothing seen free: the first point in sight, as before
     unseen = np.zeros(len(route), dtype=bool)
     np.testing.assert_array_equal(explore._look_from(*args, look, *pad, unseen), first)
-    view, _ = explore._view_of(problem, route, i, res, look, belief)
+    (view, _), _ = explore.nearer_look(problem, belief, route[i], explore.LOOK_FROM)
     np.testing.assert_array_equal(view, first)
 
 
