@@ -42,18 +42,19 @@ class SolveLog:
         self.rows: list[dict] = []
         self._module, self._read = nlp_solve, nlp_solve._read_solution
 
-        def read(nlp, start, sol, stats, **kw):  # noqa: ANN001, ANN202 (mirrors _read_solution)
+        def read(run, sol, stats, solve_time):  # noqa: ANN001, ANN202 (mirrors _read_solution)
+            nlp = run.nlp
             self.rows.append(
                 {
                     "it": int(stats.get("iter_count", 0)),
-                    "wall": float(kw["solve_time"]),
+                    "wall": float(solve_time),
                     "hess": float(stats.get("t_wall_nlp_hess_l", 0.0)),
                     "jac": float(stats.get("t_wall_nlp_jac_g", 0.0)),
                     "eval": sum(float(v) for k, v in stats.items() if k.startswith("t_wall_nlp")),
                     "n_w": int(nlp.layout.n_w),
                 }
             )
-            return self._read(nlp, start, sol, stats, **kw)
+            return self._read(run, sol, stats, solve_time)
 
         nlp_solve._read_solution = read
 
