@@ -1,7 +1,8 @@
 """``secure3d map``: look into and convert the maps users bring.
 
 - ``secure3d map info FILE``: an OctoMap (``.bt``/``.ot``, any tree type OctoMap reads), a point
-  cloud (``.ply``/``.pcd``/``.xyz``), an OctoMap scan graph (``.graph``/``.log``) or a mesh: its
+  cloud (``.ply``/``.pcd``/``.xyz``, or OctoMap's point file ``.dat``/``.dat.bz2``), an OctoMap
+  scan graph (``.graph``/``.log``) or a mesh: its
   type, resolution, leaves, scans, bounds, occupied volume, and whether it has colours.
 - ``secure3d map convert IN OUT``: a cloud or scan graph (``--resolution``; OctoMap rays from each
   scan's pose, its per-point origins or ``--origin``, else its points only; a scan graph as
@@ -93,13 +94,13 @@ def map_info(path: Path) -> list[str]:
             lines.insert(3, f"  bounds     : {_v(lo.min(0))} - {_v(hi.max(0))} m (occupied)")
         return lines
     from secure3d.world.server_sources import (
-        CLOUD_SUFFIXES,
         GRAPH_SUFFIXES,
         read_cloud,
         read_cloud_scans,
         read_surface_mesh,
     )
 
+    kind = map_kind(path)
     if suffix in GRAPH_SUFFIXES:
         scans = read_cloud_scans(path, str(path))
         pts, o = scans.points, scans.origins
@@ -108,7 +109,7 @@ def map_info(path: Path) -> list[str]:
             f"  bounds     : {_v(pts.min(0))} - {_v(pts.max(0))} m (points)",
             f"  origins    : {_v(o.min(0))} - {_v(o.max(0))} m (sensor positions)",
         ]
-    if suffix in CLOUD_SUFFIXES and suffix != ".ply" or _is_cloud_ply(path):
+    if kind == "point cloud":
         pts = read_cloud(path, str(path))
         return [
             f"{path}: point cloud, {len(pts)} points",
@@ -119,6 +120,39 @@ def map_info(path: Path) -> list[str]:
         f"{path}: mesh, {len(v)} vertices, {len(f)} triangles",
         f"  bounds     : {_v(v.min(0))} - {_v(v.max(0))} m",
     ]
+
+
+def map_kind(path: Path) -> str:
+    """``"octomap"``, ``"scan graph"``, ``"point cloud"`` or ``"mesh"``, by the file's suffix (a
+    ``.ply`` by whether it has faces).
+
+    Raises
+    ------
+    ConfigError
+        A suffix no reader takes, naming the file and every format that is read.
+    """
+    from secure3d.world.server_sources import (
+        CLOUD_SUFFIXES,
+        GRAPH_SUFFIXES,
+        SERVER_MESH_SUFFIXES,
+        file_format,
+    )
+
+    fmt = file_format(path)
+    if fmt in OCTOMAP_SUFFIXES:
+        return "octomap"
+    if fmt in GRAPH_SUFFIXES:
+        return "scan graph"
+    if fmt in CLOUD_SUFFIXES and fmt != ".ply" or _is_cloud_ply(path):
+        return "point cloud"
+    if fmt in SERVER_MESH_SUFFIXES:
+        return "mesh"
+    clouds = [f for f in CLOUD_SUFFIXES if f not in GRAPH_SUFFIXES]
+    raise ConfigError(
+        f"{path}: unknown map file type {fmt or '(no suffix)'!r}; secure3d reads OctoMaps"
+        f" ({', '.join(OCTOMAP_SUFFIXES)}), point clouds ({', '.join(clouds)}), scan graphs"
+        f" ({', '.join(GRAPH_SUFFIXES)}) and meshes ({', '.join(SERVER_MESH_SUFFIXES)})"
+    )
 
 
 def _v(x: np.ndarray) -> str:
@@ -165,9 +199,9 @@ def convert(src: Path, dst: Path, resolution: float | None, origin: list[float] 
         )
     if resolution is None or not 1e-4 <= resolution <= 100:
         raise ConfigError(f"--resolution: a number in [0.0001, 100] m is needed (got {resolution})")
+    kind = map_kind(src)
     m = OccupancyMap(resolution)
-    info = map_info(src)[0]
-    if "point cloud" in info or "scan graph" in info:
+    if kind in ("point cloud", "scan graph"):
         from secure3d.world.server_sources import insert_cloud, read_cloud_scans
 
         scans = read_cloud_scans(src, str(src))

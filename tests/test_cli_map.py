@@ -75,7 +75,9 @@ def test_convert_mesh_to_ot(tmp_path: Path) -> None:
     ("argv", "message"),
     [
         (["map", "info", "missing.bt"], "cannot read"),
-        (["map", "info", "/dev/zero"], "mesh files must be"),
+        (["map", "info", "/dev/zero"], "unknown map file type '(no suffix)'"),
+        (["map", "info", "notes.txt"], "point clouds (.ply, .pcd, .xyz, .dat, .dat.bz2)"),
+        (["map", "convert", "notes.txt", "x.bt", "--resolution", "0.1"], "unknown map file"),
         (["map", "convert", "scan.ply", "x.bt"], "--resolution"),
         (["map", "convert", str(MAPS / "octomaps" / "office_server.bt"), "x.obj"], "converts to"),
     ],
@@ -86,6 +88,25 @@ def test_errors_are_one_line(argv, message, capsys, tmp_path, monkeypatch) -> No
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err and err.startswith("secure3d: error: ")
+
+
+def test_info_and_convert_of_octomaps_point_file(octomap_dir: Path, tmp_path: Path, capsys) -> None:
+    """OctoMap's scan.dat.bz2 (a compressed x y z point file): described, and converted with
+    rays from --origin as octomap-python inserts the same points."""
+    src = octomap_dir / "scan.dat.bz2"
+    assert main(["map", "info", str(src)]) == 0
+    assert "point cloud, 88206 points" in capsys.readouterr().out
+    dst = tmp_path / "scan.bt"
+    args = ["map", "convert", str(src), str(dst), "--resolution", "0.2", "--origin", "0", "0", "0"]
+    assert main(args) == 0
+    from secure3d.mapping.octomap_io import read_scan_dat
+
+    tree = octomap.OcTree(0.2)
+    tree.insertPointCloud(read_scan_dat(src), np.zeros(3))
+    m = OccupancyMap.read_bt(dst)
+    np.testing.assert_array_equal(tree.getLabels(m.occupied_voxels()), 1)
+    np.testing.assert_array_equal(tree.getLabels(m.free_voxels()), 0)
+    assert len(m.occupied_voxels()) > 5_000 and len(m.free_voxels()) > 50_000
 
 
 def test_info_and_convert_of_octomaps_scan_graph(octomap_dir: Path, tmp_path: Path, capsys) -> None:

@@ -7,6 +7,9 @@
   (vertex properties ``origin_x``, ``origin_y``, ``origin_z``: one scan per distinct origin),
   else from the scenario's ``origin``; without either, each point only marks its voxel occupied
   and no free space is claimed (a ray from a guessed origin would claim free space nobody saw).
+- **OctoMap point file** (``.dat``, or bzip2-compressed ``.dat.bz2``, as OctoMap's own
+  ``scan.dat.bz2``): whitespace-separated ``x y z`` per line, read by
+  :func:`secure3d.mapping.octomap_io.read_scan_dat`; one scan, from the scenario's ``origin``.
 - **OctoMap scan graph** (``.graph``, or its text form ``.log``;
   :mod:`secure3d.mapping.scan_graph`): every scan inserted from its node's pose, in file order,
   as OctoMap's ``graph2tree`` does.
@@ -33,11 +36,15 @@ import numpy as np
 from secure3d.errors import MapFormatError, ScenarioError
 from secure3d.world.octomap_files import octomap_resolution
 
-CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".graph", ".log")
+CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".dat", ".dat.bz2", ".graph", ".log")
 #: Scan graphs: scans with poses (read by :mod:`secure3d.mapping.scan_graph`, not Open3D).
 GRAPH_SUFFIXES = (".graph", ".log")
+#: OctoMap's plain point files (``x y z`` per line), plain or bzip2-compressed.
+POINT_FILE_SUFFIXES = (".dat", ".dat.bz2")
 #: Clouds Open3D reads.
-OPEN3D_CLOUD_SUFFIXES = tuple(s for s in CLOUD_SUFFIXES if s not in GRAPH_SUFFIXES)
+OPEN3D_CLOUD_SUFFIXES = tuple(
+    s for s in CLOUD_SUFFIXES if s not in GRAPH_SUFFIXES + POINT_FILE_SUFFIXES
+)
 SERVER_MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
 #: Largest point-cloud or mesh file read (bytes).
 MAX_SOURCE_BYTES = 200_000_000
@@ -51,11 +58,21 @@ MAX_SERVER_MESH_FACES = 2_000_000
 MAX_MESH_CELLS = 50_000_000
 
 
+def file_format(path: str | os.PathLike[str]) -> str:
+    """The format suffix of a map file, lower case: its last suffix, or its last two for a
+    compressed file (``scan.dat.bz2`` -> ``.dat.bz2``)."""
+    p = Path(path)
+    last = p.suffix.lower()
+    if last == ".bz2" and len(p.suffixes) >= 2:
+        return p.suffixes[-2].lower() + last
+    return last
+
+
 def _size_checked(
     path: Path, what: str, suffixes: tuple[str, ...], kind: str, limit: int = 0
 ) -> None:
     limit = limit or MAX_SOURCE_BYTES
-    if path.suffix.lower() not in suffixes:
+    if file_format(path) not in suffixes:
         raise ScenarioError(
             f"{what}: {kind} files must be {', '.join(suffixes)} (got {path.name!r})"
         )
@@ -159,7 +176,8 @@ def read_survey_scans(data: bytes) -> CloudScans:
 def read_cloud_origins(
     path: str | os.PathLike[str], what: str = "cloud"
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Points of a ``.ply``/``.pcd``/``.xyz`` file and, if it has them, their sensor origins.
+    """Points of a ``.ply``/``.pcd``/``.xyz`` file or an OctoMap point file (``.dat``,
+    ``.dat.bz2``) and, if it has them, their sensor origins.
 
     Per-point origins are the vertex properties ``origin_x``, ``origin_y``, ``origin_z`` (a
     ``.ply`` or ``.pcd`` with those fields, read through Open3D's tensor API). Rows with a
@@ -181,6 +199,8 @@ def read_cloud_origins(
     if p.suffix.lower() in GRAPH_SUFFIXES:
         scans = _read_graph_scans(p, what)
         return scans.points, np.repeat(scans.origins, np.diff(scans.offsets), axis=0)
+    if file_format(p) in POINT_FILE_SUFFIXES:
+        return _finite_rows(_read_point_file(p, what), None, p, what)
     _size_checked(p, what, OPEN3D_CLOUD_SUFFIXES, "point-cloud")
     o3d = open3d()
     try:
@@ -198,6 +218,33 @@ def read_cloud_origins(
     origins = None
     if all(n in pcd.point for n in names):
         origins = np.hstack([pcd.point[n].numpy().reshape(-1, 1) for n in names]).astype(float)
+    return _finite_rows(pts, origins, p, what)
+
+
+def _read_point_file(p: Path, what: str) -> np.ndarray:
+    """Points (n, 3) of an OctoMap point file (``.dat``, ``.dat.bz2``), checked."""
+    from secure3d.mapping.octomap_io import read_scan_dat
+
+    _size_checked(p, what, POINT_FILE_SUFFIXES, "point-cloud")
+    try:
+        pts = read_scan_dat(p, max_bytes=MAX_SOURCE_BYTES)
+    except OSError as exc:  # unreadable, or not bzip2 data behind a .bz2 name
+        raise ScenarioError(f"{what}: cannot read {p}: {exc.strerror or exc}") from None
+    except EOFError:  # a .bz2 cut short
+        raise ScenarioError(f"{what}: {p}: the compressed data ends early (truncated)") from None
+    except MapFormatError as exc:
+        raise ScenarioError(f"{what}: {exc}") from None
+    if pts.shape[0] == 0:
+        raise ScenarioError(f"{what}: {p} holds no points (unreadable or empty)")
+    if pts.shape[0] > MAX_CLOUD_POINTS:
+        raise ScenarioError(f"{what}: {p} has more than {MAX_CLOUD_POINTS} points")
+    return pts
+
+
+def _finite_rows(
+    pts: np.ndarray, origins: np.ndarray | None, p: Path, what: str
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The rows whose point (and origin, if any) is finite; an error if none is."""
     keep = np.all(np.isfinite(pts), axis=1)
     if origins is not None:
         keep &= np.all(np.isfinite(origins), axis=1)
@@ -322,8 +369,10 @@ __all__ = [
     "CLOUD_SUFFIXES",
     "GRAPH_SUFFIXES",
     "CloudScans",
+    "POINT_FILE_SUFFIXES",
     "SERVER_MESH_SUFFIXES",
     "check_source_file",
+    "file_format",
     "insert_cloud",
     "read_cloud",
     "read_cloud_origins",

@@ -332,3 +332,75 @@ def test_a_scan_graph_as_the_true_world_says_how_to_make_a_tree(tmp_path: Path) 
     (tmp_path / "s.yaml").write_text(yaml.safe_dump(data))
     with pytest.raises(ScenarioError, match=r"world.octomap: .*scan graph.*secure3d map convert"):
         load_scenario(tmp_path / "s.yaml")
+
+
+def _point_file_scenario(folder: Path, cloud: str, origin: list | None) -> Path:
+    """cloud_server.yaml with ``server_map.cloud`` set to ``cloud`` (a file in ``folder``)."""
+    data = yaml.safe_load((MAPS / "cloud_server.yaml").read_text())
+    data["server_map"]["cloud"] = cloud
+    if origin is None:
+        del data["server_map"]["origin"]
+    else:
+        data["server_map"]["origin"] = origin
+    path = folder / "s.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def test_octomap_point_file_server_map_is_rays_from_the_origin(
+    octomap_dir: Path, tmp_path: Path, octomap_voxels
+) -> None:
+    """OctoMap's own scan.dat.bz2 (88,206 points of a real laser scan, bzip2-compressed) as the
+    server map: voxel for voxel what octomap-python builds from the same points and origin; the
+    plain .dat reads the same."""
+    import bz2
+
+    import octomap
+
+    from secure3d.mapping.octomap_io import read_scan_dat
+
+    (tmp_path / "scan.dat.bz2").write_bytes((octomap_dir / "scan.dat.bz2").read_bytes())
+    s = load_scenario(_point_file_scenario(tmp_path, "scan.dat.bz2", [0.0, 0.0, 0.5]))
+    pts = read_scan_dat(octomap_dir / "scan.dat.bz2")
+    assert pts.shape == (88206, 3)
+    occ, free = _claims(belief_map(s))
+    tree = octomap.OcTree(0.1)
+    tree.insertPointCloud(pts, np.array([0.0, 0.0, 0.5]))
+    assert (len(occ), len(free)) == octomap_voxels(tree) and len(free) > 100_000
+    centre = lambda keys: (np.array(sorted(keys)) + 0.5) * 0.1  # noqa: E731
+    np.testing.assert_array_equal(tree.getLabels(centre(occ)), 1)
+    np.testing.assert_array_equal(tree.getLabels(centre(free)), 0)
+    # the same file uncompressed, and with no origin: only its points, nothing claimed free
+    (tmp_path / "scan.dat").write_bytes(bz2.decompress((tmp_path / "scan.dat.bz2").read_bytes()))
+    np.testing.assert_array_equal(read_cloud(tmp_path / "scan.dat"), pts)
+    bare = load_scenario(_point_file_scenario(tmp_path, "scan.dat", None))
+    occ_bare, free_bare = _claims(belief_map(bare))
+    points_only = octomap.OcTree(0.1)  # OctoMap's keys of the points (float32 coordinates)
+    for p in pts:
+        points_only.updateNode(p, True)
+    assert not free_bare and (len(occ_bare), 0) == octomap_voxels(points_only)
+    np.testing.assert_array_equal(points_only.getLabels(centre(occ_bare)), 1)
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "problem"),
+    [
+        ("bad.dat", b"1 2 3\n4 5 x\n", "non-numeric"),
+        ("short.dat", b"1 2 3\n4 5\n", "not a multiple of 3"),
+        ("empty.dat", b"", "holds no points"),
+        ("nan.dat", b"nan 0 0\n", "no finite points"),
+        ("cut.dat.bz2", None, "truncated"),
+        ("plain.dat.bz2", b"1 2 3\n", "cannot read"),
+    ],
+)
+def test_a_broken_point_file_is_a_one_line_scenario_error(
+    octomap_dir: Path, tmp_path: Path, name: str, content: bytes | None, problem: str
+) -> None:
+    if content is None:  # a real compressed file cut short
+        content = (octomap_dir / "scan.dat.bz2").read_bytes()[:5000]
+    (tmp_path / name).write_bytes(content)
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(_point_file_scenario(tmp_path, name, [0.0, 0.0, 0.0]))
+    message = str(err.value)
+    assert "server_map.cloud: " in message and name in message and problem in message
+    assert "\n" not in message
