@@ -28,14 +28,22 @@ __all__ = [
 #: Largest OctoMap file we read (bytes): the shared 0.08 m building scan is 0.2 MB.
 MAX_BT_BYTES = 50_000_000
 OCTOMAP_SUFFIXES = (".bt", ".ot")
+#: Map files that are not trees but convert to one (``secure3d map convert``).
+_not_a_tree = {
+    **dict.fromkeys((".graph", ".log"), "scan graph"),
+    **dict.fromkeys((".pcd", ".xyz", ".dat", ".dat.bz2"), "point cloud"),
+}
 
 
 def _stat_checked(path: str | os.PathLike[str], what: str) -> tuple[Path, os.stat_result]:
     p = Path(path)
-    if p.suffix.lower() in (".graph", ".log"):
+    kind = _not_a_tree.get("".join(p.suffixes[-2:]).lower()) or _not_a_tree.get(p.suffix.lower())
+    if kind is not None:
+        origin = " --origin X Y Z" if kind == "point cloud" else ""
         raise ScenarioError(
-            f"{what}: {p.name!r} is a scan graph, not a tree; build one with `secure3d map convert"
-            f" {p.name} {p.stem}.bt --resolution R` (or give it as server_map.cloud)"
+            f"{what}: {p.name!r} is a {kind}, not a tree; build one with `secure3d map convert"
+            f" {p.name} {p.name.split('.')[0]}.bt --resolution R{origin}` (or give it as"
+            " server_map.cloud)"
         )
     if p.suffix.lower() not in OCTOMAP_SUFFIXES:
         raise ScenarioError(f"{what}: OctoMap files must be .bt or .ot (got {p.name!r})")

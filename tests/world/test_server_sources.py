@@ -319,18 +319,28 @@ def test_a_broken_scan_graph_is_a_one_line_scenario_error(tmp_path: Path) -> Non
         load_scenario(tmp_path / "s.yaml")
 
 
-def test_a_scan_graph_as_the_true_world_says_how_to_make_a_tree(tmp_path: Path) -> None:
-    (tmp_path / "scans.graph").write_bytes(
-        (MAPS / "clouds" / "warehouse_survey.graph").read_bytes()
-    )
+@pytest.mark.parametrize(
+    ("name", "advice"),
+    [
+        ("scans.graph", r"'scans.graph' is a scan graph, not a tree.*convert scans.graph scans.bt"),
+        (
+            "scan.dat.bz2",
+            r"'scan.dat.bz2' is a point cloud, not a tree.*scan.dat.bz2 scan.bt .*--origin X Y Z",
+        ),
+    ],
+)
+def test_a_scan_graph_or_cloud_as_the_true_world_says_how_to_make_a_tree(
+    tmp_path: Path, name: str, advice: str
+) -> None:
+    (tmp_path / name).write_bytes((MAPS / "clouds" / "warehouse_survey.graph").read_bytes())
     data = {
         "name": "s",
-        "world": {"bounds": {"lo": [0, 0, 0], "hi": [16, 12, 3.5]}, "octomap": "scans.graph"},
+        "world": {"bounds": {"lo": [0, 0, 0], "hi": [16, 12, 3.5]}, "octomap": name},
         "start": {"position": [1.5, 3.9, 1.2]},
         "goal": {"position": [14.5, 6.9, 1.2]},
     }
     (tmp_path / "s.yaml").write_text(yaml.safe_dump(data))
-    with pytest.raises(ScenarioError, match=r"world.octomap: .*scan graph.*secure3d map convert"):
+    with pytest.raises(ScenarioError, match=rf"world.octomap: {advice}"):
         load_scenario(tmp_path / "s.yaml")
 
 
