@@ -9,6 +9,7 @@ from __future__ import annotations
 from secure3d.world.deadend_families import DEAD_END
 from secure3d.world.denial_families import DENIAL
 from secure3d.world.families import Family
+from secure3d.world.fence_families import FENCES
 from secure3d.world.passage_families import PASSAGE_WIDTH
 from secure3d.world.region_attacks import REGION_ATTACKS
 from secure3d.world.survey_families import SURVEY
@@ -19,5 +20,14 @@ __all__ = ["FAMILIES"]
 #: Families by name.
 FAMILIES: dict[str, Family] = {
     f.name: f
-    for f in (THIN_OBSTACLES, OCCLUSION_3D, DEAD_END, REGION_ATTACKS, DENIAL, PASSAGE_WIDTH, SURVEY)
+    for f in (
+        THIN_OBSTACLES,
+        OCCLUSION_3D,
+        FENCES,
+        DEAD_END,
+        REGION_ATTACKS,
+        DENIAL,
+        PASSAGE_WIDTH,
+        SURVEY,
+    )
 }

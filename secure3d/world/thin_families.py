@@ -23,7 +23,7 @@ goal reachable for the body (checked on the placement grid) and keeps the start 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -207,18 +207,24 @@ def place_hidden(
     )
 
 
-def hidden_variant(base: Scenario, kind: str, box: Box, i: int, family: str) -> Scenario:
-    world = dataclasses.replace(base.world, boxes=(*base.world.boxes, box))
+def hidden_variant(
+    base: Scenario, kind: str, box: Box | Sequence[Box], i: int, family: str
+) -> Scenario:
+    """``base`` with the obstacle ``box`` (or the boxes of one obstacle) in the true world and
+    absent from the server's map, named ``{base}_{family}_{i:03d}``."""
+    boxes = (box,) if isinstance(box, Box) else tuple(box)
+    names = tuple(b.name for b in boxes)
+    world = dataclasses.replace(base.world, boxes=(*base.world.boxes, *boxes))
     server = base.server_map
     if server.from_world:
-        server = dataclasses.replace(
-            server, attacks=(*server.attacks, Attack("hide", target=box.name))
-        )
+        hide = tuple(Attack("hide", target=n) for n in names)
+        server = dataclasses.replace(server, attacks=(*server.attacks, *hide))
     else:  # a server map file (OctoMap, cloud, mesh) or survey lacks it as it is: say so
-        server = dataclasses.replace(server, lacks=(*server.lacks, box.name))
-    size = np.subtract(box.hi, box.lo)
+        server = dataclasses.replace(server, lacks=(*server.lacks, *names))
+    size = np.max([b.hi for b in boxes], axis=0) - np.min([b.lo for b in boxes], axis=0)
+    what = names[0] if len(names) == 1 else f"{names[0]} .. {names[-1]}"
     note = (
-        f"Variant {i} of {family}: hidden {kind} {box.name}"
+        f"Variant {i} of {family}: hidden {kind} {what}"
         f" ({size[0]:.2f} x {size[1]:.2f} x {size[2]:.2f} m)."
     )
     return dataclasses.replace(
