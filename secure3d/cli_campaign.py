@@ -53,8 +53,9 @@ def _campaign_arguments(parser: argparse.ArgumentParser) -> None:
         "--kind",
         choices=("auto", "corner", "forest", *FAMILIES),
         default="auto",
+        # argparse formats help with %: a family's "30-90 % of" must not read as a format
         help="where hidden obstacles go (auto), or a scenario family: "
-        + "; ".join(f"{f.name}: {f.description}" for f in FAMILIES.values()),
+        + "; ".join(f"{f.name}: {f.description}" for f in FAMILIES.values()).replace("%", "%%"),
     )
     parser.add_argument(
         "--count", type=int, default=1, metavar="C", help="hidden obstacles per variant (1)"

@@ -218,6 +218,12 @@ def test_every_command_has_help(command: str, capsys) -> None:
     assert main([command, "--help"]) == 0
     out = capsys.readouterr().out
     assert out.startswith(f"usage: secure3d {command}"), out
+    if command == "campaign":  # every family, its description as written (a % in it too)
+        from secure3d.world.family_registry import FAMILIES
+
+        flat = " ".join(out.split())
+        for f in FAMILIES.values():
+            assert f"{f.name}: {' '.join(f.description.split())}" in flat, f.name
 
 
 # ---- bench and reactive: thin wrappers around the repository's scripts -------------------------
