@@ -11,10 +11,11 @@ that sight lines through it are judged against the slats.
 - **pickets**: vertical slats from the floor (the nearest surface under the route) up;
 - **rails**: horizontal bars, one above the other, from the floor up (3D vehicles only).
 
-The fence leaves a way past it as wide as the body plus the placement clearance on either side and
-a map voxel on either side (:func:`_way`, wider than the secure planner's footprint at rest): in half the variants of a 3D vehicle it spans the
-corridor from wall to wall, 0.5-1.5 body radii above the route, and the way is over it; otherwise
-it stands floor to ceiling along 40-80 % of the corridor from one wall, and the way is beside it.
+The fence leaves a way past it as wide as the body plus :data:`WAY_CLEARANCE` and a map voxel on
+either side (:func:`_way`; wider than the secure planner's footprint at rest). In half the variants
+of a 3D vehicle it spans the corridor from wall to wall up to 0.5-1.5 body radii above the route,
+and the way is over it; otherwise it stands floor to ceiling along 40-80 % of the corridor from the
+wall nearer the route, and the way is beside it.
 (A fence that closes the corridor is the ``deadend`` family's wall.) Every variant keeps the start
 and goal clear and the goal reachable for the body on the placement grid (the checks of
 :mod:`secure3d.world.thin_families`). Variant ``i`` is a pure function of ``(base, rng)``.

@@ -29,7 +29,7 @@ __all__ = [
 MAX_BT_BYTES = 50_000_000
 OCTOMAP_SUFFIXES = (".bt", ".ot")
 #: Map files that are not trees but convert to one (``secure3d map convert``).
-_not_a_tree = {
+_NOT_A_TREE = {
     **dict.fromkeys((".graph", ".log"), "scan graph"),
     **dict.fromkeys((".pcd", ".xyz", ".dat", ".dat.bz2"), "point cloud"),
 }
@@ -37,7 +37,7 @@ _not_a_tree = {
 
 def _stat_checked(path: str | os.PathLike[str], what: str) -> tuple[Path, os.stat_result]:
     p = Path(path)
-    kind = _not_a_tree.get("".join(p.suffixes[-2:]).lower()) or _not_a_tree.get(p.suffix.lower())
+    kind = _NOT_A_TREE.get("".join(p.suffixes[-2:]).lower()) or _NOT_A_TREE.get(p.suffix.lower())
     if kind is not None:
         origin = " --origin X Y Z" if kind == "point cloud" else ""
         raise ScenarioError(
