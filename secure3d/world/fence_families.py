@@ -126,6 +126,27 @@ def fence_placeable(
     return bool(_connected(trial, prep.start_cell, prep.goal_cell))
 
 
+def prepare_fence(base: Scenario) -> Placement:
+    """:func:`~secure3d.world.thin_families.prepare_placement`, refusing (once, before any run) a
+    base where no fence fits: one with a way past it (:func:`_way`) in none of
+    :data:`~secure3d.world.thin_families.MAX_ATTEMPTS` draws."""
+    prep = prepare_placement(base)
+    rng = np.random.default_rng(0)
+    for _ in range(MAX_ATTEMPTS):
+        cand = _panel(prep, base, rng)
+        if cand is not None and fence_placeable(prep, base, cand[1]):
+            return prep
+    raise ScenarioError(_no_fence(base))
+
+
+def _no_fence(base: Scenario) -> str:
+    return (
+        f"{base.name}: could not place a hidden fence in {MAX_ATTEMPTS} attempts (a fence across"
+        f" the route must leave a way round or over it {_way(base):.2f} m wide: the corridors"
+        " are too narrow; try --kind thin)"
+    )
+
+
 def fence_variant(prep: Placement, base: Scenario, rng: np.random.Generator, i: int) -> Scenario:
     """Variant ``i`` of :data:`FENCES` (pure in its inputs)."""
     for _ in range(MAX_ATTEMPTS):
@@ -138,11 +159,7 @@ def fence_variant(prep: Placement, base: Scenario, rng: np.random.Generator, i: 
             name = _fresh_name(base.world, added, f"hidden_{kind}")
             added.append(Box(name, tuple(map(float, lo)), tuple(map(float, hi))))
         return hidden_variant(base, f"fence of {len(added)} {kind}", added, i, "fence")
-    raise ScenarioError(
-        f"{base.name}: could not place a hidden fence in {MAX_ATTEMPTS} attempts (a fence across"
-        f" the route must leave a way round or over it {_way(base):.2f} m wide: the corridors"
-        " are too narrow; try --kind thin)"
-    )
+    raise ScenarioError(_no_fence(base))
 
 
 FENCES = Family(
@@ -151,6 +168,6 @@ FENCES = Family(
         "one hidden fence across the route: pickets or rails at least planner.min_obstacle_size"
         " thick, gaps 30-90 % of the body's diameter (seen through, not passable)"
     ),
-    prepare=prepare_placement,
+    prepare=prepare_fence,
     variant=fence_variant,
 )

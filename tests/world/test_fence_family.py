@@ -80,3 +80,30 @@ def test_a_planar_vehicles_fence_is_pickets_with_a_way_round(maps_dir) -> None:
         slats = v.world.boxes[len(base.world.boxes) :]
         assert all(b.name.startswith("hidden_pickets") for b in slats)
         assert _passable_in_plane(v, height), (i, slats)
+
+
+def test_a_base_too_narrow_for_a_fence_is_refused_once_before_any_variant(tmp_path) -> None:
+    """A 1 m corridor 1.2 m high leaves no 0.9 m way round or over a fence: the family's
+    preparation says so (a campaign stops there, instead of one error row per variant)."""
+    import yaml
+
+    from secure3d.errors import ScenarioError
+
+    walls = [
+        {"name": "floor", "lo": [0, 0, -0.1], "hi": [6, 1.0, 0]},
+        {"name": "ceiling", "lo": [0, 0, 1.2], "hi": [6, 1.0, 1.3]},
+        {"name": "south", "lo": [0, -0.1, 0], "hi": [6, 0, 1.2]},
+        {"name": "north", "lo": [0, 1.0, 0], "hi": [6, 1.1, 1.2]},
+    ]
+    data = {
+        "name": "slot",
+        "world": {"bounds": {"lo": [0, -0.1, -0.1], "hi": [6, 1.1, 1.3]}, "boxes": walls},
+        "start": {"position": [0.6, 0.5, 0.6]},
+        "goal": {"position": [5.4, 0.5, 0.6]},
+    }
+    (tmp_path / "slot.yaml").write_text(yaml.safe_dump(data))
+    base = secure3d.load_scenario(tmp_path / "slot.yaml")
+    with pytest.raises(
+        ScenarioError, match=r"slot: could not place a hidden fence .* 0\.90 m wide"
+    ):
+        FENCES.prepare(base)
