@@ -21,8 +21,13 @@ from pathlib import Path
 import numpy as np
 
 from secure3d.errors import ConfigError, MapFormatError
-
-OCTOMAP_SUFFIXES = (".bt", ".ot")
+from secure3d.world.map_formats import (
+    CLOUD_SUFFIXES,
+    GRAPH_SUFFIXES,
+    OCTOMAP_SUFFIXES,
+    SERVER_MESH_SUFFIXES,
+    file_format,
+)
 
 
 def map_arguments(parser: argparse.ArgumentParser) -> None:
@@ -74,8 +79,8 @@ def map_info(path: Path) -> list[str]:
     """Lines describing the map file ``path``."""
     from secure3d.mapping.keys import TREE_DEPTH, TREE_MAX_VAL, morton_decode
 
-    suffix = path.suffix.lower()
-    if suffix in OCTOMAP_SUFFIXES:
+    kind = map_kind(path)
+    if kind == "octomap":
         lv = _octomap_leaves(path)
         occ = _occupied(lv)
         span = 2.0 ** (TREE_DEPTH - lv.depths.astype(np.int64))
@@ -93,15 +98,9 @@ def map_info(path: Path) -> list[str]:
             hi = lo + (span[occ] * lv.resolution)[:, None]
             lines.insert(3, f"  bounds     : {_v(lo.min(0))} - {_v(hi.max(0))} m (occupied)")
         return lines
-    from secure3d.world.server_sources import (
-        GRAPH_SUFFIXES,
-        read_cloud,
-        read_cloud_scans,
-        read_surface_mesh,
-    )
+    from secure3d.world.server_sources import read_cloud, read_cloud_scans, read_surface_mesh
 
-    kind = map_kind(path)
-    if suffix in GRAPH_SUFFIXES:
+    if kind == "scan graph":
         scans = read_cloud_scans(path, str(path))
         pts, o = scans.points, scans.origins
         return [
@@ -131,13 +130,6 @@ def map_kind(path: Path) -> str:
     ConfigError
         A suffix no reader takes, naming the file and every format that is read.
     """
-    from secure3d.world.server_sources import (
-        CLOUD_SUFFIXES,
-        GRAPH_SUFFIXES,
-        SERVER_MESH_SUFFIXES,
-        file_format,
-    )
-
     fmt = file_format(path)
     if fmt in OCTOMAP_SUFFIXES:
         return "octomap"
@@ -187,7 +179,8 @@ def convert(src: Path, dst: Path, resolution: float | None, origin: list[float] 
     from secure3d.mapping.keys import TREE_DEPTH
 
     out_suffix = dst.suffix.lower()
-    if src.suffix.lower() in OCTOMAP_SUFFIXES:
+    kind = map_kind(src)
+    if kind == "octomap":
         if out_suffix in OCTOMAP_SUFFIXES:
             m = OccupancyMap._from_leaves(_octomap_leaves(src), OccupancyMap(0.1).params, None)
             (m.write_bt if out_suffix == ".bt" else m.write_ot)(dst)
@@ -199,7 +192,6 @@ def convert(src: Path, dst: Path, resolution: float | None, origin: list[float] 
         )
     if resolution is None or not 1e-4 <= resolution <= 100:
         raise ConfigError(f"--resolution: a number in [0.0001, 100] m is needed (got {resolution})")
-    kind = map_kind(src)
     m = OccupancyMap(resolution)
     if kind in ("point cloud", "scan graph"):
         from secure3d.world.server_sources import insert_cloud, read_cloud_scans

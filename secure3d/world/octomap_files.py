@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from secure3d.errors import ScenarioError
+from secure3d.world.map_formats import OCTOMAP_SUFFIXES, not_a_tree
 
 __all__ = [
     "MAX_BT_BYTES",
@@ -27,18 +28,11 @@ __all__ = [
 
 #: Largest OctoMap file we read (bytes): the shared 0.08 m building scan is 0.2 MB.
 MAX_BT_BYTES = 50_000_000
-OCTOMAP_SUFFIXES = (".bt", ".ot")
-#: Map files that are not trees but convert to one (``secure3d map convert``).
-_NOT_A_TREE = {
-    **dict.fromkeys((".graph", ".log"), "scan graph"),
-    **dict.fromkeys((".pcd", ".xyz", ".dat", ".dat.bz2"), "point cloud"),
-}
 
 
 def _stat_checked(path: str | os.PathLike[str], what: str) -> tuple[Path, os.stat_result]:
     p = Path(path)
-    kind = _NOT_A_TREE.get("".join(p.suffixes[-2:]).lower()) or _NOT_A_TREE.get(p.suffix.lower())
-    if kind is not None:
+    if (kind := not_a_tree(p)) is not None:
         origin = " --origin X Y Z" if kind == "point cloud" else ""
         raise ScenarioError(
             f"{what}: {p.name!r} is a {kind}, not a tree; build one with `secure3d map convert"

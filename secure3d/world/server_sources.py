@@ -34,18 +34,16 @@ from typing import NamedTuple
 import numpy as np
 
 from secure3d.errors import MapFormatError, ScenarioError
+from secure3d.world.map_formats import (
+    CLOUD_SUFFIXES,
+    GRAPH_SUFFIXES,
+    OPEN3D_CLOUD_SUFFIXES,
+    POINT_FILE_SUFFIXES,
+    SERVER_MESH_SUFFIXES,
+    file_format,
+)
 from secure3d.world.octomap_files import octomap_resolution
 
-CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".dat", ".dat.bz2", ".graph", ".log")
-#: Scan graphs: scans with poses (read by :mod:`secure3d.mapping.scan_graph`, not Open3D).
-GRAPH_SUFFIXES = (".graph", ".log")
-#: OctoMap's plain point files (``x y z`` per line), plain or bzip2-compressed.
-POINT_FILE_SUFFIXES = (".dat", ".dat.bz2")
-#: Clouds Open3D reads.
-OPEN3D_CLOUD_SUFFIXES = tuple(
-    s for s in CLOUD_SUFFIXES if s not in GRAPH_SUFFIXES + POINT_FILE_SUFFIXES
-)
-SERVER_MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
 #: Largest point-cloud or mesh file read (bytes).
 MAX_SOURCE_BYTES = 200_000_000
 #: Most points of a cloud (~10 s of insertion); more is a unit or sampling mistake.
@@ -56,16 +54,6 @@ MAX_CLOUD_ORIGINS = 10_000
 MAX_SERVER_MESH_FACES = 2_000_000
 #: Most candidate voxels the mesh voxeliser examines (bounding box of the mesh at the resolution).
 MAX_MESH_CELLS = 50_000_000
-
-
-def file_format(path: str | os.PathLike[str]) -> str:
-    """The format suffix of a map file, lower case: its last suffix, or its last two for a
-    compressed file (``scan.dat.bz2`` -> ``.dat.bz2``)."""
-    p = Path(path)
-    last = p.suffix.lower()
-    if last == ".bz2" and len(p.suffixes) >= 2:
-        return p.suffixes[-2].lower() + last
-    return last
 
 
 def _size_checked(
