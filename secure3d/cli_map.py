@@ -21,13 +21,6 @@ from pathlib import Path
 import numpy as np
 
 from secure3d.errors import ConfigError, MapFormatError
-from secure3d.world.map_formats import (
-    CLOUD_SUFFIXES,
-    GRAPH_SUFFIXES,
-    OCTOMAP_SUFFIXES,
-    SERVER_MESH_SUFFIXES,
-    file_format,
-)
 
 
 def map_arguments(parser: argparse.ArgumentParser) -> None:
@@ -130,6 +123,15 @@ def map_kind(path: Path) -> str:
     ConfigError
         A suffix no reader takes, naming the file and every format that is read.
     """
+    # here, not at the top: `secure3d --help` must not import secure3d.world (casadi, open3d)
+    from secure3d.world.map_formats import (
+        CLOUD_SUFFIXES,
+        GRAPH_SUFFIXES,
+        OCTOMAP_SUFFIXES,
+        SERVER_MESH_SUFFIXES,
+        file_format,
+    )
+
     fmt = file_format(path)
     if fmt in OCTOMAP_SUFFIXES:
         return "octomap"
@@ -177,6 +179,7 @@ def convert(src: Path, dst: Path, resolution: float | None, origin: list[float] 
     """Convert ``src`` into ``dst`` (formats by suffix); return a one-line report."""
     from secure3d.mapping import OccupancyMap
     from secure3d.mapping.keys import TREE_DEPTH
+    from secure3d.world.map_formats import OCTOMAP_SUFFIXES
 
     out_suffix = dst.suffix.lower()
     kind = map_kind(src)
