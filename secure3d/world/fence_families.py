@@ -27,7 +27,7 @@ import numpy as np
 
 from secure3d.errors import ScenarioError
 from secure3d.world.families import Family
-from secure3d.world.hidden_obstacles import PLACEMENT_CLEARANCE, _clear, _connected, _fresh_name
+from secure3d.world.hidden_obstacles import _fresh_name
 from secure3d.world.spec import Box, Scenario
 from secure3d.world.thin_families import (
     MAX_ATTEMPTS,
@@ -35,6 +35,7 @@ from secure3d.world.thin_families import (
     _above_below,
     _path_point,
     hidden_variant,
+    placeable,
     prepare_placement,
     span_box,
 )
@@ -114,16 +115,10 @@ def fence_placeable(
     """Whether the fence as a whole (the box around its slats) keeps the start and goal clear and
     leaves no sliver gap to the world's obstacles (the gaps between its own slats are the point),
     and the goal stays reachable for the body with every slat in place."""
-    keep = base.vehicle.body_radius + PLACEMENT_CLEARANCE
-    ends = np.array([base.start.position, base.goal.position])
     los, his = np.array([b[0] for b in boxes]), np.array([b[1] for b in boxes])
-    outline = (los.min(axis=0), his.max(axis=0))
-    if not np.all(his > los) or not _clear(
-        outline, prep.lo, prep.hi, prep.touchable, ends, keep, closed=keep
-    ):
+    if not np.all(his > los):
         return False
-    trial = prep.grid.blocked_by(los, his) & prep.grid.free
-    return bool(_connected(trial, prep.start_cell, prep.goal_cell))
+    return placeable(prep, base, los.min(axis=0), his.max(axis=0), parts=(los, his))
 
 
 def prepare_fence(base: Scenario) -> Placement:

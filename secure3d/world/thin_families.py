@@ -174,16 +174,25 @@ def _z_range(base: Scenario) -> tuple[float, float]:
     return float(base.world.bounds.lo[2]), float(base.world.bounds.hi[2])
 
 
-def placeable(prep: Placement, base: Scenario, lo: np.ndarray, hi: np.ndarray) -> bool:
+def placeable(
+    prep: Placement,
+    base: Scenario,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    parts: tuple[np.ndarray, np.ndarray] | None = None,
+) -> bool:
     """Whether a hidden box [lo, hi] keeps the start and the goal clear (body radius plus
-    :data:`PLACEMENT_CLEARANCE`) and the goal reachable from the start on the placement grid."""
+    :data:`PLACEMENT_CLEARANCE`) and the goal reachable from the start on the placement grid.
+    ``parts``: the boxes (k, 3) that make up an obstacle whose outline is [lo, hi] (a fence's
+    slats); they, not the outline, block the grid."""
     keep = base.vehicle.body_radius + PLACEMENT_CLEARANCE
     ends = np.array([base.start.position, base.goal.position])
     if not np.all(hi > lo) or not _clear(
         (lo, hi), prep.lo, prep.hi, prep.touchable, ends, keep, closed=keep
     ):
         return False
-    trial = prep.grid.blocked_by(lo[None], hi[None]) & prep.grid.free
+    los, his = parts if parts is not None else (lo[None], hi[None])
+    trial = prep.grid.blocked_by(los, his) & prep.grid.free
     return bool(_connected(trial, prep.start_cell, prep.goal_cell))
 
 
