@@ -31,6 +31,7 @@ import numpy as np
 
 from secure3d.errors import SimulationError
 from secure3d.planning.result import PlanStatus
+from secure3d.simulation.at_rest import AtRest
 from secure3d.simulation.explore import LOOK_FROM, nearer_look
 from secure3d.simulation.loop import (
     CERT_STEP,
@@ -56,7 +57,6 @@ from secure3d.simulation.modes import (
     Mode,
     RunSettings,
     Trigger,
-    goal_edge,
     hold_after,
     log,
     replan_refusal,
@@ -70,9 +70,10 @@ if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.result import PlanResult
     from secure3d.simulation.guard import TrackingGuard
     from secure3d.simulation.loop import Loop
+    from secure3d.simulation.retreat import Retreat
 
 
-class Flight:
+class Flight(AtRest):
     """One closed-loop run: the state (time, state, mode, plans, counts, logs) and the steps."""
 
     def __init__(
@@ -106,6 +107,8 @@ class Flight:
         self.replans = self.takeovers = 0
         self.held_failures = 0  # failed replans in a row at rest (see STUCK_RETRIES)
         self.explorations = 0
+        self.retreat: Retreat | None = None  # the retreat being flown (Mode.RETREAT)
+        self.retreats = 0
         self.explore_goal: np.ndarray | None = None  # the point to look from while exploring
         self.explore_block: np.ndarray | None = None  # the claim it looks at
         self.look_from = LOOK_FROM  # how far before it along the route
@@ -406,6 +409,7 @@ class Flight:
             Mode.SCAN: self.act_scan,
             Mode.HOLD: self.act_hold,
             Mode.EXPLORE: self.act_explore,
+            Mode.RETREAT: self.act_retreat,
         }[self.mode]()
 
     def reference_state(self) -> tuple[np.ndarray, np.ndarray]:
@@ -442,17 +446,6 @@ class Flight:
             self.event("look around", f"turning {np.degrees(0.5 * self.hfov):.0f} deg either way")
         return self.act_scan(u)
 
-    def face_away(self) -> float | None:
-        """At rest: the heading to turn to before replanning (:meth:`Loop.way_off`), or None."""
-        heading = self.loop.way_off(self.model, self.x)
-        if heading is not None:
-            self.event(
-                "face away",
-                f"at rest within {1e3 * self.loop.problem.options.margin:.0f} mm of a known"
-                f" obstacle: turning to {np.degrees(heading):.0f} deg before replanning",
-            )
-        return heading
-
     def act_scan(self, u: np.ndarray | None = None) -> np.ndarray:
         """Turn through the look-around headings at rest, then HOLD."""
         yaw = float(self.model.yaw(self.x))
@@ -471,6 +464,8 @@ class Flight:
         due = self.t - self.last_attempt >= REPLAN_RETRY
         if self.replans >= s.max_replans or self.held_failures >= 2 * STUCK_RETRIES or not due:
             return u
+        if self.start_retreat():  # the planner refuses a start overlapping a known obstacle
+            return self.act_retreat()
         self.last_attempt = self.t
         self.replans += 1
         # near the goal, its ball's near side first: arriving anywhere inside counts, it is nearer,
@@ -502,17 +497,6 @@ class Flight:
                     f" {np.degrees(0.5 * self.hfov):.0f} deg either way for new views",
                 )
         return u
-
-    def plan_to_goal_edge(self) -> PlanResult | None:
-        """At rest near the goal (within the start region's half size of its tolerance ball), plan
-        to the near side of that ball (:func:`~secure3d.simulation.modes.goal_edge`) rather than
-        to the goal point; None when farther or when that plan fails."""
-        p = np.asarray(self.model.position(self.x), dtype=float).ravel()
-        reach = self.loop.problem.options.start_region_radius
-        if (edge := goal_edge(p, self.s.goal, self.loop.scenario.goal.tolerance, reach)) is None:
-            return None
-        self.event("aim nearer", f"to {np.round(edge, 2).tolist()}, inside the goal tolerance")
-        return self.make_plan(self.x, goal=edge)
 
     def explore(self) -> bool:
         """At rest, the replan failed: if the map shows no route because of a claim the camera has

@@ -23,6 +23,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.problem import PlanningProblem
     from secure3d.simulation.recheck import Recheck
     from secure3d.simulation.recording import Recorder
+    from secure3d.simulation.retreat import Retreat
     from secure3d.world.spec import Scenario
 
 #: Fraction of the model's yaw-rate limit used to look around at rest, and the yaw error (rad) at
@@ -210,6 +211,26 @@ class Loop:
         p = np.asarray(model.position(x), dtype=float).ravel()
         lo, hi, margin = self.problem.boxes_lo, self.problem.boxes_hi, self.problem.options.margin
         return escape_heading(p, model.body_radius, lo, hi, margin, model.planar)
+
+    def retreat_from(self, x: np.ndarray, t: float, in_margin: bool = False) -> Retreat | None:
+        """At rest in state ``x`` at time ``t`` with the body overlapping a known obstacle (or,
+        ``in_margin``, within the planner's margin of one): the straight retreat off it
+        (:func:`~secure3d.simulation.retreat.plan_retreat`), else None."""
+        from secure3d.simulation.retreat import plan_retreat
+
+        self.refresh_obstacles()
+        p, first = self.problem, self.first_problem
+        return plan_retreat(
+            self.model,
+            x,
+            t,
+            (p.boxes_lo, p.boxes_hi),
+            p.options.margin,
+            self.belief,
+            (p.bounds_lo, p.bounds_hi),
+            seen=(first.start_region_lo, first.start_region_hi),
+            within=p.options.margin if in_margin else 0.0,
+        )
 
     def judged_against_current(self) -> None:
         """The plan being followed is now known safe against the current obstacle boxes."""
@@ -425,16 +446,9 @@ def escape_heading(
             raise SimulationError(f"escape_heading: {name} must be finite and >= 0, got {v!r}")
     if lo.shape != hi.shape:
         raise SimulationError(f"escape_heading: boxes_lo {lo.shape} and boxes_hi {hi.shape} differ")
-    if len(lo) == 0:
-        return None
-    away = p[None, :] - np.clip(p[None, :], lo, hi)  # (n, 3) from each box's nearest point
-    if planar:
-        away[:, 2] = 0.0
-    dist = np.linalg.norm(away, axis=1)
-    near = (dist < radius + margin) & (dist > 0.0)
-    if not near.any():
-        return None
-    out = (away[near] / dist[near, None]).sum(axis=0)
-    if np.linalg.norm(out[:2]) < 1e-6:
+    from secure3d.simulation.retreat import away_from
+
+    out = away_from(p, radius + margin, lo, hi, planar)
+    if out is None or np.linalg.norm(out[:2]) < 1e-6:
         return None
     return float(np.arctan2(out[1], out[0]))

@@ -72,6 +72,7 @@ class Mode(enum.Enum):
     SCAN = "scan"  # at rest, turning to look around before replanning
     HOLD = "hold"  # at rest, replanning every REPLAN_RETRY s (line 7: go to line 1)
     EXPLORE = "explore"  # the map denies every route: following a plan to a point to look from
+    RETREAT = "retreat"  # at rest overlapping a known obstacle: backing off it in a straight line
 
 
 class Trigger(enum.Enum):
@@ -86,6 +87,8 @@ class Trigger(enum.Enum):
     STUCK = "replans at rest keep failing"
     DENIED = "the map shows no route: go and look at the claim that closes it"
     ARRIVED = "at the point to look from"
+    OVERLAPS = "at rest, the body overlaps a known obstacle: back off it"
+    BACKED_OFF = "backed off the known obstacle"
 
 
 #: Every mode change there is: (mode, trigger) -> next mode. Anything else is a bug and raises.
@@ -101,12 +104,17 @@ TRANSITIONS: dict[tuple[Mode, Trigger], Mode] = {
     (Mode.EXPLORE, Trigger.ARRIVED): Mode.SCAN,  # turn to face the claim, then replan
     (Mode.EXPLORE, Trigger.UNSAFE): Mode.BRAKE,
     (Mode.EXPLORE, Trigger.OFF_TUBE): Mode.BRAKE,
+    (Mode.HOLD, Trigger.OVERLAPS): Mode.RETREAT,  # see secure3d.simulation.retreat
+    (Mode.RETREAT, Trigger.BACKED_OFF): Mode.HOLD,
+    (Mode.RETREAT, Trigger.UNSAFE): Mode.BRAKE,  # the next step would leave the checked places
 }
 #: The modes in which the robot flies a certified plan (re-certified and guarded).
 FLYING = (Mode.FOLLOW, Mode.EXPLORE)
 #: Explorations one run may make (each flies to a point to look from, then replans; a look at the
 #: same claim again goes nearer, see :func:`~secure3d.simulation.explore.nearer_look`).
 MAX_EXPLORATIONS = 5
+#: Retreats one run may make (:mod:`secure3d.simulation.retreat`).
+MAX_RETREATS = 3
 
 
 @dataclass(frozen=True)
