@@ -27,9 +27,12 @@ from secure3d.planning.transcribed import T_MAX, T_MIN, TranscribedNLP
 #: Largest constraint violation accepted from a solver that reports success.
 FEASIBILITY_TOL = 1e-4
 
-#: Row families whose lower bound is a safety margin, tightened by the retries above (not the start
-#: region: it is often only just large enough for the first reactive sets).
+#: Row families whose lower bound is a safety margin, tightened by the certificate's retries (not
+#: the start region: it is often only just large enough for the first reactive sets).
 MARGIN_FAMILIES = ("visibility", "obstacle", "occlusion")
+#: The start region's rows (a reactive set inside the box observed around the start), tightened
+#: only by the certificate's last retry (``START_TIGHTENING`` in :mod:`.solve`).
+START_FAMILY = "start_region"
 
 _IPOPT_STATUS = {
     "Solve_Succeeded": PlanStatus.SUCCESS,
@@ -278,30 +281,47 @@ def _start_point(
 
 def tightened_bounds(nlp: TranscribedNLP, lbg: np.ndarray, extra: float | np.ndarray) -> np.ndarray:
     """Lower row bounds ``lbg`` with the rows of :data:`MARGIN_FAMILIES` raised by ``extra``: one
-    margin (m) for every such row, or one per node ((K,): the rows of node k by ``extra[k]``).
-    Rows of no single node, and every row of an NLP that does not record its rows' nodes, take
-    the largest. Rows switched off (-inf) stay off; nothing is ever lowered."""
-    per_node = np.ndim(extra) > 0
+    margin (m) for every such row, or one per node ((K,): the rows of node k by ``extra[k]``), or
+    (2, K): per node, the first row for those families and the second for the start-region rows
+    (:data:`START_FAMILY`, the last retry of the certificate's). Rows of no single node, and every
+    row of an NLP that does not record its rows' nodes, take the largest. Rows switched off (-inf)
+    stay off; nothing is ever lowered."""
     extra_arr = np.asarray(extra, dtype=float)
     K = nlp.layout.K
-    if per_node and extra_arr.shape != (K,):
+    if extra_arr.ndim > 1 and extra_arr.shape != (2, K):
         raise PlanningError(
-            f"extra margin: one number or {K} (one per node), got shape {extra_arr.shape}"
+            f"extra margin: one number, {K} (one per node) or (2, {K}), got {extra_arr.shape}"
         )
-    if not np.all(np.isfinite(extra_arr)):
+    if extra_arr.ndim == 2:
+        lbg = _raised(nlp, lbg, extra_arr[0], MARGIN_FAMILIES)
+        return _raised(nlp, lbg, extra_arr[1], (START_FAMILY,))
+    return _raised(nlp, lbg, extra_arr, MARGIN_FAMILIES)
+
+
+def _raised(
+    nlp: TranscribedNLP, lbg: np.ndarray, extra: np.ndarray, families: tuple[str, ...]
+) -> np.ndarray:
+    """:func:`tightened_bounds` for one number or one per node (``extra``) and ``families``."""
+    per_node = np.ndim(extra) > 0
+    K = nlp.layout.K
+    if per_node and extra.shape != (K,):
+        raise PlanningError(
+            f"extra margin: one number or {K} (one per node), got shape {extra.shape}"
+        )
+    if not np.all(np.isfinite(extra)):
         raise PlanningError(f"extra margin: must be finite (m), got {extra!r}")
-    extra_arr = np.maximum(extra_arr, 0.0)
-    if not np.any(extra_arr):
+    extra = np.maximum(extra, 0.0)
+    if not np.any(extra):
         return lbg
     lbg = lbg.copy()
     nodes = nlp.row_node if per_node and len(nlp.row_node) == len(lbg) else None
-    for name in MARGIN_FAMILIES:
+    for name in families:
         idx = nlp.families.get(name, np.zeros(0, int))
         if nodes is None:
-            lbg[idx] += extra_arr.max()
+            lbg[idx] += extra.max()
         else:
             k = nodes[idx]
-            lbg[idx] += np.where(k >= 0, extra_arr[np.maximum(k, 0)], extra_arr.max())
+            lbg[idx] += np.where(k >= 0, extra[np.maximum(k, 0)], extra.max())
     return lbg
 
 

@@ -87,6 +87,34 @@ def test_tightened_bounds_raise_only_the_chosen_nodes_margin_rows(corner):
     assert np.array_equal(tightened_bounds(bare, lbg, extra), flat)
 
 
+def test_the_last_retry_also_raises_the_start_region_rows_of_its_nodes(corner):
+    """(2, K): the first row raises the margin rows per node, the second the start-region rows
+    (the certificate's last retry, ``START_TIGHTENING``); nothing else moves."""
+    from secure3d.planning.nlp_solve import START_FAMILY
+
+    problem, _ = corner
+    K = problem.options.nodes
+    a = lb.fixed_assignment(K, problem.options.lookback_steps)
+    nlp = build_nlp(problem, "secure", a)
+    lbg, _ = nlp.bounds_for(a)
+    start_rows = nlp.families[START_FAMILY]
+    first = int(nlp.row_node[start_rows].min())  # a node that checks the start region
+    extra = np.zeros((2, K))
+    extra[0, 7], extra[1, first] = 0.05, 0.01
+    out = tightened_bounds(nlp, lbg, extra)
+    margin_only = tightened_bounds(nlp, lbg, extra[0])
+    moved = np.flatnonzero(out != margin_only)
+    assert len(moved) and set(moved) <= set(start_rows)
+    assert np.all(nlp.row_node[moved] == first) and np.allclose((out - margin_only)[moved], 0.01)
+    assert np.array_equal(
+        tightened_bounds(nlp, lbg, np.vstack([extra[0], np.zeros(K)])), margin_only
+    )
+    from secure3d.errors import PlanningError
+
+    with pytest.raises(PlanningError, match=rf"\(2, {K}\), got \(3, {K}\)"):
+        tightened_bounds(nlp, lbg, np.zeros((3, K)))
+
+
 def test_a_tightened_re_solve_that_fails_warm_is_tried_again_cold(monkeypatch):
     """The certificate's re-solve starts warm from the rejected solution's multipliers; when that
     fails it starts again from the solution's primal point alone (the cold barrier schedule)."""
