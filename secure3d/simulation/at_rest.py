@@ -1,6 +1,7 @@
 """What the closed loop does at rest besides replanning: turn to face away from a known obstacle
 the body rests beside, aim at the near side of the goal's ball, and back off a known obstacle the
-body overlaps (the ``RETREAT`` mode, :mod:`secure3d.simulation.retreat`). A mixin of
+body overlaps (the ``RETREAT`` mode, :mod:`secure3d.simulation.retreat`), and find where to
+look at a goal no view has covered from. A mixin of
 :class:`secure3d.simulation.flight.Flight`, whose state these methods read and change.
 """
 
@@ -26,9 +27,10 @@ if TYPE_CHECKING:  # pragma: no cover
 #: A retreat starts only from a robot slower than this (m/s): the body it backs off from is the
 #: one at rest, and a robot still creeping towards the obstacle would leave it first.
 RETREAT_START_SPEED = 0.005
-#: Heading error (rad) to which a wheeled robot turns before it drives along a retreat's line: the
-#: line may graze a voxel nobody saw free, and 0.05 rad (the look-around's tolerance) off it the
-#: first step turned towards one (a real scan's dead end).
+#: Heading error (rad) to which a wheeled robot turns, and stops spinning (turn rate below
+#: RETREAT_START_SPEED), before it drives along a retreat's line. The line may graze a voxel nobody
+#: saw free: a diff drive that set off still turning at 0.7 rad/s, 0.13 rad off the line, swung its
+#: body towards one at its first step, and the step's check stopped it (a real scan's dead end).
 RETREAT_HEADING = 0.005
 
 
@@ -56,6 +58,20 @@ class AtRest:
             return None
         self.event("aim nearer", f"to {np.round(edge, 2).tolist()}, inside the goal tolerance")
         return self.make_plan(self.x, goal=edge)
+
+    def goal_view(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(point to look from, the goal) when STUCK_RETRIES replans at rest have failed within the
+        camera's range of the goal and no view has covered the goal's surroundings
+        (:func:`~secure3d.simulation.explore.viewpoint_for_goal`), else None."""
+        from secure3d.simulation.explore import viewpoint_for_goal
+
+        problem, goal = self.loop.start_problem, np.asarray(self.s.goal, dtype=float)
+        p = np.asarray(self.model.position(self.x), dtype=float).ravel()
+        near = float(np.linalg.norm(p - goal)) <= problem.frustum.far
+        if self.held_failures < STUCK_RETRIES or not near:
+            return None
+        view = viewpoint_for_goal(problem, self.loop.belief, p, goal)
+        return None if view is None else (view, goal)
 
     def start_retreat(self) -> bool:
         """HOLD -> RETREAT when the body at rest overlaps a known obstacle (the planner would refuse

@@ -35,7 +35,14 @@ from secure3d.planning.guess import (
     grid_route,
 )
 
-__all__ = ["CLAIM_COST", "LOOK_FROM", "nearer_look", "viewpoint_for_denial"]
+__all__ = [
+    "CLAIM_COST",
+    "LOOK_FROM",
+    "goal_unseen",
+    "nearer_look",
+    "viewpoint_for_denial",
+    "viewpoint_for_goal",
+]
 
 #: How far before the blocking claim (m, along the route) the robot goes to look at it.
 LOOK_FROM = 1.5
@@ -256,3 +263,113 @@ def _look_from(
     order = np.concatenate([seen, before[::-1]])  # in sight first, then nearest the claim
     pick = next((i for i in order if rest_set_clear(problem, route[i])), None)
     return None if pick is None else route[pick].copy()
+
+
+#: Distances (m, horizontal) from the goal and bearings (rad, about the line from the goal to the
+#: robot) :func:`viewpoint_for_goal` tries, nearest the robot first.
+GOAL_VIEW_DISTANCES = np.arange(0.5, 4.01, 0.25)
+GOAL_VIEW_BEARINGS = np.radians([0.0, 30.0, -30.0, 60.0, -60.0])
+
+
+def goal_unseen(problem: object, belief: object, goal: np.ndarray) -> bool:
+    """Whether some voxel of the bounding box of the planner's reactive set at rest at ``goal``
+    (3,) is one the camera has never sensed (unknown, or known only from the server's claim): no
+    plan can end there until a view covers it."""
+    from secure3d.mapping.occupancy import Trust
+
+    c, M = problem.family.ellipsoid(problem.model.rest_state(goal, 0.0))
+    c, M = np.asarray(c, dtype=float).ravel(), np.asarray(M, dtype=float).reshape(3, 3)
+    reach = np.linalg.norm(M, axis=1)
+    res = belief.resolution
+    a, b = np.floor((c - reach) / res).astype(int), np.floor((c + reach) / res).astype(int)
+    axes = [np.arange(a[d], b[d] + 1) for d in range(3)]
+    cells = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    trust = belief.trust((cells + 0.5) * res)
+    return bool(np.any(~np.isin(trust, [Trust.SENSED_FREE, Trust.SENSED_OCCUPIED])))
+
+
+def viewpoint_for_goal(
+    problem: object, belief: object, position: np.ndarray, goal: np.ndarray
+) -> np.ndarray | None:
+    """Where to stand, at rest facing the goal, for the camera to hold the planner's reactive set
+    at rest at ``goal`` (3,) in view (:func:`_sees`), or None: a planar vehicle, a robot at
+    ``position`` (3,) that holds it in view already, or no such point.
+
+    A robot that stopped near the goal but above or beside it, with a level camera whose vertical
+    view is narrow, cannot plan to the goal: a plan that ends there needs a view of the space round
+    it, from one of its own earlier poses or the start region, and a map that sensed that space
+    from afar is not enough (OctoMap's scan.dat as the world, dead ends 0.7-1.1 m from the goal
+    with the robot 0.45-0.65 m above it: every plan went 10-15 m round or ran out of budget).
+    Standing farther back, the same view covers more. Candidates lie at the robot's height (a
+    level camera cannot look where the robot would descend), then the goal's,
+    ``GOAL_VIEW_DISTANCES`` from the goal along ``GOAL_VIEW_BEARINGS`` about the line to the
+    robot, nearest the robot first. A point passes when it is in the map, the body a voxel clear
+    of every known box, the goal set in view from it, the set at rest there its margin from every
+    known box (:func:`rest_set_clear`) and in space the camera has sensed (a plan ends there), and
+    the straight way there from the robot seen free (:func:`_seen_between`). The flight there is a
+    certified plan like any other."""
+    model, g = problem.model, np.asarray(goal, dtype=float).ravel()
+    p = np.asarray(position, dtype=float).ravel()
+    c, M = problem.family.ellipsoid(model.rest_state(g, 0.0))
+    c, M = np.asarray(c, dtype=float).ravel(), np.asarray(M, dtype=float).reshape(3, 3)
+    if model.planar or _sees(problem, p, (c, M)):
+        return None
+    back = p[:2] - g[:2]
+    base = float(np.arctan2(back[1], back[0])) if np.linalg.norm(back) > 1e-9 else 0.0
+    cands = [
+        np.array([g[0] + d * np.cos(base + a), g[1] + d * np.sin(base + a), z])
+        for z in dict.fromkeys([float(p[2]), float(g[2])])
+        for a in GOAL_VIEW_BEARINGS
+        for d in GOAL_VIEW_DISTANCES
+    ]
+    # level with the robot first, nearest it
+    cands.sort(key=lambda v: (abs(float(v[2] - p[2])) > 1e-9, float(np.linalg.norm(v - p))))
+    r, res = model.body_radius, belief.resolution
+    lo_b, hi_b = problem.bounds_lo + r + res, problem.bounds_hi - r - res
+    for v in cands:
+        if np.any(v < lo_b) or np.any(v > hi_b):
+            continue
+        if min_box_distance(v[None], problem.boxes_lo, problem.boxes_hi)[0] <= r + res:
+            continue
+        if (
+            _sees(problem, v, (c, M))
+            and rest_set_clear(problem, v)
+            and not goal_unseen(problem, belief, v)
+            and _seen_between(belief, p, v, r)
+        ):
+            return v
+    return None
+
+
+def _sees(problem: object, at: np.ndarray, ellipsoid: tuple[np.ndarray, np.ndarray]) -> bool:
+    """Whether the camera of the robot at rest at ``at`` (3,), facing the ellipsoid (c (3,), M
+    (3, 3)), holds all of it in its field of view (every face, with the planner's margin) with a
+    clear sight line from the camera to its centre."""
+    from secure3d.geometry.frustum import frustum_halfspaces
+    from secure3d.geometry.polytope import segments_blocked
+
+    model, (c, M) = problem.model, ellipsoid
+    yaw = float(np.arctan2(c[1] - at[1], c[0] - at[0]))
+    R, o = model.camera_pose(model.rest_state(at, yaw))
+    o = np.asarray(o, dtype=float).ravel()
+    A, b = frustum_halfspaces(np.asarray(R, dtype=float), o, problem.frustum)
+    A, b = np.asarray(A, dtype=float), np.asarray(b, dtype=float).ravel()
+    if np.any(b - A @ c - np.linalg.norm(A @ M, axis=1) < problem.options.margin):
+        return False
+    return not segments_blocked(o[None], c[None], problem.boxes_lo, problem.boxes_hi)[0]
+
+
+def _seen_between(belief: object, a: np.ndarray, b: np.ndarray, radius: float) -> bool:
+    """Whether every voxel within ``radius`` (a cube, conservatively) of the segment from ``a`` to
+    ``b`` (3,) is one the camera has seen free."""
+    from secure3d.mapping.occupancy import Trust
+
+    res = belief.resolution
+    n = max(2, int(np.ceil(np.linalg.norm(b - a) / (0.5 * res))) + 1)
+    pts = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
+    k = int(np.ceil(radius / res))
+    offsets = np.stack(np.meshgrid(*[np.arange(-k, k + 1)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    cells = np.unique(
+        (np.floor(pts / res).astype(np.int64)[:, None, :] + offsets).reshape(-1, 3), axis=0
+    )
+    return bool(np.all(belief.trust((cells + 0.5) * res) == Trust.SENSED_FREE))

@@ -500,19 +500,23 @@ class Flight(AtRest):
 
     def explore(self) -> bool:
         """At rest, the replan failed: if the map shows no route because of a claim the camera has
-        not checked, plan to a point to look at it from and fly there (HOLD -> EXPLORE)."""
+        not checked, or no view has covered the goal's surroundings (:meth:`goal_view`), plan to a
+        point to look at it from and fly there (HOLD -> EXPLORE)."""
         if not self.s.explore or self.explorations >= MAX_EXPLORATIONS:
             return False
         found, self.look_from = nearer_look(
             self.loop.start_problem, self.loop.belief, self.explore_block, self.look_from
         )
+        what = "the map shows no route: looking at the claim at {} from {}"
+        if found is None:
+            found = self.goal_view()
+            what = "no view covered the goal's surroundings: looking at {} from {}"
         if found is None:
             return False
         view, block = found
         self.explorations += 1
         at, frm = np.round(block, 2).tolist(), np.round(view, 2).tolist()
-        msg = f"the map shows no route: looking at the claim at {at} from {frm}"
-        self.event("explore", msg, "WARN")
+        self.event("explore", what.format(at, frm), "WARN")
         plan = self.make_plan(self.x, goal=view)
         if plan is None:
             return False

@@ -193,3 +193,46 @@ def test_a_diff_drive_looks_twice_at_a_phantom_slab_round_a_corner_and_arrives(m
     run = simulate(_planar_denial(maps_dir), "secure", seed=5520, plan_budget=10.0)
     assert run.reached_goal and not run.collided, run.summary()
     assert 1 <= sum(e.kind == "explore" for e in run.events) <= 3, run.summary()
+
+
+def _open_room(centre: np.ndarray) -> object:
+    """A belief that sensed everything within ~3 m of ``centre`` free (walls of hits at 3 m)."""
+    from secure3d.mapping import OccupancyMap
+
+    m = OccupancyMap(0.1, bounds=([-6, -6, -1], [6, 6, 5]))
+    d = np.random.default_rng(0).normal(size=(60000, 3))
+    m.insert_point_cloud(centre + 3.0 * d / np.linalg.norm(d, axis=1, keepdims=True), centre)
+    return m
+
+
+def test_a_robot_above_the_goal_looks_at_it_from_farther_back_at_its_own_height(maps_dir):
+    """A level camera cannot see the space round a goal 0.6 m below and 0.3 m ahead of it: the
+    viewpoint is at the robot's height, farther back, holds the goal's set at rest in view, and
+    leaves nothing more to do once the robot stands there."""
+    from secure3d.planning.problem import problem_from_scenario
+    from secure3d.simulation.explore import _sees, goal_unseen, viewpoint_for_goal
+
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    problem = problem_from_scenario(scenario)
+    goal = np.array([3.0, 3.0, 1.2])
+    robot = goal + [0.3, 0.0, 0.6]
+    empty = np.zeros((0, 3))
+    problem = dataclasses.replace(
+        problem,
+        boxes_lo=empty,
+        boxes_hi=empty,
+        bounds_lo=np.array([-5.0, -5, 0]),
+        bounds_hi=np.array([6.0, 6, 4]),
+    )
+    belief = _open_room(robot)
+    c, M = problem.family.ellipsoid(problem.model.rest_state(goal, 0.0))
+    assert not _sees(problem, robot, (np.ravel(c), np.reshape(M, (3, 3))))
+    view = viewpoint_for_goal(problem, belief, robot, goal)
+    assert view is not None and view[2] == pytest.approx(robot[2])
+    assert _sees(problem, view, (np.ravel(c), np.reshape(M, (3, 3))))
+    assert not goal_unseen(problem, belief, view)
+    assert viewpoint_for_goal(problem, belief, view, goal) is None  # it sees it from there
+    # nowhere sensed to stand: no viewpoint
+    from secure3d.mapping import OccupancyMap
+
+    assert viewpoint_for_goal(problem, OccupancyMap(0.1), robot, goal) is None
