@@ -114,6 +114,7 @@ class AtRest:
             self.retreat = None
             self.go(Trigger.BACKED_OFF)
             self.last_attempt = -np.inf
+            self.held_failures = 0  # a new start: the replans from there count afresh
             return self.act_hold()
         u, why = rt.control(self.model, loop.tracker, loop.brake, self.x, self.t, self.s.dt)
         if why is None:
