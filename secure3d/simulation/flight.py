@@ -14,7 +14,10 @@ The modes (:class:`Mode`) and every change between them (:data:`TRANSITIONS`) ar
 :meth:`Flight.go` is the only place the mode changes. Beyond the paper, and each named where it
 acts: a replan from the moving state before braking (line 4 tries line 1 first), deferred replans
 and replan latency (:meth:`Flight.recheck`), looking around at rest (``SCAN``), holding after
-repeated failures, and the tracking guard (FOLLOW --OFF_TUBE--> BRAKE,
+repeated failures, backing off a known obstacle the body at rest overlaps (``RETREAT``,
+:mod:`secure3d.simulation.retreat`; the at-rest behaviours are in
+:mod:`secure3d.simulation.at_rest`), looking at a claim or at the goal from a point a plan flies
+to (``EXPLORE``), and the tracking guard (FOLLOW --OFF_TUBE--> BRAKE,
 :mod:`secure3d.simulation.guard`).
 
 One control step (:meth:`Flight.step`) is: sense (if a frame is due) and re-check the plan,

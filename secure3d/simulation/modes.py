@@ -87,7 +87,7 @@ class Trigger(enum.Enum):
     STUCK = "replans at rest keep failing"
     DENIED = "the map shows no route: go and look at the claim that closes it"
     ARRIVED = "at the point to look from"
-    OVERLAPS = "at rest, the body overlaps a known obstacle: back off it"
+    OVERLAPS = "at rest, the body overlaps (or, replans failing, nears) a known obstacle: back off"
     BACKED_OFF = "backed off the known obstacle"
 
 
