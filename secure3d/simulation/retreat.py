@@ -92,8 +92,8 @@ def unseen_voxels(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The voxels within the cube ``centre`` +- ``reach`` (m) that the camera has not seen free,
     as boxes (lo, hi) (n, 3): unknown, claimed free or occupied by the server, or occupied. Voxels
-    inside ``seen`` (lo, hi) (3,) count as seen free unless the map holds them occupied (the start
-    region, observed before take-off)."""
+    wholly inside ``seen`` (lo, hi) (3,) count as seen free unless the map holds them occupied (the
+    start region, observed before take-off)."""
     from secure3d.mapping.occupancy import Trust
 
     c = np.asarray(centre, dtype=float).reshape(3)
@@ -109,8 +109,8 @@ def unseen_voxels(
     centres = (cells + 0.5) * res
     trust = np.asarray(belief.trust(centres))
     free = trust == Trust.SENSED_FREE
-    if seen is not None:
-        inside = np.all((centres >= seen[0]) & (centres <= seen[1]), axis=1)
+    if seen is not None:  # whole voxels only: a voxel's part outside the region was not seen
+        inside = np.all((cells * res >= seen[0]) & ((cells + 1) * res <= seen[1]), axis=1)
         free |= inside & ~np.isin(trust, [Trust.CLAIMED_OCCUPIED, Trust.SENSED_OCCUPIED])
     kept = cells[~free]
     return kept * res, (kept + 1) * res

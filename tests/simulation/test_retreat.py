@@ -148,11 +148,15 @@ def test_no_retreat_into_space_no_view_shows_free():
     seen = (np.array([0.0, 0.0, 0.0]), np.array([1.0, 1.1, 1.1]))
     rt = plan_retreat(model, x, 2.0, (lo, hi), MARGIN, m, BOUNDS, seen=seen)
     assert rt is not None
-    unseen_lo, _ = unseen_voxels(m, rt.anchor, 0.3, seen)
+    unseen_lo, unseen_hi = unseen_voxels(m, rt.anchor, 0.3, seen)
+    in_seen = np.all((unseen_lo >= seen[0] - 1e-9) & (unseen_hi <= seen[1] + 1e-9), axis=1)
     centres = unseen_lo + 0.05
-    in_seen = np.all((centres >= seen[0]) & (centres <= seen[1]), axis=1)
     assert np.all(m.is_known_obstacle(centres[in_seen])), "inside the start region only obstacles"
     assert len(unseen_voxels(m, rt.anchor, 0.3)[0]) > len(unseen_lo)
+    # a voxel only partly inside the region is not seen: its other part was not observed
+    part = (np.array([0.55, 0.0, 0.0]), np.array([1.0, 1.1, 1.1]))
+    p_lo, _ = unseen_voxels(m, rt.anchor, 0.3, part)
+    assert np.any(np.isclose(p_lo[:, 0], 0.5)) and not np.any(np.isclose(unseen_lo[:, 0], 0.5))
 
 
 class _Shove:
