@@ -78,8 +78,8 @@ SLOT_REFRESHES = 3
 #: Tightening every row instead lengthened 3D-occlusion replans (T 18.4 -> 21.0 -> 27.2 s), so the
 #: node spacing grew and new violations appeared between nodes further on.
 CERTIFY_TIGHTENING = (0.03, 0.08)
-#: When those retries still fail, one more re-solve tightens also the start-region rows of the
-#: nodes around the failing points by this much (m). The NLP's start box holds the fitted reactive
+#: When those retries still fail at nodes the plan counts as seen from the start region (look-back
+#: -1), one more re-solve tightens also those nodes' start-region rows by this much (m). The NLP's start box holds the fitted reactive
 #: set at the start as well as the observed box, and the certificate counts only the observed box
 #: and the body along the braking path: a replan from rest whose manoeuvres between its first
 #: nodes poked 1-2 mm out of that failed every retry the same way (geb079_hidden_crate, fence
@@ -482,9 +482,13 @@ def _judged(
         for levels in rounds:
             if cert.ok or budget_spent():
                 break
+            failing = failing_nodes(cert, result.times)
+            if levels[1] > 0.0:  # the last round: only for failures at nodes seen from the start
+                failing = failing * (np.asarray(s.assignment) < 0)
+                if not failing.any():
+                    break
             rejected.append(cert)
             # Tighten and re-solve from the rejected solution: never loosen anything.
-            failing = failing_nodes(cert, result.times)
             extra = np.maximum(extra, np.outer(levels, failing))
             t_, c = _tightened_solve(
                 problem, planner, s, cache, extra if extra[1].any() else extra[0]
