@@ -32,6 +32,8 @@ RETREAT_START_SPEED = 0.005
 #: saw free: a diff drive that set off still turning at 0.7 rad/s, 0.13 rad off the line, swung its
 #: body towards one at its first step, and the step's check stopped it (a real scan's dead end).
 RETREAT_HEADING = 0.005
+#: Seconds a wheeled robot may take to turn before a retreat (a half turn takes about 2 s).
+RETREAT_TURN_TIME = 10.0
 
 
 class AtRest:
@@ -105,7 +107,9 @@ class AtRest:
             err = heading_error(rt.yaw, float(self.model.yaw(self.x)))
             spin = np.abs(np.asarray(self.model.rest_residuals(self.x), dtype=float))
             if abs(err) >= RETREAT_HEADING or np.any(spin > RETREAT_START_SPEED):
-                return scan_control(self.model, loop.brake, self.x, rt.yaw, self.s.dt)
+                if self.t - rt.start <= RETREAT_TURN_TIME:
+                    return scan_control(self.model, loop.brake, self.x, rt.yaw, self.s.dt)
+                return self.stop_retreat(f"the turn did not settle in {RETREAT_TURN_TIME:.0f} s")
             self.retreat = rt = dataclasses.replace(rt, start=self.t, turn=False)
         if rt.done(self.model, self.x, self.t, STOP_SPEED):
             p = np.asarray(self.model.position(self.x), dtype=float).ravel()
@@ -117,8 +121,10 @@ class AtRest:
             self.held_failures = 0  # a new start: the replans from there count afresh
             return self.act_hold()
         u, why = rt.control(self.model, loop.tracker, loop.brake, self.x, self.t, self.s.dt)
-        if why is None:
-            return u
+        return u if why is None else self.stop_retreat(why)
+
+    def stop_retreat(self, why: str) -> np.ndarray:
+        """Give the retreat up and brake (RETREAT -> BRAKE): the control for this step."""
         self.event("retreat stopped", f"{why}: braking", "WARN")
         self.retreat = None
         self.go(Trigger.UNSAFE)

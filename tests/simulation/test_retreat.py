@@ -203,3 +203,42 @@ def test_a_robot_braked_onto_a_fences_voxels_backs_off_and_arrives(maps_dir, tmp
     i = kinds.index("retreat")
     assert "backed off" in kinds[i:] and kinds[i + 1 :].count("retreat") == 0
     assert run.reached_goal, run.summary()
+
+
+def test_a_turn_before_a_retreat_that_does_not_settle_is_given_up():
+    """A wheeled robot turns on the spot before it drives along the line; if the turn has not
+    settled RETREAT_TURN_TIME s after the retreat was planned, it gives the retreat up and brakes."""
+    import types
+
+    from secure3d.dynamics.diff_drive import DiffDrive
+    from secure3d.simulation.at_rest import RETREAT_TURN_TIME, AtRest
+    from secure3d.simulation.modes import Mode
+
+    model = DiffDrive()
+    m = _wall_map(look_back=True)
+    lo, hi = m.known_obstacle_boxes(include_bounds=False)
+    side = model.rest_state([0.81, 0.55, 0.5], np.pi / 2)
+    rt = plan_retreat(model, side, 0.0, (lo, hi), MARGIN, m, BOUNDS)
+    assert rt.turn
+    events = []
+    flight = types.SimpleNamespace(
+        retreat=rt,
+        loop=types.SimpleNamespace(brake=BrakingController(model)),
+        model=model,
+        x=side,
+        s=types.SimpleNamespace(dt=0.01),
+        mode=Mode.RETREAT,
+        event=lambda kind, detail="", level="INFO": events.append((kind, detail)),
+    )
+    from secure3d.simulation.flight import Flight
+
+    flight.go = lambda trigger: Flight.go(flight, trigger)
+    flight.act_brake = lambda: "braking"
+    flight.stop_retreat = lambda why: AtRest.stop_retreat(flight, why)
+    flight.t = 1.0  # still turning: the turn-in-place control, the retreat kept
+    u = AtRest.act_retreat(flight)
+    assert np.shape(u) == (model.nu,) and flight.retreat is rt and not events
+    flight.t = RETREAT_TURN_TIME + 0.5  # too long
+    assert AtRest.act_retreat(flight) == "braking"
+    assert flight.retreat is None and flight.mode is Mode.BRAKE
+    assert events and events[0][0] == "retreat stopped" and "did not settle" in events[0][1]
