@@ -271,19 +271,27 @@ GOAL_VIEW_DISTANCES = np.arange(0.5, 4.01, 0.25)
 GOAL_VIEW_BEARINGS = np.radians([0.0, 30.0, -30.0, 60.0, -60.0])
 
 
+def _point(a: object, what: str) -> np.ndarray:
+    """``a`` as 3 finite numbers, or a one-line error naming ``what``."""
+    p = np.asarray(a, dtype=float).ravel()
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise SimulationError(f"{what} must be 3 finite numbers, got {a!r}")
+    return p
+
+
 def goal_unseen(problem: object, belief: object, goal: np.ndarray) -> bool:
     """Whether some voxel of the bounding box of the planner's reactive set at rest at ``goal``
     (3,) is one the camera has never sensed (unknown, or known only from the server's claim): no
     plan can end there until a view covers it."""
     from secure3d.mapping.occupancy import Trust
+    from secure3d.simulation.retreat import voxel_cells
 
+    goal = _point(goal, "goal_unseen: goal")
     c, M = problem.family.ellipsoid(problem.model.rest_state(goal, 0.0))
     c, M = np.asarray(c, dtype=float).ravel(), np.asarray(M, dtype=float).reshape(3, 3)
     reach = np.linalg.norm(M, axis=1)
     res = belief.resolution
-    a, b = np.floor((c - reach) / res).astype(int), np.floor((c + reach) / res).astype(int)
-    axes = [np.arange(a[d], b[d] + 1) for d in range(3)]
-    cells = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    cells = voxel_cells(c - reach, c + reach, res)
     trust = belief.trust((cells + 0.5) * res)
     return bool(np.any(~np.isin(trust, [Trust.SENSED_FREE, Trust.SENSED_OCCUPIED])))
 
@@ -308,8 +316,9 @@ def viewpoint_for_goal(
     known box (:func:`rest_set_clear`) and in space the camera has sensed (a plan ends there), and
     the straight way there from the robot seen free (:func:`_seen_between`). The flight there is a
     certified plan like any other."""
-    model, g = problem.model, np.asarray(goal, dtype=float).ravel()
-    p = np.asarray(position, dtype=float).ravel()
+    g = _point(goal, "viewpoint_for_goal: goal")
+    p = _point(position, "viewpoint_for_goal: position")
+    model = problem.model
     c, M = problem.family.ellipsoid(model.rest_state(g, 0.0))
     c, M = np.asarray(c, dtype=float).ravel(), np.asarray(M, dtype=float).reshape(3, 3)
     if model.planar or _sees(problem, p, (c, M)):

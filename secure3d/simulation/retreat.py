@@ -36,6 +36,7 @@ __all__ = [
     "bisector_clear",
     "plan_retreat",
     "unseen_voxels",
+    "voxel_cells",
 ]
 
 #: The retreat ends where the body is this many planner margins clear of every known box (the
@@ -84,6 +85,14 @@ def bisector_clear(
     return np.all(far | behind, axis=1)
 
 
+def voxel_cells(lo: np.ndarray, hi: np.ndarray, res: float) -> np.ndarray:
+    """(n, 3) int64 indices of the voxels of size ``res`` that meet the box ``lo``..``hi`` (3,)."""
+    a = np.floor(np.asarray(lo, dtype=float) / res).astype(np.int64)
+    b = np.floor(np.asarray(hi, dtype=float) / res).astype(np.int64)
+    axes = [np.arange(a[d], b[d] + 1) for d in range(3)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
 def unseen_voxels(
     belief: object,
     centre: np.ndarray,
@@ -100,12 +109,7 @@ def unseen_voxels(
     if not (np.all(np.isfinite(c)) and np.isfinite(reach) and reach >= 0):
         raise SimulationError(f"unseen_voxels: need a finite centre and reach >= 0, got {reach!r}")
     res = float(belief.resolution)
-    a, b = (
-        np.floor((c - reach) / res).astype(np.int64),
-        np.floor((c + reach) / res).astype(np.int64),
-    )
-    axes = [np.arange(a[d], b[d] + 1) for d in range(3)]
-    cells = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    cells = voxel_cells(c - reach, c + reach, res)
     centres = (cells + 0.5) * res
     trust = np.asarray(belief.trust(centres))
     free = trust == Trust.SENSED_FREE
@@ -278,6 +282,12 @@ def plan_retreat(
     ``bounds`` (lo, hi) (3,) is the map's box, ``belief`` the robot's map, ``seen`` the start
     region observed before take-off."""
     r = float(model.body_radius)
+    x = np.asarray(x, dtype=float)
+    if x.shape != (model.nx,) or not np.all(np.isfinite(x)):
+        raise SimulationError(f"plan_retreat: x must be {model.nx} finite numbers, got {x!r}")
+    for name, v in (("margin", margin), ("within", within)):
+        if not (np.isfinite(v) and v >= 0):
+            raise SimulationError(f"plan_retreat: {name} must be a number >= 0 (m), got {v!r}")
     p0 = np.asarray(model.position(x), dtype=float).reshape(3)
     lo, hi = (np.asarray(b, dtype=float).reshape(-1, 3) for b in boxes)
     clear = RETREAT_MARGINS * float(margin)

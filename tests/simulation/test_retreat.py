@@ -242,3 +242,19 @@ def test_a_turn_before_a_retreat_that_does_not_settle_is_given_up():
     assert AtRest.act_retreat(flight) == "braking"
     assert flight.retreat is None and flight.mode is Mode.BRAKE
     assert events and events[0][0] == "retreat stopped" and "did not settle" in events[0][1]
+
+
+def test_bad_input_is_refused_by_name():
+    from secure3d.simulation.explore import goal_unseen, viewpoint_for_goal
+
+    model = PointMass()
+    m = _wall_map(look_back=True)
+    lo, hi = m.known_obstacle_boxes(include_bounds=False)
+    with pytest.raises(SimulationError, match="plan_retreat: x must be 7"):
+        plan_retreat(model, np.zeros(3), 0.0, (lo, hi), MARGIN, m, BOUNDS)
+    with pytest.raises(SimulationError, match="plan_retreat: margin"):
+        plan_retreat(model, model.rest_state([0.81, 0.55, 0.55]), 0.0, (lo, hi), -1.0, m, BOUNDS)
+    with pytest.raises(SimulationError, match="viewpoint_for_goal: goal"):
+        viewpoint_for_goal(None, m, np.zeros(3), [np.nan, 0.0, 0.0])
+    with pytest.raises(SimulationError, match="goal_unseen: goal"):
+        goal_unseen(None, m, [1.0, 2.0])
