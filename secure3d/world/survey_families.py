@@ -181,9 +181,13 @@ def _moved(prep: _Prepared, base: Scenario, rng: np.random.Generator) -> tuple:
     return tuple(named), f" {prep.named[k].name} stood {np.round(by, 2).tolist()} m away then."
 
 
-def _shifted_names(before: tuple, after: tuple) -> tuple[str, ...]:
-    """Names of the obstacles :func:`_moved` surveyed elsewhere than they stand."""
-    return tuple(a.name for a, b in zip(before, after, strict=True) if a is not b)
+def _shifted_names(before: tuple, after: tuple, world: object) -> tuple[str, ...]:
+    """Names of the world's obstacles :func:`_moved` surveyed elsewhere than they stand (a
+    phantom of the base's server, surveyed elsewhere, stands nowhere: nothing to leave out)."""
+    real = {o.name for o in (*world.boxes, *world.meshes)}
+    return tuple(
+        a.name for a, b in zip(before, after, strict=True) if a is not b and a.name in real
+    )
 
 
 def _poses(prep: _Prepared, named: tuple, base: Scenario, rng: np.random.Generator) -> list:
@@ -217,7 +221,9 @@ def _variant(prep: _Prepared, base: Scenario, rng: np.random.Generator, i: int) 
         survey=write_scan_graph_bytes(scans),
         # what the base's server hid, the new obstacle, and one surveyed where it stood before
         # (as a stale attack's target, hidden where it stands now)
-        lacks=tuple(dict.fromkeys((*v.hidden_obstacles, *_shifted_names(prep.named, named)))),
+        lacks=tuple(
+            dict.fromkeys((*v.hidden_obstacles, *_shifted_names(prep.named, named, v.world)))
+        ),
     )
     hidden = ", ".join(b.name for b in v.world.boxes[len(base.world.boxes) :])
     note = (

@@ -140,3 +140,19 @@ def test_survey_scans_refuse_bad_input_by_name():
     # a lidar at the origin sees the triangle x + y + z = 1 (the rays towards it)
     ((pts, t, q),) = survey_scans(v, f, pose, 30.0)
     assert len(pts) and np.allclose(pts.sum(axis=1), 1.0, atol=1e-5)
+
+
+def test_a_phantom_surveyed_elsewhere_leaves_nothing_out_of_the_world(maps_dir):
+    """warehouse's server invents phantom_pallet; a survey variant that moves it (seed 3501,
+    variant 1) named it in ``lacks``, which holds only the world's obstacles: every run of that
+    variant was an error row."""
+    from secure3d.world.families import variant_rng
+    from secure3d.world.survey_families import SURVEY
+
+    base = secure3d.load_scenario(maps_dir / "warehouse.yaml")
+    v = SURVEY.variant(SURVEY.prepare(base), base, variant_rng(3501, 1), 1)
+    assert "phantom_pallet stood" in v.description
+    assert "phantom_pallet" not in v.server_map.lacks
+    assert set(v.server_map.lacks) <= {b.name for b in v.world.boxes}
+    occupied = belief_map(v).claimed_voxels(occupied=True)
+    assert len(occupied)  # the survey's claims load
