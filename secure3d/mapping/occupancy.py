@@ -455,6 +455,12 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
         codes, vals = self._sensor_voxels()
         return codes_to_coords(codes[vals < self._params.threshold_log], self._resolution)
 
+    @property
+    def claims_free(self) -> bool:
+        """Whether the server claims any voxel free, as a scan does where its rays passed (a list
+        of obstacles claims only occupied voxels, and leaves free space undescribed)."""
+        return not bool(self._claim.occupied.all())
+
     def claimed_voxels(self, occupied: bool = True) -> NDArray[np.float64]:
         """Centres of voxels the server claims occupied (or free), ``(n, 3) float64``."""
         return codes_to_coords(

@@ -15,6 +15,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from secure3d.errors import PlanningError
+from secure3d.mapping.sensor_model import Trust
 from secure3d.planning.problem import Planner, PlanningProblem, Solver
 from secure3d.planning.trajectory import remainder_keeping_nodes, resample
 
@@ -28,6 +29,9 @@ CRAWL_SPEED = 0.05
 #: A candidate of :mod:`secure3d.planning.visible_paths` replaces a crawling guess when its time
 #: scaling is this much faster.
 CANDIDATE_GAIN = 0.8
+#: The graph search's cost per metre through a cell no source describes, relative to described
+#: space (:func:`unknown_cost`).
+UNKNOWN_COST = 1.5
 
 
 @dataclass(frozen=True)
@@ -113,13 +117,29 @@ def _graph_path(problem: PlanningProblem, resolution: float, clearance_pad: floa
     if height is not None:
         lo[2] = height
 
-    weight = clearance_weight(clearance.ravel(), r, clearance_pad)
+    weight = clearance_weight(clearance.ravel(), r, clearance_pad) * unknown_cost(problem, centres)
 
     def cost(src: np.ndarray, dst: np.ndarray, length: np.ndarray) -> np.ndarray:
         return length * np.maximum(weight[src], weight[dst])
 
     pts = grid_route(centres, lo, res, free, cost, start, goal)
     return _shortcut(pts, lambda p: _clear_at(p, clearance, lo, res) > r + 0.5 * clearance_pad)
+
+
+def unknown_cost(problem: PlanningProblem, centres: np.ndarray) -> np.ndarray | float:
+    """Cost factor per grid cell, (n,) for ``centres`` (n, 3): :data:`UNKNOWN_COST` where no source
+    describes the cell's voxel (no claim and no sensor evidence), else 1; 1 with no map, or a
+    server map that claims no free space (a list of obstacles describes only those).
+
+    A server map made of scans (a lidar survey, a real scan with gaps) leaves the inside of walls
+    unknown, and a guess through it costs solves and replans until the camera finds the wall;
+    space some source called free is where a route most likely is. Unknown space stays passable:
+    only the certificate decides what the robot may enter."""
+    occupancy = problem.occupancy
+    if occupancy is None or not len(centres) or not occupancy.claims_free:
+        return 1.0
+    unknown = occupancy.trust(centres) == Trust.UNKNOWN
+    return np.where(unknown, UNKNOWN_COST, 1.0)
 
 
 def clearance_weight(clearance: np.ndarray, radius: float, pad: float) -> np.ndarray:
