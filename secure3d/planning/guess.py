@@ -135,6 +135,8 @@ def unknown_cost(problem: PlanningProblem, centres: np.ndarray) -> np.ndarray | 
     unknown, and a guess through it costs solves and replans until the camera finds the wall;
     space some source called free is where a route most likely is. Unknown space stays passable:
     only the certificate decides what the robot may enter."""
+    if np.ndim(centres) != 2 or np.shape(centres)[1] != 3:
+        raise PlanningError(f"unknown_cost: centres must be (n, 3), got shape {np.shape(centres)}")
     occupancy = problem.occupancy
     if occupancy is None or not len(centres) or not occupancy.claims_free:
         return 1.0

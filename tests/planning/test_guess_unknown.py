@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import secure3d
+from secure3d.errors import PlanningError
 from secure3d.mapping.occupancy import OccupancyMap
 from secure3d.planning import guess
 from secure3d.planning.problem import problem_from_scenario
@@ -38,6 +39,8 @@ def test_unknown_cells_cost_more_only_on_a_map_that_claims_free_space(maps_dir):
     )
     cost = guess.unknown_cost(problem, points)
     np.testing.assert_array_equal(cost, [1.0, guess.UNKNOWN_COST])
+    with pytest.raises(PlanningError, match=r"centres must be \(n, 3\), got shape \(3,\)"):
+        guess.unknown_cost(problem, points[0])
 
 
 @pytest.fixture(scope="module")
