@@ -181,10 +181,10 @@ def _moved(prep: _Prepared, base: Scenario, rng: np.random.Generator) -> tuple:
     return tuple(named), f" {prep.named[k].name} stood {np.round(by, 2).tolist()} m away then."
 
 
-def _shifted_names(before: tuple, after: tuple, world: object) -> tuple[str, ...]:
-    """Names of the world's obstacles :func:`_moved` surveyed elsewhere than they stand (a
-    phantom of the base's server, surveyed elsewhere, stands nowhere: nothing to leave out)."""
-    real = {o.name for o in (*world.boxes, *world.meshes)}
+def _shifted_names(before: tuple, after: tuple, real: tuple[str, ...]) -> tuple[str, ...]:
+    """Names among ``real`` (the world's obstacles) of those :func:`_moved` surveyed elsewhere than
+    they stand (a phantom of the base's server, surveyed elsewhere, stands nowhere: nothing to
+    leave out)."""
     return tuple(
         a.name for a, b in zip(before, after, strict=True) if a is not b and a.name in real
     )
@@ -222,7 +222,9 @@ def _variant(prep: _Prepared, base: Scenario, rng: np.random.Generator, i: int) 
         # what the base's server hid, the new obstacle, and one surveyed where it stood before
         # (as a stale attack's target, hidden where it stands now)
         lacks=tuple(
-            dict.fromkeys((*v.hidden_obstacles, *_shifted_names(prep.named, named, v.world)))
+            dict.fromkeys(
+                (*v.hidden_obstacles, *_shifted_names(prep.named, named, v.world.obstacle_names))
+            )
         ),
     )
     hidden = ", ".join(b.name for b in v.world.boxes[len(base.world.boxes) :])
