@@ -89,13 +89,18 @@ def _family(kind: str, count: int, footprint: float | None = None) -> Family:
 
 
 def campaign_family(base: Scenario, kind: str, count: int, options: Mapping[str, object]) -> Family:
-    """The family of a campaign over ``base``: hidden obstacles leave gaps the secure planner can
-    pass at a standstill (its :func:`~secure3d.planning.problem.rest_footprint` under the
+    """The family of a campaign over ``base``: hidden obstacles (the ``auto`` rule's and the
+    ``survey`` family's) leave gaps the secure planner can pass at a standstill (its :func:`~secure3d.planning.problem.rest_footprint` under the
     campaign's planner ``options``), so a variant's goal is reachable by a sound planner."""
-    if kind in ("auto", "corner", "forest"):
+    if kind in ("auto", "corner", "forest", "survey"):
         from secure3d.planning.problem import rest_footprint
 
-        return _family(kind, count, rest_footprint(base, **options))
+        footprint = rest_footprint(base, **options)
+        if kind == "survey":  # its hidden obstacle is placed by the auto rule
+            from secure3d.world.survey_families import survey_family
+
+            return survey_family(footprint)
+        return _family(kind, count, footprint)
     return _family(kind, count)
 
 

@@ -25,6 +25,7 @@ reports what the lidar saw); its region attacks are kept. Variant ``i`` is a pur
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -34,7 +35,7 @@ from secure3d.errors import ScenarioError
 from secure3d.world.families import Family
 from secure3d.world.spec import Box, MeshObstacle, Scenario
 
-__all__ = ["SURVEY", "survey_scans"]
+__all__ = ["SURVEY", "survey_family", "survey_scans"]
 
 #: Probability that one named obstacle near the route was elsewhere when surveyed.
 MOVED_PROBABILITY = 0.5
@@ -55,10 +56,11 @@ class _Prepared:
     voxel_mesh: tuple[np.ndarray, np.ndarray]  # their triangles, built once
 
 
-def _prepare(base: Scenario) -> _Prepared:
+def _prepare(base: Scenario, footprint: float | None = None) -> _Prepared:
     """The survey sees the world as the base's server knows it: for a server map derived from
     the world, its claim (hidden and stale obstacles absent, shifted ones moved, phantoms there);
-    else every true named obstacle. ``world.octomap``'s voxels always."""
+    else every true named obstacle. ``world.octomap``'s voxels always. The hidden obstacle's
+    placement keeps the gaps ``footprint`` asks for (see :func:`survey_family`)."""
     from secure3d.geometry.box_mesh import box_arrays
     from secure3d.world.attacks import server_claim
     from secure3d.world.hidden_obstacles import hidden_obstacle_family
@@ -66,7 +68,7 @@ def _prepare(base: Scenario) -> _Prepared:
 
     truth = true_obstacles(base)
     known = server_claim(base) if base.server_map.from_world else truth
-    hidden = hidden_obstacle_family("auto", 1).prepare(base)
+    hidden = hidden_obstacle_family("auto", 1, footprint).prepare(base)
     vb = truth.voxel_boxes
     return _Prepared(hidden, (*known.boxes, *known.meshes), vb, box_arrays(vb[:, 0], vb[:, 1]))
 
@@ -240,13 +242,24 @@ def _variant(prep: _Prepared, base: Scenario, rng: np.random.Generator, i: int) 
     )
 
 
-SURVEY = Family(
-    name="survey",
-    description=(
-        "the server's map is a lidar survey (an OctoMap scan graph of 2-4 posed scans) made"
-        " before a hidden obstacle was put across the route and, half the time, before a named"
-        " obstacle near it moved"
-    ),
-    prepare=_prepare,
-    variant=_variant,
-)
+def survey_family(footprint: float | None = None) -> Family:
+    """The survey family. ``footprint`` (m, optional): the half-width of the narrowest corridor the
+    planners flown can use at a standstill, as for the ``auto`` placement
+    (:func:`~secure3d.world.hidden_obstacles.hidden_obstacle_family`): a gap beside the hidden
+    obstacle then holds twice it after losing a map voxel on each side. Campaigns pass the secure
+    planner's (:func:`~secure3d.simulation.campaign_run.campaign_family`); without it the gaps
+    follow the body radius alone, and for a quadrotor, whose reactive set at rest reaches 0.3 m
+    a side, they came out 0.73 m wide: passable only at a crawl, if at all."""
+    return Family(
+        name="survey",
+        description=(
+            "the server's map is a lidar survey (an OctoMap scan graph of 2-4 posed scans) made"
+            " before a hidden obstacle was put across the route and, half the time, before a named"
+            " obstacle near it moved"
+        ),
+        prepare=functools.partial(_prepare, footprint=footprint),
+        variant=_variant,
+    )
+
+
+SURVEY = survey_family()

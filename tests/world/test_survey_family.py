@@ -156,3 +156,35 @@ def test_a_phantom_surveyed_elsewhere_leaves_nothing_out_of_the_world(maps_dir):
     assert set(v.server_map.lacks) <= {b.name for b in v.world.boxes}
     occupied = belief_map(v).claimed_voxels(occupied=True)
     assert len(occupied)  # the survey's claims load
+
+
+def _narrowest_gap(hidden: object, boxes: tuple) -> float:
+    """Smallest distance (m) from box ``hidden`` to the ones it does not touch."""
+    lo, hi = np.array(hidden.lo), np.array(hidden.hi)
+    others_lo, others_hi = np.array([b.lo for b in boxes]), np.array([b.hi for b in boxes])
+    gap = np.maximum(np.maximum(lo - others_hi, others_lo - hi), 0.0)  # (k, 3) per axis
+    d = np.linalg.norm(gap, axis=1)
+    return float(d[d > 0].min())
+
+
+def test_a_survey_campaign_leaves_gaps_its_robot_can_pass_at_a_standstill(maps_dir):
+    """A campaign's survey family places its hidden obstacle as the ``auto`` family does: the gaps
+    beside it hold twice the secure planner's footprint at rest after losing a map voxel on each
+    side. For the quadrotor (0.315 m a side) the body-radius rule alone left 0.74 m (seed 3601,
+    variant 0): every replan beside it crawled or ran out of its budget."""
+    from secure3d.planning.problem import rest_footprint
+    from secure3d.simulation.campaign_run import campaign_family
+
+    base = secure3d.load_scenario(maps_dir / "blind_corner_quadrotor.yaml")
+    keep = 2 * rest_footprint(base) + 2 * base.server_map.resolution
+    assert keep == pytest.approx(0.83, abs=0.01)
+    family = campaign_family(base, "survey", 1, {})
+    assert family.name == "survey"
+    v = family_variants(family, base, 1, seed=3601)[0]
+    assert _narrowest_gap(v.world.boxes[-1], base.world.boxes) >= keep - 1e-9
+    old = family_variants(SURVEY, base, 1, seed=3601)[0]  # the registry's: the body radius only
+    assert _narrowest_gap(old.world.boxes[-1], base.world.boxes) < keep
+    # the point mass's footprint asks no more than its body rule: its variants are unchanged
+    flat = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    same = family_variants(campaign_family(flat, "survey", 1, {}), flat, 1, seed=3601)[0]
+    assert same.world == family_variants(SURVEY, flat, 1, seed=3601)[0].world
