@@ -90,8 +90,9 @@ def _family(kind: str, count: int, footprint: float | None = None) -> Family:
 
 def campaign_family(base: Scenario, kind: str, count: int, options: Mapping[str, object]) -> Family:
     """The family of a campaign over ``base``: hidden obstacles (the ``auto`` rule's and the
-    ``survey`` family's) leave gaps the secure planner can pass at a standstill (its :func:`~secure3d.planning.problem.rest_footprint` under the
-    campaign's planner ``options``), so a variant's goal is reachable by a sound planner."""
+    ``survey`` family's) leave gaps the secure planner can pass at a standstill (its
+    :func:`~secure3d.planning.problem.rest_footprint` under the campaign's planner ``options``),
+    so a variant's goal is reachable by a sound planner."""
     if kind in ("auto", "corner", "forest", "survey"):
         from secure3d.planning.problem import rest_footprint
 

@@ -249,7 +249,11 @@ def survey_family(footprint: float | None = None) -> Family:
     obstacle then holds twice it after losing a map voxel on each side. Campaigns pass the secure
     planner's (:func:`~secure3d.simulation.campaign_run.campaign_family`); without it the gaps
     follow the body radius alone, and for a quadrotor, whose reactive set at rest reaches 0.3 m
-    a side, they came out 0.73 m wide: passable only at a crawl, if at all."""
+    a side, they came out 0.73 m wide: passable only at a crawl, if at all. A footprint that is not
+    a number of metres in (0, 5) raises :class:`ScenarioError` naming it."""
+    from secure3d.world.hidden_obstacles import hidden_obstacle_family
+
+    hidden_obstacle_family("auto", 1, footprint)  # checks the footprint now, not at the first base
     return Family(
         name="survey",
         description=(

@@ -188,3 +188,11 @@ def test_a_survey_campaign_leaves_gaps_its_robot_can_pass_at_a_standstill(maps_d
     flat = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
     same = family_variants(campaign_family(flat, "survey", 1, {}), flat, 1, seed=3601)[0]
     assert same.world == family_variants(SURVEY, flat, 1, seed=3601)[0].world
+
+
+@pytest.mark.parametrize("bad", [-0.1, 0.0, 7.0, float("nan"), "0.3"])
+def test_a_survey_family_refuses_a_bad_footprint_by_name(bad):
+    from secure3d.world.survey_families import survey_family
+
+    with pytest.raises(ScenarioError, match=r"footprint: must be a number of metres"):
+        survey_family(bad)
