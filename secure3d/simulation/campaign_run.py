@@ -93,16 +93,15 @@ def campaign_family(base: Scenario, kind: str, count: int, options: Mapping[str,
     ``survey`` family's) leave gaps the secure planner can pass at a standstill (its
     :func:`~secure3d.planning.problem.rest_footprint` under the campaign's planner ``options``),
     so a variant's goal is reachable by a sound planner."""
-    if kind in ("auto", "corner", "forest", "survey"):
-        from secure3d.planning.problem import rest_footprint
+    if kind not in ("auto", "corner", "forest", "survey"):
+        return _family(kind, count)
+    from secure3d.planning.problem import rest_footprint
+    from secure3d.world.survey_families import survey_family
 
-        footprint = rest_footprint(base, **options)
-        if kind == "survey":  # its hidden obstacle is placed by the auto rule
-            from secure3d.world.survey_families import survey_family
-
-            return survey_family(footprint)
-        return _family(kind, count, footprint)
-    return _family(kind, count)
+    footprint = rest_footprint(base, **options)
+    if kind == "survey":  # its hidden obstacle is placed by the auto rule
+        return survey_family(footprint)
+    return _family(kind, count, footprint)
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -56,19 +57,18 @@ class _Prepared:
     voxel_mesh: tuple[np.ndarray, np.ndarray]  # their triangles, built once
 
 
-def _prepare(base: Scenario, footprint: float | None = None) -> _Prepared:
+def _prepare(base: Scenario, place: Callable[[Scenario], Any]) -> _Prepared:
     """The survey sees the world as the base's server knows it: for a server map derived from
     the world, its claim (hidden and stale obstacles absent, shifted ones moved, phantoms there);
-    else every true named obstacle. ``world.octomap``'s voxels always. The hidden obstacle's
-    placement keeps the gaps ``footprint`` asks for (see :func:`survey_family`)."""
+    else every true named obstacle. ``world.octomap``'s voxels always. ``place``: the hidden
+    obstacle placement's ``prepare`` (see :func:`survey_family`)."""
     from secure3d.geometry.box_mesh import box_arrays
     from secure3d.world.attacks import server_claim
-    from secure3d.world.hidden_obstacles import hidden_obstacle_family
     from secure3d.world.truth import true_obstacles
 
     truth = true_obstacles(base)
     known = server_claim(base) if base.server_map.from_world else truth
-    hidden = hidden_obstacle_family("auto", 1, footprint).prepare(base)
+    hidden = place(base)
     vb = truth.voxel_boxes
     return _Prepared(hidden, (*known.boxes, *known.meshes), vb, box_arrays(vb[:, 0], vb[:, 1]))
 
@@ -253,7 +253,7 @@ def survey_family(footprint: float | None = None) -> Family:
     a number of metres in (0, 5) raises :class:`ScenarioError` naming it."""
     from secure3d.world.hidden_obstacles import hidden_obstacle_family
 
-    hidden_obstacle_family("auto", 1, footprint)  # checks the footprint now, not at the first base
+    placement = hidden_obstacle_family("auto", 1, footprint)  # checks the footprint
     return Family(
         name="survey",
         description=(
@@ -261,7 +261,7 @@ def survey_family(footprint: float | None = None) -> Family:
             " before a hidden obstacle was put across the route and, half the time, before a named"
             " obstacle near it moved"
         ),
-        prepare=functools.partial(_prepare, footprint=footprint),
+        prepare=functools.partial(_prepare, place=placement.prepare),
         variant=_variant,
     )
 

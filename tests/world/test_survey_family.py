@@ -160,10 +160,10 @@ def test_a_phantom_surveyed_elsewhere_leaves_nothing_out_of_the_world(maps_dir):
 
 def _narrowest_gap(hidden: object, boxes: tuple) -> float:
     """Smallest distance (m) from box ``hidden`` to the ones it does not touch."""
-    lo, hi = np.array(hidden.lo), np.array(hidden.hi)
-    others_lo, others_hi = np.array([b.lo for b in boxes]), np.array([b.hi for b in boxes])
-    gap = np.maximum(np.maximum(lo - others_hi, others_lo - hi), 0.0)  # (k, 3) per axis
-    d = np.linalg.norm(gap, axis=1)
+    from secure3d.world.spec import box_distance
+
+    lo, hi = np.array([b.lo for b in boxes]), np.array([b.hi for b in boxes])
+    d = box_distance(hidden.lo, hidden.hi, lo, hi)
     return float(d[d > 0].min())
 
 
