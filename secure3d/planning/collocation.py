@@ -458,7 +458,7 @@ def _transcribed(
         nlp = {"x": w, "p": p, "f": J, "g": g}
     stop = None
     if solver_name == Solver.IPOPT:
-        stop = stop_callback(w.numel(), len(meta), p.numel())
+        stop = stop_callback(w.numel(), len(meta), p.numel(), int(lay.i_T))
         opts["iteration_callback"] = stop  # Ctrl-C stops the solve (planning/interrupt.py)
     solver = ca.nlpsol(f"secure3d_{planner}", solver_name, nlp, opts)
     g_fun = solver.get_function("nlp_g")  # the rows as the solver evaluates them (no new graph)

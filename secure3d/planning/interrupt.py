@@ -12,6 +12,10 @@ The same callback enforces a plan call's budget: inside :func:`deadline`, it als
 once the wall clock passes the deadline, and :func:`budget_spent` tells the planner's retry loops
 to stop starting solves. (IPOPT's own ``max_wall_time`` is fixed when a solver is compiled, and
 compiled solvers are cached across calls, so it cannot carry a per-call budget.)
+
+Inside :func:`final_time_watch` the callback also stops a solve whose iterate's final time passes
+a cap (:func:`ran_away` tells it apart): a slot refresh's re-solve that runs away from the solution
+it started on (``planning/solve.py``).
 """
 
 from __future__ import annotations
@@ -31,7 +35,9 @@ __all__ = [
     "budget_spent",
     "deadline",
     "deadline_passed",
+    "final_time_watch",
     "interruptible",
+    "ran_away",
     "stop_callback",
     "stopped_for_budget",
 ]
@@ -46,6 +52,28 @@ ITERATION_SAFETY = 2.0
 
 def _deadline_now() -> float:
     return getattr(_budget, "deadline", math.inf)
+
+
+@contextlib.contextmanager
+def final_time_watch(cap: float) -> Iterator[None]:
+    """Stop the solves inside once an iterate's final time passes ``cap`` (s); :func:`ran_away`
+    then tells such a stop from the budget's or Ctrl-C's."""
+    outer = getattr(_budget, "t_cap", math.inf)
+    _budget.t_cap = float(cap)
+    try:
+        yield
+    finally:
+        _budget.t_cap = outer
+
+
+def final_time_cap() -> float:
+    """The cap (s) of the innermost :func:`final_time_watch` of this thread (inf outside one)."""
+    return float(getattr(_budget, "t_cap", math.inf))
+
+
+def ran_away() -> bool:
+    """Whether the last solve of this thread was stopped by its :func:`final_time_watch`."""
+    return bool(getattr(_budget, "ran_away", False))
 
 
 class BudgetSpent(Exception):  # noqa: N818 - a signal between the planner's layers, not an error
@@ -92,9 +120,10 @@ def deadline(seconds: float, reserve: float = 0.0) -> Iterator[None]:
 class _StopCallback(ca.Callback):
     """IPOPT iteration callback: returns 1 (stop) once Ctrl-C was recorded or the budget is spent."""
 
-    def __init__(self, name: str, sizes: dict[str, ca.Sparsity]):
+    def __init__(self, name: str, sizes: dict[str, ca.Sparsity], t_index: int | None):
         ca.Callback.__init__(self)
         self._sizes = sizes
+        self._t_index = t_index
         self.construct(name, {})
 
     def get_n_in(self) -> int:
@@ -127,11 +156,17 @@ class _StopCallback(ca.Callback):
         if budget_spent(ahead=ITERATION_SAFETY * _budget.longest):
             _budget.stopped = True
             return [1.0]
-        return [1.0 if _requested.is_set() else 0.0]
+        if _requested.is_set():
+            return [1.0]
+        if self._t_index is not None and float(args[0][self._t_index]) > final_time_cap():
+            _budget.ran_away = True
+            return [1.0]
+        return [0.0]
 
 
-def stop_callback(n_x: int, n_g: int, n_p: int) -> ca.Callback:
-    """The iteration callback for an NLP with ``n_x`` variables, ``n_g`` rows, ``n_p`` parameters.
+def stop_callback(n_x: int, n_g: int, n_p: int, t_index: int | None = None) -> ca.Callback:
+    """The iteration callback for an NLP with ``n_x`` variables, ``n_g`` rows, ``n_p`` parameters,
+    whose final time is variable ``t_index`` (None: no :func:`final_time_watch`).
 
     Keep a reference to it as long as the solver lives (CasADi does not own Python callbacks).
     """
@@ -144,7 +179,7 @@ def stop_callback(n_x: int, n_g: int, n_p: int) -> ca.Callback:
         "lam_g": dense(n_g, 1),
         "lam_p": dense(n_p, 1),
     }
-    return _StopCallback(f"secure3d_stop_{n_x}_{n_g}_{n_p}", sizes)
+    return _StopCallback(f"secure3d_stop_{n_x}_{n_g}_{n_p}", sizes, t_index)
 
 
 @contextlib.contextmanager
@@ -156,5 +191,6 @@ def interruptible() -> Iterator[None]:
     """
     _budget.last_iteration = time.monotonic()  # the first gap includes the solve's set-up
     _budget.stopped = False
+    _budget.ran_away = False
     with held_sigint(_requested, "plan interrupted"):
         yield

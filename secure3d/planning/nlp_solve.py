@@ -18,7 +18,13 @@ from secure3d.errors import PlanningError
 from secure3d.planning import lookback as lb
 from secure3d.planning import slot_duals as sd
 from secure3d.planning.fatrop_transcription import fatrop_status
-from secure3d.planning.interrupt import budget_spent, interruptible, stopped_for_budget
+from secure3d.planning.interrupt import (
+    budget_spent,
+    final_time_cap,
+    interruptible,
+    ran_away,
+    stopped_for_budget,
+)
 from secure3d.planning.nlp_cache import NLPCache
 from secure3d.planning.problem import Planner, PlanningProblem, Solver
 from secure3d.planning.result import PlanStatus
@@ -138,11 +144,14 @@ def _solve_once(
     extra_margin: float | np.ndarray = 0.0,
     grid: np.ndarray | None = None,
     left_out_limit: float | None = None,
+    slots: np.ndarray | None = None,
 ) -> _Solve:
     """One NLP solve from the guess (T, X, U) on node time fractions ``grid`` (None: evenly
     spaced; only NLPs with a time-grid parameter take others). With ``left_out_limit`` the secure
     planner's slots also take every box within it of what a node constrains on X
-    (:func:`~secure3d.planning.lookback.with_left_out_boxes`)."""
+    (:func:`~secure3d.planning.lookback.with_left_out_boxes`). ``slots`` (K, S, 6): these slots
+    as they are, instead of a selection on X (then ``prev_slots`` and ``left_out_limit`` are
+    unused)."""
     nlp, cached = cache.get(problem, planner, assignment)
     if not getattr(nlp.layout, "grid", False):
         grid = None
@@ -159,6 +168,7 @@ def _solve_once(
         extra_margin,
         grid,
         left_out_limit,
+        slots,
     )
     solver = nlp.solver
     warm_build = 0.0
@@ -250,14 +260,21 @@ def _start_point(
     extra_margin: float | np.ndarray,
     grid: np.ndarray | None,
     left_out_limit: float | None = None,
+    given_slots: np.ndarray | None = None,
 ) -> _StartPoint:
-    """Slots and duals near the guess, the packed initial point, parameters and bounds."""
+    """Slots (``given_slots``, else a selection near the guess) and their duals, the packed
+    initial point, parameters and bounds."""
     lay = nlp.layout
     X = np.array(X, dtype=float)
     X[0] = problem.x0
     U = np.clip(U, problem.model.u_lo, problem.model.u_hi)
-    slots = lb.keep_slot_positions(prev_slots, lb.select_slots(problem, planner, X, assignment))
-    if left_out_limit is not None and planner == Planner.SECURE:
+    if given_slots is not None:
+        slots = np.asarray(given_slots, dtype=float)
+        prev_slots = None
+    else:
+        slots = lb.select_slots(problem, planner, X, assignment)
+        slots = lb.keep_slot_positions(prev_slots, slots)
+    if given_slots is None and left_out_limit is not None and planner == Planner.SECURE:
         slots = lb.with_left_out_boxes(problem, X, assignment, slots, left_out_limit)
     fresh = sd.initial_duals(problem, planner, X, slots, assignment)
     if L is None or prev_slots is None or L.shape != fresh.shape:
@@ -337,13 +354,17 @@ def _read_solution(run: _Run, sol: dict, stats: dict, solve_time: float) -> _Sol
     viol = _violations(nlp, w, a["p"], a["lbg"], a["ubg"])
     worst = max(viol.values(), default=0.0)
     rs = str(stats.get("return_status", "unknown"))
-    if rs == "User_Requested_Stop" and not (budget_spent() or stopped_for_budget()):
+    stopped = rs == "User_Requested_Stop"
+    if stopped and not (ran_away() or budget_spent() or stopped_for_budget()):
         # Ctrl-C (planning/interrupt.py): the user asked to stop, not to try the next start.
         raise KeyboardInterrupt("solve interrupted")
     status = _IPOPT_STATUS.get(
         rs, PlanStatus.SUCCESS if stats.get("success") else PlanStatus.SOLVER_ERROR
     )
-    if rs == "User_Requested_Stop":
+    if stopped and ran_away():  # a final_time_watch (planning/interrupt.py)
+        status = PlanStatus.ITERATION_LIMIT
+        rs = f"stopped: the final time ran past {final_time_cap():.2f} s"
+    elif stopped:
         status = PlanStatus.TIME_BUDGET
     if nlp.solver_name == Solver.FATROP:
         status, rs = fatrop_status(stats)

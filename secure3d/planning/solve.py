@@ -31,7 +31,13 @@ from secure3d.planning.guess import (
     guess_from_plan,
     initial_guess,
 )
-from secure3d.planning.interrupt import BudgetSpent, budget_spent, deadline
+from secure3d.planning.interrupt import (
+    BudgetSpent,
+    budget_spent,
+    deadline,
+    final_time_watch,
+    ran_away,
+)
 from secure3d.planning.nlp_cache import NLPCache
 from secure3d.planning.nlp_solve import (  # noqa: F401  (the constants: re-exported)
     FEASIBILITY_TOL,
@@ -68,6 +74,15 @@ CERTIFY_RESERVE_MAX = 1.5
 
 #: Re-selections of the obstacle slots on a solution before it is accepted.
 SLOT_REFRESHES = 3
+
+#: A slot refresh re-solves from the solution it refreshes, which may pass through boxes its slots
+#: left out. That is a good start when the new rows only nudge it, but from a solution that runs
+#: through a wall of survey stripes the solve can win feasibility back only by slowing down
+#: (warehouse_survey, occlusion3d variant 3 of seed 3601: T 5.2 -> 15 s over 160 iterations, into
+#: the plan's budget, on every one of its replans). Such a re-solve is stopped once its final time
+#: passes this many times the solution's, and the refresh solves once from the round's own start
+#: (the guess) instead, with the refreshed slots.
+REFRESH_RUNAWAY = 1.5
 
 
 #: A secure solution the certificate rejects (it samples between the nodes and rolls out the real
@@ -150,17 +165,49 @@ def _resolve_from(
     )
 
 
+def _restart(
+    problem: PlanningProblem,
+    planner: str,
+    s: _Solve,
+    start: tuple[float, np.ndarray, np.ndarray, np.ndarray | None],
+    cache: NLPCache,
+    extra_margin: float | np.ndarray,
+) -> _Solve:
+    """Solve from ``start`` (T, X, U, grid), cold, with the slots of solution ``s`` and every box
+    that comes within the (tightened) margin of it put in
+    (:func:`~secure3d.planning.lookback.with_left_out_boxes`)."""
+    limit = problem.options.margin + float(np.max(extra_margin))
+    slots = lb.with_left_out_boxes(problem, s.X, s.assignment, s.slots, limit)
+    T, X, U, grid = start
+    return _solve_once(
+        problem,
+        planner,
+        s.assignment,
+        T,
+        X,
+        U,
+        cache,
+        extra_margin=extra_margin,
+        grid=grid,
+        slots=slots,
+    )
+
+
 def _refresh_slots(
     problem: PlanningProblem,
     planner: str,
     s: _Solve,
     cache: NLPCache,
     extra_margin: float | np.ndarray = 0.0,
+    start: tuple[float, np.ndarray, np.ndarray, np.ndarray | None] | None = None,
 ) -> tuple[_Solve, SolveCost]:
     """Re-select the obstacle slots on solution ``s`` and re-solve warm, up to SLOT_REFRESHES
     times, while :func:`~secure3d.planning.lookback.slots_stale` (a box left out of them comes
     closer than part of the margin). Returns the last solve, and what the re-solves cost.
     ``extra_margin``: one margin (m), or one per node, added to the re-solves' margin rows.
+    ``start``: the (T, X, U, grid) the solve of ``s`` started from; a re-solve whose final time
+    runs past REFRESH_RUNAWAY times its start's is stopped and replaced, once, by a solve from there
+    (:func:`_restart`).
 
     Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may have come
     closer. With the slots the NLP is a relaxation of the NLP with every box, so a solution no
@@ -181,8 +228,14 @@ def _refresh_slots(
             or not lb.slots_stale(problem, planner, s.X, s.assignment, s.slots)
         ):
             break
-        s = _resolve_from(problem, planner, s, cache, None, extra_margin)
-        cost = cost + SolveCost(0.0, s.solve_time, s.iterations)
+        with final_time_watch(REFRESH_RUNAWAY * s.T if start is not None else np.inf):
+            r = _resolve_from(problem, planner, s, cache, None, extra_margin)
+        cost = cost + SolveCost(0.0, r.solve_time, r.iterations)
+        if start is not None and ran_away() and not budget_spent():
+            r = _restart(problem, planner, s, start, cache, extra_margin)
+            cost = cost + SolveCost(0.0, r.solve_time, r.iterations)
+            start = None
+        s = r
     return s, cost
 
 
@@ -231,7 +284,7 @@ def _solve_rounds(
         cost = cost + SolveCost(built + s.warm_build, s.solve_time, s.iterations)
         if s.status.ok and s.T > max_final_time:
             return s, cost
-        s, c = _refresh_slots(problem, planner, s, cache)
+        s, c = _refresh_slots(problem, planner, s, cache, start=(T, X, U, grid))
         cost = cost + c
         if best is None or (s.status.ok and (not best.status.ok or s.T < best.T)):
             best = s

@@ -154,3 +154,30 @@ def test_a_plan_call_never_certifies_past_its_budget(maps_dir):
     assert "certifying" in result.message
     assert result.iterations > 0
     assert wall < budget + 0.5, wall
+
+
+def test_a_final_time_watch_stops_a_solve_whose_final_time_passes_its_cap():
+    """Inside final_time_watch(cap) the callback stops at the first iterate whose final time
+    (variable t_index) is past the cap, and ran_away() tells that stop from the budget's; outside
+    the watch, or for an NLP without a final-time index, it never stops for that."""
+    from secure3d.planning import interrupt
+
+    watched = interrupt.stop_callback(3, 1, 1, t_index=1)
+    blind = interrupt.stop_callback(3, 1, 1)
+
+    def stops(callback, T: float) -> bool:
+        return bool(callback.eval([[0.0, T, 0.0]] + [[0.0]] * 5)[0])
+
+    with interrupt.interruptible():
+        assert not stops(watched, 50.0)  # no watch: no cap
+    assert not interrupt.ran_away()
+    with interrupt.final_time_watch(6.0), interrupt.interruptible():
+        assert not stops(watched, 5.9) and not stops(watched, 6.0)
+        assert not interrupt.ran_away()
+        assert not stops(blind, 9.0)
+        assert stops(watched, 6.01)
+        assert interrupt.final_time_cap() == 6.0
+    assert interrupt.ran_away() and not interrupt.stopped_for_budget()
+    assert interrupt.final_time_cap() == float("inf")
+    with interrupt.interruptible():  # every solve starts with the flag down
+        assert not interrupt.ran_away()
