@@ -81,7 +81,8 @@ SLOT_REFRESHES = 3
 #: (warehouse_survey, occlusion3d variant 3 of seed 3601: T 5.2 -> 15 s over 160 iterations, into
 #: the plan's budget, on every one of its replans). Such a re-solve is stopped once its final time
 #: passes this many times the solution's, and the refresh solves once from the round's own start
-#: (the guess) instead, with the refreshed slots.
+#: (the guess) instead, with the refreshed slots; a call that tries no slower guesses (a replan of
+#: a moving robot, which brakes instead) fails there.
 REFRESH_RUNAWAY = 1.5
 
 
@@ -200,13 +201,15 @@ def _refresh_slots(
     cache: NLPCache,
     extra_margin: float | np.ndarray = 0.0,
     start: tuple[float, np.ndarray, np.ndarray, np.ndarray | None] | None = None,
+    restart: bool = True,
 ) -> tuple[_Solve, SolveCost]:
     """Re-select the obstacle slots on solution ``s`` and re-solve warm, up to SLOT_REFRESHES
     times, while :func:`~secure3d.planning.lookback.slots_stale` (a box left out of them comes
     closer than part of the margin). Returns the last solve, and what the re-solves cost.
     ``extra_margin``: one margin (m), or one per node, added to the re-solves' margin rows.
-    ``start``: the (T, X, U, grid) the solve of ``s`` started from; a re-solve whose final time
-    runs past REFRESH_RUNAWAY times its start's is stopped and replaced, once, by a solve from there
+    ``start``: the (T, X, U, grid) the solve of ``s`` started from, if the re-solves are watched:
+    one whose final time runs past REFRESH_RUNAWAY times its solution's is stopped
+    (``ITERATION_LIMIT``) and, with ``restart``, replaced once by a solve from ``start``
     (:func:`_restart`).
 
     Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may have come
@@ -231,7 +234,7 @@ def _refresh_slots(
         with final_time_watch(REFRESH_RUNAWAY * s.T if start is not None else np.inf):
             r = _resolve_from(problem, planner, s, cache, None, extra_margin)
         cost = cost + SolveCost(0.0, r.solve_time, r.iterations)
-        if start is not None and ran_away() and not budget_spent():
+        if start is not None and restart and ran_away() and not budget_spent():
             r = _restart(problem, planner, s, start, cache, extra_margin)
             cost = cost + SolveCost(0.0, r.solve_time, r.iterations)
             start = None
@@ -284,7 +287,11 @@ def _solve_rounds(
         cost = cost + SolveCost(built + s.warm_build, s.solve_time, s.iterations)
         if s.status.ok and s.T > max_final_time:
             return s, cost
-        s, c = _refresh_slots(problem, planner, s, cache, start=(T, X, U, grid))
+        # a replan that tries no slower guess (a moving robot, whose fallback is braking) tries
+        # no restart either: from a moving start the restart converged to the same slow plan
+        # (warehouse_survey, T 15.1 s where braking and a plan from rest arrived 4.5 s sooner)
+        start = (T, X, U, grid)
+        s, c = _refresh_slots(problem, planner, s, cache, start=start, restart=o.slower_guesses)
         cost = cost + c
         if best is None or (s.status.ok and (not best.status.ok or s.T < best.T)):
             best = s

@@ -73,3 +73,16 @@ def test_a_refresh_that_runs_away_restarts_from_the_guess_with_the_left_out_boxe
         box = np.concatenate([problem.boxes_lo[j], problem.boxes_hi[j]])
         assert np.isclose(restart.slots[k], box).all(axis=1).any(), (k, j)
     assert restart.status is PlanStatus.SUCCESS
+
+
+def test_a_call_without_slower_guesses_fails_at_a_runaway_refresh_instead_of_restarting(
+    mesh_server, monkeypatch
+):
+    """A replan of a moving robot tries no slower guesses (its fallback is braking), and no
+    restart either: the stopped refresh ends the call, well before its budget."""
+    monkeypatch.setattr(solve, "REFRESH_RUNAWAY", 1.0 + 1e-9)
+    calls = _recorded_solves(monkeypatch)
+    plan = secure3d.plan(mesh_server, "secure", slower_guesses=False)
+    assert plan.status is PlanStatus.ITERATION_LIMIT, plan.status
+    assert "final time ran past" in plan.message
+    assert len(calls) == 2 and all(kw.get("slots") is None for kw, _, _ in calls)
