@@ -36,12 +36,13 @@ _FLY = """
 import json, sys, time
 import secure3d
 import secure3d.planning.solve as S
+import secure3d.planning.slot_refresh as R
 from secure3d.planning import compiled_kernels
 its = []
 orig = S._solve_once
 def spy(*a, **k):
     s = orig(*a, **k); its.append(s.iterations); return s
-S._solve_once = spy
+S._solve_once = R._solve_once = spy
 t = time.perf_counter()
 run = secure3d.simulate(sys.argv[1], "secure", seed=0)
 wall = time.perf_counter() - t

@@ -1,5 +1,5 @@
 """A slot refresh whose re-solve runs away from the solution it refreshes restarts from the guess
-(``planning.solve.REFRESH_RUNAWAY``), with real IPOPT solves."""
+(``planning.slot_refresh.REFRESH_RUNAWAY``), with real IPOPT solves."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 
 import secure3d
 from secure3d.planning import lookback as lb
-from secure3d.planning import solve
+from secure3d.planning import slot_refresh, solve
 from secure3d.planning.problem import problem_from_scenario
 from secure3d.planning.result import PlanStatus
 
@@ -25,6 +25,7 @@ def _recorded_solves(monkeypatch) -> list[tuple[dict, object, tuple]]:
         return s
 
     monkeypatch.setattr(solve, "_solve_once", recording)
+    monkeypatch.setattr(slot_refresh, "_solve_once", recording)
     return calls
 
 
@@ -51,7 +52,7 @@ def test_a_refresh_that_runs_away_restarts_from_the_guess_with_the_left_out_boxe
     hold every box the first solution came within the margin of. The plan still certifies, at the
     same final time."""
     reference = secure3d.plan(mesh_server, "secure")
-    monkeypatch.setattr(solve, "REFRESH_RUNAWAY", 1.0 + 1e-9)
+    monkeypatch.setattr(slot_refresh, "REFRESH_RUNAWAY", 1.0 + 1e-9)
     calls = _recorded_solves(monkeypatch)
     plan = secure3d.plan(mesh_server, "secure")
     assert plan.status is PlanStatus.SUCCESS and plan.certificate.ok
@@ -80,7 +81,7 @@ def test_a_call_without_slower_guesses_fails_at_a_runaway_refresh_instead_of_res
 ):
     """A replan of a moving robot tries no slower guesses (its fallback is braking), and no
     restart either: the stopped refresh ends the call, well before its budget."""
-    monkeypatch.setattr(solve, "REFRESH_RUNAWAY", 1.0 + 1e-9)
+    monkeypatch.setattr(slot_refresh, "REFRESH_RUNAWAY", 1.0 + 1e-9)
     calls = _recorded_solves(monkeypatch)
     plan = secure3d.plan(mesh_server, "secure", slower_guesses=False)
     assert plan.status is PlanStatus.ITERATION_LIMIT, plan.status
