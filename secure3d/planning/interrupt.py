@@ -15,7 +15,7 @@ compiled solvers are cached across calls, so it cannot carry a per-call budget.)
 
 Inside :func:`final_time_watch` the callback also stops a solve whose iterate's final time passes
 a cap (:func:`ran_away` tells it apart): a slot refresh's re-solve that runs away from the solution
-it started on (``planning/solve.py``).
+it started on (``planning/slot_refresh.py``).
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from collections.abc import Iterator
 
 import casadi as ca
 
+from secure3d.errors import PlanningError
 from secure3d.sigint import held_sigint
 
 __all__ = [
@@ -58,6 +59,8 @@ def _deadline_now() -> float:
 def final_time_watch(cap: float) -> Iterator[None]:
     """Stop the solves inside once an iterate's final time passes ``cap`` (s); :func:`ran_away`
     then tells such a stop from the budget's or Ctrl-C's."""
+    if isinstance(cap, bool) or not isinstance(cap, (int, float)) or not cap > 0:
+        raise PlanningError(f"final_time_watch: cap must be a time > 0 (s) or inf, got {cap!r}")
     outer = getattr(_budget, "t_cap", math.inf)
     _budget.t_cap = float(cap)
     try:
@@ -170,6 +173,10 @@ def stop_callback(n_x: int, n_g: int, n_p: int, t_index: int | None = None) -> c
 
     Keep a reference to it as long as the solver lives (CasADi does not own Python callbacks).
     """
+    if t_index is not None and not (isinstance(t_index, int) and 0 <= t_index < n_x):
+        raise PlanningError(
+            f"stop_callback: t_index must index one of {n_x} variables, got {t_index!r}"
+        )
     dense = ca.Sparsity.dense
     sizes = {
         "x": dense(n_x, 1),

@@ -106,7 +106,7 @@ def refresh_slots(
     ``start``: the (T, X, U, grid) the solve of ``s`` started from, if the re-solves are watched:
     one whose final time runs past REFRESH_RUNAWAY times its solution's is stopped
     (``ITERATION_LIMIT``) and, with ``restart``, replaced once by a solve from ``start``
-    (:func:`restart_from`).
+    (:func:`restart_from`), after which the refreshes are no longer watched.
 
     Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may have come
     closer. With the slots the NLP is a relaxation of the NLP with every box, so a solution no

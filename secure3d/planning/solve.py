@@ -31,11 +31,7 @@ from secure3d.planning.guess import (
     guess_from_plan,
     initial_guess,
 )
-from secure3d.planning.interrupt import (
-    BudgetSpent,
-    budget_spent,
-    deadline,
-)
+from secure3d.planning.interrupt import BudgetSpent, budget_spent, deadline
 from secure3d.planning.nlp_cache import NLPCache
 from secure3d.planning.nlp_solve import (  # noqa: F401  (the constants: re-exported)
     FEASIBILITY_TOL,

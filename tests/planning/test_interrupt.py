@@ -181,3 +181,18 @@ def test_a_final_time_watch_stops_a_solve_whose_final_time_passes_its_cap():
     assert interrupt.final_time_cap() == float("inf")
     with interrupt.interruptible():  # every solve starts with the flag down
         assert not interrupt.ran_away()
+
+
+def test_a_bad_final_time_cap_or_index_is_refused_by_name():
+    import pytest
+
+    from secure3d.errors import PlanningError
+    from secure3d.planning import interrupt
+
+    for cap in (0.0, -1.0, float("nan"), "5", True):
+        with pytest.raises(PlanningError, match="final_time_watch: cap"):
+            with interrupt.final_time_watch(cap):
+                pass
+    for t_index in (-1, 3, 1.0):
+        with pytest.raises(PlanningError, match="stop_callback: t_index"):
+            interrupt.stop_callback(3, 1, 1, t_index=t_index)
