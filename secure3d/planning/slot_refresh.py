@@ -34,6 +34,12 @@ SLOT_REFRESHES = 3
 REFRESH_RUNAWAY = 1.5
 
 
+def _tightened_margin(problem: PlanningProblem, extra_margin: float | np.ndarray) -> float:
+    """The planner's margin plus the largest of ``extra_margin`` (m): how near a left-out box may
+    come to what a node constrains before a re-solve puts it in the node's slots."""
+    return problem.options.margin + float(np.max(extra_margin))
+
+
 def resolve_from(
     problem: PlanningProblem,
     planner: str,
@@ -58,7 +64,7 @@ def resolve_from(
         prev_slots=s.slots,
         extra_margin=extra_margin,
         grid=s.grid,
-        left_out_limit=problem.options.margin + float(np.max(extra_margin)),
+        left_out_limit=_tightened_margin(problem, extra_margin),
     )
 
 
@@ -73,7 +79,7 @@ def restart_from(
     """Solve from ``start`` (T, X, U, grid), cold, with the slots of solution ``s`` and every box
     that comes within the (tightened) margin of it put in
     (:func:`~secure3d.planning.lookback.with_left_out_boxes`)."""
-    limit = problem.options.margin + float(np.max(extra_margin))
+    limit = _tightened_margin(problem, extra_margin)
     slots = lb.with_left_out_boxes(problem, s.X, s.assignment, s.slots, limit)
     T, X, U, grid = start
     return _solve_once(
@@ -97,7 +103,6 @@ def refresh_slots(
     cache: NLPCache,
     extra_margin: float | np.ndarray = 0.0,
     start: tuple[float, np.ndarray, np.ndarray, np.ndarray | None] | None = None,
-    restart: bool = True,
 ) -> tuple[_Solve, SolveCost]:
     """Re-select the obstacle slots on solution ``s`` and re-solve warm, up to SLOT_REFRESHES
     times, while :func:`~secure3d.planning.lookback.slots_stale` (a box left out of them comes
@@ -105,8 +110,10 @@ def refresh_slots(
     ``extra_margin``: one margin (m), or one per node, added to the re-solves' margin rows.
     ``start``: the (T, X, U, grid) the solve of ``s`` started from, if the re-solves are watched:
     one whose final time runs past REFRESH_RUNAWAY times its solution's is stopped
-    (``ITERATION_LIMIT``) and, with ``restart``, replaced once by a solve from ``start``
-    (:func:`restart_from`), after which the refreshes are no longer watched.
+    (``ITERATION_LIMIT``) and, if the call tries slower guesses (``slower_guesses``; a moving
+    robot's replan does not: it brakes instead, and from a moving start the restart found the same
+    slow plan), replaced once by a solve from ``start`` (:func:`restart_from`), after which the
+    refreshes are no longer watched.
 
     Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may have come
     closer. With the slots the NLP is a relaxation of the NLP with every box, so a solution no
@@ -130,7 +137,8 @@ def refresh_slots(
         with final_time_watch(REFRESH_RUNAWAY * s.T if start is not None else np.inf):
             r = resolve_from(problem, planner, s, cache, None, extra_margin)
         cost = cost + SolveCost(0.0, r.solve_time, r.iterations)
-        if start is not None and restart and ran_away() and not budget_spent():
+        restart = start is not None and problem.options.slower_guesses
+        if restart and ran_away() and not budget_spent():
             r = restart_from(problem, planner, s, start, cache, extra_margin)
             cost = cost + SolveCost(0.0, r.solve_time, r.iterations)
             start = None

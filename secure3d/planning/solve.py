@@ -169,11 +169,7 @@ def _solve_rounds(
         cost = cost + SolveCost(built + s.warm_build, s.solve_time, s.iterations)
         if s.status.ok and s.T > max_final_time:
             return s, cost
-        # a replan that tries no slower guess (a moving robot, whose fallback is braking) tries
-        # no restart either: from a moving start the restart converged to the same slow plan
-        # (warehouse_survey, T 15.1 s where braking and a plan from rest arrived 4.5 s sooner)
-        start = (T, X, U, grid)
-        s, c = _refresh_slots(problem, planner, s, cache, start=start, restart=o.slower_guesses)
+        s, c = _refresh_slots(problem, planner, s, cache, start=(T, X, U, grid))
         cost = cost + c
         if best is None or (s.status.ok and (not best.status.ok or s.T < best.T)):
             best = s
