@@ -46,6 +46,11 @@ def _corners(lo: object, hi: object) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+def _content_key(lo: np.ndarray, hi: np.ndarray) -> tuple:
+    """A hash of boxes' corners, for :meth:`BoxIndex.of` to find an index built on equal boxes."""
+    return (lo.shape[0], hash(lo.tobytes()), hash(hi.tobytes()))
+
+
 def _points(p: object) -> np.ndarray:
     """(n, 3) C-contiguous writable float: one compiled specialisation per kernel (numba compiles
     read-only arrays separately)."""
@@ -61,6 +66,7 @@ class BoxIndex:
     tree : (perm, nlo, nhi, child, start, count), see :mod:`~secure3d.geometry._box_index_kernels`.
     """
 
+    #: the last few indexes built, by ``id``: ``[index, content key or None until first needed]``
     _cache: OrderedDict = OrderedDict()
 
     def __init__(self, lo: object, hi: object, *, _tree: tuple | None = None, _ext: int = 0):
@@ -78,20 +84,32 @@ class BoxIndex:
 
     @classmethod
     def of(cls, lo: object, hi: object) -> BoxIndex:
-        """The index of these boxes, reused from one of the last few built on equal boxes."""
+        """The index of these boxes, reused from one of the last few built on equal boxes.
+
+        Given an index's own (read-only) ``lo`` and ``hi`` arrays, as a closed loop hands its judged
+        boxes back, that index is found without reading the boxes; other arrays are compared by
+        content."""
+        for entry in reversed(cls._cache.values()):
+            if entry[0].lo is lo and entry[0].hi is hi:
+                cls._cache.move_to_end(id(entry[0]))
+                return entry[0]
         lo, hi = _corners(lo, hi)
-        key = (lo.shape[0], hash(lo.tobytes()), hash(hi.tobytes()))
-        hit = cls._cache.get(key)
-        if hit is not None and np.array_equal(hit.lo, lo) and np.array_equal(hit.hi, hi):
-            cls._cache.move_to_end(key)
-            return hit
+        key = _content_key(lo, hi)
+        for entry in reversed(cls._cache.values()):
+            index = entry[0]
+            if entry[1] is None:
+                entry[1] = _content_key(index.lo, index.hi)
+            if entry[1] == key and np.array_equal(index.lo, lo) and np.array_equal(index.hi, hi):
+                cls._cache.move_to_end(id(index))
+                return index
         index = cls(lo, hi)
-        cls._remember(key, index)
+        cls._remember(index, key)
         return index
 
     @classmethod
-    def _remember(cls, key: tuple, index: BoxIndex) -> None:
-        cls._cache[key] = index
+    def _remember(cls, index: BoxIndex, key: tuple | None) -> None:
+        cls._cache[id(index)] = [index, key]
+        cls._cache.move_to_end(id(index))
         while len(cls._cache) > _CACHE_SIZE:
             cls._cache.popitem(last=False)
 
@@ -100,18 +118,17 @@ class BoxIndex:
         tree, joined to this one under a new root (no rebuild of the m old boxes); rebuilt whole
         after many extensions, which would deepen the tree. Also remembered for :meth:`of`."""
         lo, hi = _corners(lo, hi)
-        all_lo = np.concatenate([self.lo, lo])
-        all_hi = np.concatenate([self.hi, hi])
         if len(lo) == 0:
             return self
+        all_lo = np.concatenate([self.lo, lo])
+        all_hi = np.concatenate([self.hi, hi])
         if len(self) == 0 or self._extensions >= _MAX_EXTENSIONS:
             index = BoxIndex(all_lo, all_hi)
         else:
             k = _kern()
             tree = _join(self.tree, k.build(lo, hi, k.LEAF_SIZE), len(self))
             index = BoxIndex(all_lo, all_hi, _tree=tree, _ext=self._extensions + 1)
-        key = (all_lo.shape[0], hash(index.lo.tobytes()), hash(index.hi.tobytes()))
-        self._remember(key, index)
+        self._remember(index, None)  # its content key is read only if a lookup by content needs it
         return index
 
     # ---- queries -----------------------------------------------------------------------------

@@ -111,6 +111,21 @@ def test_of_reuses_by_content(rng):
     assert BoxIndex.of(lo + 0.5, hi + 0.5) is not a
 
 
+def test_of_finds_an_index_by_its_own_arrays_and_extensions_by_content(rng, monkeypatch):
+    lo, hi = _voxel_boxes(rng, 200)
+    grown = BoxIndex.of(lo[:150], hi[:150]).extended(lo[150:], hi[150:])
+    # an index's own arrays are not read again: no content hash of them
+    monkeypatch.setattr(
+        "secure3d.geometry.box_index._content_key", lambda *a: pytest.fail("hashed the boxes")
+    )
+    assert BoxIndex.of(grown.lo, grown.hi) is grown
+    monkeypatch.undo()
+    # equal boxes in other arrays find it by content (its key computed on that first need)
+    assert BoxIndex.of(lo.copy(), hi.copy()) is grown
+    assert BoxIndex.of(grown.lo, hi.copy()) is grown
+    assert BoxIndex.of(lo[:150] + 0.1, hi[:150] + 0.1) is not grown
+
+
 def test_degenerate_centres_build_a_shallow_tree():
     # many boxes with one centre (nested) and exponentially spaced ones: the build must not recurse
     # past the traversal stack
