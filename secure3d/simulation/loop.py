@@ -128,6 +128,8 @@ class Loop:
         # obstacle boxes the plan being followed was last planned or certified against
         self.judged_lo: np.ndarray | None = None
         self.judged_hi: np.ndarray | None = None
+        #: voxels found inside the judged boxes by earlier frames (:func:`new_obstacle_voxels`)
+        self.inside_memo = InsideMemo()
 
     def insert_frame(
         self, depth: np.ndarray, intrinsics: tuple, R: np.ndarray, o: np.ndarray
@@ -300,6 +302,45 @@ def voxel_colors(scenario: Scenario) -> np.ndarray | None:
     return None if w.octomap is None else octomap_voxel_colors(w.octomap, "world.octomap")
 
 
+class InsideMemo:
+    """Voxels already found inside the judged boxes, for :func:`new_obstacle_voxels`.
+
+    A wall the camera keeps in view is hit frame after frame, and its voxels lie inside the judged
+    boxes every time. Whether a voxel's centre lies inside boxes depends only on the voxel and the
+    boxes, and the judged boxes mostly grow (:meth:`Loop.judged_plus` appends to them): a voxel
+    inside them stays inside. So the codes found inside are kept while the judged boxes start with
+    the boxes they were found in, and only the other voxels are tested."""
+
+    def __init__(self) -> None:
+        self.lo = np.empty((0, 3))
+        self.hi = np.empty((0, 3))
+        #: (k,) int64, ascending: Morton codes of voxels whose centres lie inside (lo, hi)
+        self.codes = np.empty(0, dtype=np.int64)
+
+    def known_inside(self, lo: np.ndarray, hi: np.ndarray, codes: np.ndarray) -> np.ndarray:
+        """(n,) bool: which ``codes`` (n,) were found inside boxes that (``lo``, ``hi``) (m, 3)
+        still hold; forgets them when (lo, hi) no longer begins with those boxes."""
+        n = len(self.lo)
+        grown = len(lo) >= n and (
+            (lo is self.lo and hi is self.hi)
+            or (np.array_equal(lo[:n], self.lo) and np.array_equal(hi[:n], self.hi))
+        )
+        if not grown:
+            self.codes = np.empty(0, dtype=np.int64)
+        self.lo, self.hi = lo, hi
+        if not len(self.codes):
+            return np.zeros(len(codes), dtype=bool)
+        at = np.minimum(np.searchsorted(self.codes, codes), len(self.codes) - 1)
+        return self.codes[at] == codes
+
+    def add(self, codes: np.ndarray) -> None:
+        """Remember ``codes`` (k,), none of them known yet, as inside the boxes last given to
+        :meth:`known_inside`."""
+        if len(codes):
+            new = np.sort(codes)  # merged into the ascending codes in O(k log k + n), not a re-sort
+            self.codes = np.insert(self.codes, np.searchsorted(self.codes, new), new)
+
+
 def new_obstacle_voxels(loop: Loop, occupied_codes: np.ndarray) -> np.ndarray:
     """Centres ``(n, 3)`` of the known obstacle voxels among those a frame (already inserted)
     updated as occupied (``occupied_codes``, Morton codes) that the boxes the current plan was last
@@ -310,6 +351,8 @@ def new_obstacle_voxels(loop: Loop, occupied_codes: np.ndarray) -> np.ndarray:
     if every known obstacle voxel this frame hit is covered, the obstacle set is still inside the
     judged boxes and the plan stays certified; otherwise the frame revealed something new. Voxels
     that merely flicker (hit, then carved by grazing rays) are not news unless they end up occupied.
+    Voxels an earlier frame found inside the judged boxes are not tested again
+    (:class:`InsideMemo`).
     """
     if loop.judged_lo is None or not len(occupied_codes):
         return np.empty((0, 3))
@@ -317,10 +360,16 @@ def new_obstacle_voxels(loop: Loop, occupied_codes: np.ndarray) -> np.ndarray:
     from secure3d.mapping.keys import codes_to_coords
 
     known = occupied_codes[loop.belief.is_known_obstacle_sensed(occupied_codes)]
+    if not len(known):
+        return np.empty((0, 3))
+    memo = loop.inside_memo
+    known = known[~memo.known_inside(loop.judged_lo, loop.judged_hi, known)]
     centres = codes_to_coords(known, loop.belief.resolution)
     if not len(centres):
         return centres
-    return centres[~BoxIndex.of(loop.judged_lo, loop.judged_hi).inside_any(centres)]
+    inside = BoxIndex.of(loop.judged_lo, loop.judged_hi).inside_any(centres)
+    memo.add(known[inside])
+    return centres[~inside]
 
 
 def observed_box(

@@ -124,7 +124,7 @@ def test_a_frame_is_news_only_if_it_finds_obstacle_voxels_outside_the_judged_box
     from secure3d.planning.problem import problem_from_scenario
     from secure3d.simulation.camera import DepthCamera
     from secure3d.simulation.closed_loop import SURFACE_BIAS
-    from secure3d.simulation.loop import new_obstacle_voxels
+    from secure3d.simulation.loop import InsideMemo, new_obstacle_voxels
     from secure3d.simulation.scene import world_trimesh
     from secure3d.world.attacks import belief_map, true_obstacles
 
@@ -148,13 +148,60 @@ def test_a_frame_is_news_only_if_it_finds_obstacle_voxels_outside_the_judged_box
             scenario.camera.max_range,
         )
         assert len(stats.occupied_codes) == stats.voxels_occupied > 0
-        loop = SimpleNamespace(belief=belief, judged_lo=lo, judged_hi=hi)
+        loop = SimpleNamespace(belief=belief, judged_lo=lo, judged_hi=hi, inside_memo=InsideMemo())
         return len(new_obstacle_voxels(loop, stats.occupied_codes)), frame.hit_names()
 
     n, seen = news([1.0, 1.25, 1.25], 0.0)  # down the first leg: claimed walls only
     assert "crate" not in seen and n == 0
     n, seen = news([6.5, 1.25, 1.25], np.pi / 2)  # facing the crate the server hid
     assert "crate" in seen and n > 20
+
+
+def test_news_of_every_frame_of_a_flight_is_what_testing_every_voxel_finds(maps_dir, monkeypatch):
+    """The memo of voxels found inside the judged boxes changes no frame's news: each frame of a
+    real flight over a scanned map gives the same new voxels, in the same order, as testing every
+    hit voxel against the judged boxes."""
+    from secure3d.geometry.polytope import inside_any_box
+    from secure3d.mapping.keys import codes_to_coords
+    from secure3d.planning.collocation import NLPCache
+    from secure3d.simulation import flight
+    from secure3d.simulation import loop as loop_module
+
+    frames = {"news": 0, "memo": 0}
+
+    def checked(loop, codes):
+        news = loop_module.new_obstacle_voxels(loop, codes)
+        if loop.judged_lo is not None and len(codes):
+            known = codes[loop.belief.is_known_obstacle_sensed(codes)]
+            centres = codes_to_coords(known, loop.belief.resolution)
+            inside = inside_any_box(centres, loop.judged_lo, loop.judged_hi)
+            np.testing.assert_array_equal(news, centres[~inside])
+            frames["news"] += len(news) > 0
+            frames["memo"] += len(loop.inside_memo.codes) > 0
+        return news
+
+    monkeypatch.setattr(flight, "new_obstacle_voxels", checked)
+    run = secure3d.simulate(
+        maps_dir / "geb079_region_attacks.yaml", "secure", seed=0, cache=NLPCache()
+    )
+    assert run.reached_goal and not run.collided, run.summary()
+    assert frames["news"] > 5 and frames["memo"] > 20, frames
+
+
+def test_inside_memo_keeps_voxels_while_the_boxes_grow_and_forgets_them_otherwise():
+    from secure3d.simulation.loop import InsideMemo
+
+    lo, hi = np.zeros((2, 3)), np.ones((2, 3))
+    memo = InsideMemo()
+    codes = np.array([5, 9, 2], dtype=np.int64)
+    assert not memo.known_inside(lo, hi, codes).any()
+    memo.add(np.array([9, 2], dtype=np.int64))
+    np.testing.assert_array_equal(memo.known_inside(lo, hi, codes), [False, True, True])
+    grown_lo, grown_hi = np.vstack([lo, [[3.0, 3, 3]]]), np.vstack([hi, [[4.0, 4, 4]]])
+    np.testing.assert_array_equal(memo.known_inside(grown_lo, grown_hi, codes), [False, True, True])
+    # other boxes (a plan judged on a fresh merge of the map): nothing is known inside them
+    assert not memo.known_inside(grown_lo[1:], grown_hi[1:], codes).any()
+    assert not len(memo.codes)
 
 
 def test_judged_boxes_plus_new_voxels_cover_both():
