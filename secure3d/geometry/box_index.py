@@ -70,7 +70,9 @@ class BoxIndex:
     _cache: OrderedDict = OrderedDict()
 
     def __init__(self, lo: object, hi: object, *, _tree: tuple | None = None, _ext: int = 0):
-        self.lo, self.hi = _corners(lo, hi)
+        # its own read-only copies (not views of the caller's arrays, which the caller could still
+        # change): an index's arrays always hold the boxes it was built on (see :meth:`of`)
+        self.lo, self.hi = (a if a.flags.owndata else a.copy() for a in _corners(lo, hi))
         self.lo.flags.writeable = False
         self.hi.flags.writeable = False
         k = _kern()

@@ -327,7 +327,9 @@ class InsideMemo:
         )
         if not grown:
             self.codes = np.empty(0, dtype=np.int64)
-        self.lo, self.hi = lo, hi
+        # kept as given only if read-only (a BoxIndex's own arrays), else copied: the comparison
+        # above must see the boxes the codes were found in
+        self.lo, self.hi = (a if not a.flags.writeable else a.copy() for a in (lo, hi))
         if not len(self.codes):
             return np.zeros(len(codes), dtype=bool)
         at = np.minimum(np.searchsorted(self.codes, codes), len(self.codes) - 1)
