@@ -319,7 +319,10 @@ class InsideMemo:
 
     def known_inside(self, lo: np.ndarray, hi: np.ndarray, codes: np.ndarray) -> np.ndarray:
         """(n,) bool: which ``codes`` (n,) were found inside boxes that (``lo``, ``hi``) (m, 3)
-        still hold; forgets them when (lo, hi) no longer begins with those boxes."""
+        still hold; forgets them when (lo, hi) no longer begins with those boxes. Raises
+        :class:`SimulationError` for boxes that are not two (m, 3) arrays or codes that are not
+        one row of integers."""
+        _check_memo_input(codes, lo, hi)
         n = len(self.lo)
         grown = len(lo) >= n and (
             (lo is self.lo and hi is self.hi)
@@ -338,9 +341,22 @@ class InsideMemo:
     def add(self, codes: np.ndarray) -> None:
         """Remember ``codes`` (k,), none of them known yet, as inside the boxes last given to
         :meth:`known_inside`."""
+        _check_memo_input(codes)
         if len(codes):
             new = np.sort(codes)  # merged into the ascending codes in O(k log k + n), not a re-sort
             self.codes = np.insert(self.codes, np.searchsorted(self.codes, new), new)
+
+
+def _check_memo_input(codes: object, lo: object = None, hi: object = None) -> None:
+    """Raise :class:`SimulationError` naming a malformed argument of :class:`InsideMemo`."""
+    if not (isinstance(codes, np.ndarray) and codes.ndim == 1 and codes.dtype.kind in "iu"):
+        what = f"shape {np.shape(codes)}" if isinstance(codes, np.ndarray) else type(codes).__name__
+        raise SimulationError(f"InsideMemo: codes must be a 1-D integer array, got {what}")
+    for name, a in (("lo", lo), ("hi", hi)):
+        if a is not None and not (isinstance(a, np.ndarray) and a.ndim == 2 and a.shape[1] == 3):
+            raise SimulationError(f"InsideMemo: {name} must be an (m, 3) array, got {np.shape(a)}")
+    if lo is not None and np.shape(lo) != np.shape(hi):
+        raise SimulationError(f"InsideMemo: lo {np.shape(lo)} and hi {np.shape(hi)} differ")
 
 
 def new_obstacle_voxels(loop: Loop, occupied_codes: np.ndarray) -> np.ndarray:

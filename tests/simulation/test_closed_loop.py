@@ -202,6 +202,14 @@ def test_inside_memo_keeps_voxels_while_the_boxes_grow_and_forgets_them_otherwis
     # other boxes (a plan judged on a fresh merge of the map): nothing is known inside them
     assert not memo.known_inside(grown_lo[1:], grown_hi[1:], codes).any()
     assert not len(memo.codes)
+    with pytest.raises(SimulationError, match="codes must be a 1-D integer array"):
+        memo.known_inside(lo, hi, codes.astype(float))
+    with pytest.raises(SimulationError, match=r"lo must be an \(m, 3\) array"):
+        memo.known_inside(lo[:, :2], hi, codes)
+    with pytest.raises(SimulationError, match="differ"):
+        memo.known_inside(lo, grown_hi, codes)
+    with pytest.raises(SimulationError, match="codes must be"):
+        memo.add([1, 2])
 
 
 def test_judged_boxes_plus_new_voxels_cover_both():
