@@ -11,7 +11,9 @@ assignments, certificate verdicts, sample counts, campaign outcomes. Floats are 
 last bits on another CPU (NumPy's vector sin and cos, OpenBLAS's and MUMPS's kernels are chosen by
 the CPU's instruction sets). On an AMD EPYC without AVX-512 the five plans of the values written
 on another machine came out with the same iterations and look-backs and final times equal to
-1e-10, but not one array bit-identical; a change of behaviour moves them by far more.
+1e-10, but not one array bit-identical; a change of behaviour moves them by far more. On an AMD
+EPYC with AVX-512, numpy's AVX-512 kernels moved the planar plan by 2e-6 relative, past the
+tolerance: ``make test`` pins numpy to its AVX2 kernels (``NPY_DISABLE_CPU_FEATURES``, Makefile).
 """
 
 from __future__ import annotations
