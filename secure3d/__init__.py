@@ -17,6 +17,12 @@ import importlib
 import logging
 from typing import TYPE_CHECKING, Any
 
+# First, before anything imports numpy: the same kernels on CPUs with and without AVX-512.
+from secure3d._numpy_kernels import hold_before_numpy as _hold_before_numpy
+from secure3d._numpy_kernels import numpy_kernels as numpy_kernels
+
+_hold_before_numpy()
+
 # A library logs; the application decides where it goes (the CLI prints INFO to stderr).
 logging.getLogger("secure3d").addHandler(logging.NullHandler())
 
@@ -33,7 +39,7 @@ _EXPORTS = {
     "SimResult": "secure3d.simulation.closed_loop",
 }
 
-__all__ = sorted(_EXPORTS)
+__all__ = sorted([*_EXPORTS, "numpy_kernels"])
 
 if TYPE_CHECKING:  # pragma: no cover - the real types for checkers and IDEs
     from secure3d.mapping.occupancy import OccupancyMap as OccupancyMap

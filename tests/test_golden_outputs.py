@@ -13,7 +13,9 @@ the CPU's instruction sets). On an AMD EPYC without AVX-512 the five plans of th
 on another machine came out with the same iterations and look-backs and final times equal to
 1e-10, but not one array bit-identical; a change of behaviour moves them by far more. On an AMD
 EPYC with AVX-512, numpy's AVX-512 kernels moved the planar plan by 2e-6 relative, past the
-tolerance: ``make test`` pins numpy to its AVX2 kernels (``NPY_DISABLE_CPU_FEATURES``, Makefile).
+tolerance. ``import secure3d`` holds numpy to its AVX2 kernels (``secure3d._numpy_kernels``), but
+this module imports numpy first, so ``make test`` sets ``NPY_DISABLE_CPU_FEATURES`` itself
+(Makefile); ``tests/test_numpy_kernels.py`` plans the planar case in a process without it.
 """
 
 from __future__ import annotations
@@ -128,7 +130,8 @@ def _certificate(cert) -> dict[str, object]:
     }
 
 
-def plan_snapshot() -> dict[str, object]:
+def plan_snapshot(labels: tuple[str, ...] | None = None) -> dict[str, object]:
+    """The pinned plans of :data:`PLANS` (only ``labels``, if given), as written to the golden file."""
     from secure3d.planning import certify, plan_problem, problem_from_scenario
     from secure3d.planning.collocation import NLPCache
     from secure3d.world import load_scenario
@@ -136,6 +139,8 @@ def plan_snapshot() -> dict[str, object]:
     cache = NLPCache()
     out: dict[str, object] = {}
     for label, file, planner, options in PLANS:
+        if labels is not None and label not in labels:
+            continue
         problem = problem_from_scenario(load_scenario(MAPS / file), **options)
         result = plan_problem(problem, planner, cache=cache)
         entry: dict[str, object] = {
