@@ -27,7 +27,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from _common import REPO, atomic_write_text, machine_info, markdown_table
+from _common import REPO, atomic_write_text, machine_info, markdown_table, python_json
 
 FLIGHTS = ("blind_corner_quadrotor", "forest", "planar_blind_corner")
 
@@ -42,24 +42,21 @@ print(json.dumps({"outcome": run.outcome, "sim": run.sim_time, "flight": run.fli
 _WARM = "from secure3d.warm import warm; warm()"
 
 
-def _child(code: str, env: dict, *args: str) -> str:
-    out = subprocess.run(
-        [sys.executable, "-c", code, *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        cwd=REPO,
-        timeout=1800,
-        check=False,
+def _warm(env: dict) -> float:
+    """Seconds :func:`secure3d.warm.warm` takes in a new process with ``env``."""
+    t0 = time.perf_counter()
+    done = subprocess.run(
+        [sys.executable, "-c", _WARM], cwd=REPO, env=env, capture_output=True, text=True
     )
-    if out.returncode != 0:
-        raise SystemExit(f"child failed ({args}):\n{out.stderr[-3000:]}")
-    return out.stdout
+    if done.returncode:
+        raise SystemExit(f"warm() failed:\n{done.stderr[-3000:]}")
+    return time.perf_counter() - t0
 
 
 def fly(name: str, env: dict) -> dict:
-    path = str(REPO / "maps" / f"{name}.yaml")
-    row = json.loads(_child(_FLY, env, path).strip().splitlines()[-1])
+    row = python_json(_FLY, [str(REPO / "maps" / f"{name}.yaml")], REPO, env)
+    if "error" in row:
+        raise SystemExit(f"{name}: {row['error']}")
     row["rtf"] = row["sim"] / row["flight"]
     return row
 
@@ -72,9 +69,7 @@ def main() -> None:
     rows, warm_seconds = [], None
     with tempfile.TemporaryDirectory() as empty, tempfile.TemporaryDirectory() as warmed:
         base = {k: v for k, v in os.environ.items() if k != "SECURE3D_KERNEL_COMPILE"}
-        t0 = time.perf_counter()
-        _child(_WARM, {**base, "SECURE3D_KERNEL_CACHE_DIR": warmed})
-        warm_seconds = time.perf_counter() - t0
+        warm_seconds = _warm({**base, "SECURE3D_KERNEL_CACHE_DIR": warmed})
         for name in args.flights:  # alternating, each in a new process
             for case, folder in (("empty", empty), ("warm", warmed)):
                 env = {**base, "SECURE3D_KERNEL_CACHE_DIR": folder}

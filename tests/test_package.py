@@ -48,3 +48,16 @@ def test_scenarios_load_by_name_from_the_package(tmp_path, monkeypatch):
         assert "YAML error" in str(exc)
     else:
         raise AssertionError("the shipped forest was taken instead of the local file")
+
+
+def test_make_warm_flies_one_shipped_scenario_of_each_other_vehicle():
+    """``secure3d.warm.WARM_FLIGHTS`` compiles the node kernels of every shipped vehicle: each
+    names a scenario in ``maps/``, and together with the blind corner they cover every model the
+    shipped scenarios fly."""
+    from secure3d.warm import WARM_FLIGHTS
+    from secure3d.world import load_scenario
+
+    models = {load_scenario(REPO / "maps" / name).vehicle.model for name in WARM_FLIGHTS}
+    models.add(load_scenario(REPO / "maps" / "blind_corner.yaml").vehicle.model)
+    shipped = {load_scenario(p).vehicle.model for p in sorted((REPO / "maps").glob("*.yaml"))}
+    assert shipped <= models, shipped - models
