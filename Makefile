@@ -31,6 +31,7 @@ demo: $(STAMP)
 # and sorts give other last bits, which the diff-drive NLP and the closed loop amplify into other
 # plans (the golden planar plan moved 2e-6 relative; warehouse_survey reached its goal at 21.3 s
 # instead of 9.09 s). Elsewhere (and on CPUs without AVX-512) the variable changes nothing.
+# `import secure3d` sets it too (secure3d/_numpy_kernels.py), but pytest imports numpy first.
 test: export NPY_DISABLE_CPU_FEATURES := X86_V4 AVX512_ICL AVX512_SPR
 test: $(STAMP)
 	$(PY) -m pytest -q

@@ -22,7 +22,7 @@ from secure3d.errors import ConfigError
 from secure3d.simulation.campaign_pool import Crash, fly_safely, one_thread_each
 from secure3d.simulation.campaign_records import RunRecord, _Job
 
-__all__ = ["RayPool"]
+__all__ = ["RayPool", "actor_env"]
 
 #: Object store of a local Ray (bytes): runs return small records, so the minimum Ray allows.
 LOCAL_OBJECT_STORE = 100 * 1024**2
@@ -42,6 +42,25 @@ class _Flier:
     def fly(self, job: _Job) -> RunRecord:
         """Fly one job (errors become error rows)."""
         return fly_safely(job)
+
+    def numpy_kernels(self) -> dict[str, object]:
+        """The numpy kernels this actor runs (:func:`secure3d.numpy_kernels`) and its
+        ``NPY_DISABLE_CPU_FEATURES`` (``env``)."""
+        from secure3d._numpy_kernels import NUMPY_ENV, numpy_kernels
+
+        return {**numpy_kernels(), "env": os.environ.get(NUMPY_ENV)}
+
+
+def actor_env() -> dict[str, str]:
+    """The environment every actor starts with, wherever it runs: this driver's
+    ``NPY_DISABLE_CPU_FEATURES`` (set by ``import secure3d``, :mod:`secure3d._numpy_kernels`, or
+    by the user), so that runs on a cluster's nodes use numpy's kernels as this machine does. A
+    local Ray inherits the driver's environment anyway; a cluster's raylets were started with
+    their own."""
+    from secure3d._numpy_kernels import NUMPY_ENV
+
+    value = os.environ.get(NUMPY_ENV)
+    return {} if value is None else {NUMPY_ENV: value}
 
 
 def _import_ray() -> Any:
@@ -91,7 +110,9 @@ class RayPool:
         self.size = size
         self._ray = _import_ray()
         self._started = _init(self._ray, address, size)
-        self._remote = self._ray.remote(num_cpus=1, max_restarts=0)(_Flier)
+        env = actor_env()
+        options = {"runtime_env": {"env_vars": env}} if env else {}
+        self._remote = self._ray.remote(num_cpus=1, max_restarts=0, **options)(_Flier)
         self._actors: list[Any] = [None] * size
         self._refs: dict[int, Any] = {}
         self._pids: dict[int, int] = {}
