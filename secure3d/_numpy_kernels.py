@@ -4,12 +4,13 @@ numpy picks its vector kernels (sin, cos, exp, sorts, reductions) by the CPU's i
 when it is imported. Its AVX-512 kernels give other last bits than its AVX2 ones, and the planner
 amplifies last bits: on an AMD EPYC with AVX-512 the pinned planar plan moved by 2e-6 relative and
 ``warehouse_survey``'s secure flight reached its goal at 21.30 s instead of 9.09 s, on unchanged
-code (``benchmarks/results/closed_loop_session38.md``). So ``import secure3d`` holds numpy to the
-x86-64-v3 (AVX2) kernels that every x86 CPU since 2015 runs, and the same code then gives the same
-plans on CPUs with and without AVX-512. It can do so only when numpy is not imported yet: numpy
-reads ``NPY_DISABLE_CPU_FEATURES`` once, at its import. The variable stays in the environment, so
-the processes secure3d starts (campaign workers, Ray workers on a local cluster, benchmarks' fresh
-runs) hold numpy the same way.
+code (``benchmarks/results/closed_loop_session38.md``). So ``import secure3d`` holds numpy to its
+x86-64-v3 (AVX2) kernels at most, and the same code then gives the same plans on CPUs with and
+without AVX-512 (on a CPU without AVX-512 the variable changes nothing). It can do so only when
+numpy is not imported yet: numpy reads ``NPY_DISABLE_CPU_FEATURES`` once, at its import. The
+variable stays in the environment, so the processes secure3d starts (campaign workers, a local
+Ray, benchmarks' fresh runs) hold numpy the same way; Ray actors on a cluster get it through their
+``runtime_env`` (:func:`secure3d.simulation.campaign_ray.actor_env`).
 
 ``$SECURE3D_NUMPY_KERNELS`` chooses:
 
