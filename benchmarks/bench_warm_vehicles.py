@@ -7,7 +7,7 @@ compiles nothing for a kernel no earlier process met). Each case is a new Python
 own kernel cache (``SECURE3D_KERNEL_CACHE_DIR``, a new temporary folder; numba's cache is the
 user's, as after ``make venv``):
 
-- *empty*: nothing compiled;
+- *empty*: nothing compiled (a new empty folder for every such flight);
 - *warm*: after :func:`secure3d.warm.warm` into that folder (timed, in its own process).
 
 Reported per flight: outcome, simulated time, flight wall time, its plan calls, and the real-time
@@ -67,24 +67,18 @@ def main() -> None:
     ap.add_argument("--out", type=Path, help="markdown file (default: print only)")
     args = ap.parse_args()
     rows, warm_seconds = [], None
-    with tempfile.TemporaryDirectory() as empty, tempfile.TemporaryDirectory() as warmed:
-        base = {k: v for k, v in os.environ.items() if k != "SECURE3D_KERNEL_COMPILE"}
+    base = {k: v for k, v in os.environ.items() if k != "SECURE3D_KERNEL_COMPILE"}
+    with tempfile.TemporaryDirectory() as warmed:
         warm_seconds = _warm({**base, "SECURE3D_KERNEL_CACHE_DIR": warmed})
         for name in args.flights:  # alternating, each in a new process
-            for case, folder in (("empty", empty), ("warm", warmed)):
-                env = {**base, "SECURE3D_KERNEL_CACHE_DIR": folder}
-                r = fly(name, env)
-                rows.append(
-                    [
-                        name,
-                        case,
-                        r["outcome"],
-                        f"{r['sim']:.2f}",
-                        f"{r['flight']:.2f}",
-                        f"{r['plans']:.2f}",
-                        f"{r['rtf']:.2f}x",
-                    ]
-                )
+            for case in ("empty", "warm"):
+                # a new empty folder for each such flight: in an emptied one a second process
+                # would compile the kernels an earlier one marked as seen
+                with tempfile.TemporaryDirectory() as empty:
+                    folder = empty if case == "empty" else warmed
+                    r = fly(name, {**base, "SECURE3D_KERNEL_CACHE_DIR": folder})
+                cells = [r["outcome"], f"{r['sim']:.2f}", f"{r['flight']:.2f}", f"{r['plans']:.2f}"]
+                rows.append([name, case, *cells, f"{r['rtf']:.2f}x"])
                 print(*rows[-1], flush=True)
     table = markdown_table(
         [
