@@ -62,7 +62,7 @@ def _warm() -> float:
         simulate(maps / "blind_corner.yaml", "secure")
         # and one per shipped vehicle: the node kernels are compiled per model, limits and
         # reactive-set family, and without them a first quadrotor flight ran its NLPs in CasADi's
-        # virtual machine (0.71x real time against 1.25x)
+        # virtual machine (1.2x real time against 1.5x, benchmarks/results/warm_vehicles.md)
         for name in WARM_FLIGHTS:
             simulate(maps / name, "secure")
     # array forms of the key kernels, which a flight over an OctoMap calls (observed regions)
