@@ -407,6 +407,24 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(EXIT_USAGE)
 
 
+class _Version(argparse.Action):
+    """``--version``: this package's version, and the numpy kernels the process runs
+    (:func:`secure3d.numpy_kernels`), which decide a plan's last bits; asked only when used."""
+
+    def __init__(self, option_strings: list[str], dest: str, **kwargs: object) -> None:
+        super().__init__(option_strings, dest, nargs=0, help="show the version and exit")
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: object) -> NoReturn:
+        from secure3d import numpy_kernels
+
+        k = numpy_kernels()
+        kernels = (
+            f"numpy {k['numpy']}, kernels {k['mode']} ({' '.join(k['dispatch']) or 'baseline'})"
+        )
+        print(f"{PROG} {__version__}\n{kernels}: {k['reason']}")
+        parser.exit(0)
+
+
 def _fail(message: str) -> None:
     print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr)
 
@@ -430,7 +448,7 @@ def build_parser(scripts: Path = _BENCHMARKS) -> argparse.ArgumentParser:
         prog=PROG,
         description="Secure minimum-time planning for aerial robots whose map cannot be trusted.",
     )
-    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
+    parser.add_argument("--version", action=_Version)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for command in COMMANDS:
         if command.name == "bench" and not scripts.is_dir():

@@ -79,6 +79,28 @@ def test_help_and_version_exit_0(capsys: pytest.CaptureFixture[str]) -> None:
     assert capsys.readouterr().out.startswith("secure3d ")
 
 
+def test_version_names_the_numpy_kernels() -> None:
+    """A fresh ``secure3d --version`` without the Makefile's variable: numpy held by the import."""
+    env = {k: v for k, v in os.environ.items() if k != "NPY_DISABLE_CPU_FEATURES"}
+    env.pop("SECURE3D_NUMPY_KERNELS", None)
+    env["PYTHONPATH"] = str(REPO)
+    out = subprocess.run(
+        [sys.executable, "-m", "secure3d", "--version"], capture_output=True, text=True, env=env
+    )
+    assert out.returncode == 0, out.stderr
+    first, second = out.stdout.strip().splitlines()
+    assert first.startswith("secure3d ")
+    assert "kernels portable (" in second and "X86_V4" not in second.split("(")[1].split(")")[0]
+    assert "NPY_DISABLE_CPU_FEATURES=X86_V4 AVX512_ICL AVX512_SPR" in second
+    native = subprocess.run(
+        [sys.executable, "-m", "secure3d", "--version"],
+        capture_output=True,
+        text=True,
+        env={**env, "SECURE3D_NUMPY_KERNELS": "native"},
+    )
+    assert "kernels native (" in native.stdout and "SECURE3D_NUMPY_KERNELS=native" in native.stdout
+
+
 def _run(*args: str) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     return subprocess.run(
