@@ -68,7 +68,8 @@ def _numpy_release() -> tuple[int, ...] | None:
 def hold_before_numpy() -> dict[str, str]:
     """Set ``NPY_DISABLE_CPU_FEATURES`` for numpy's AVX2 kernels where it can still act (module
     docstring). Returns ``{"mode": "portable" | "native", "reason": ...}`` (also kept for
-    :func:`numpy_kernels`). Raises :class:`~secure3d.errors.ConfigError` naming :data:`ENV` for a value it does not know.
+    :func:`numpy_kernels`). Raises :class:`~secure3d.errors.ConfigError` naming :data:`ENV` for a
+    value it does not know.
     """
     choice = os.environ.get(ENV, "portable").strip().lower() or "portable"
     if choice not in _MODES:

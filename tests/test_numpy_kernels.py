@@ -20,8 +20,8 @@ ABOVE_AVX2 = {"X86_V4", "AVX512_ICL", "AVX512_SPR", "AVX512F", "AVX512_SKX"}
 
 
 def _child(code: str, **env: str) -> subprocess.CompletedProcess:
-    clean = {k: v for k, v in os.environ.items() if k not in ("NPY_DISABLE_CPU_FEATURES",)}
-    clean.pop("SECURE3D_NUMPY_KERNELS", None)
+    drop = ("NPY_DISABLE_CPU_FEATURES", "SECURE3D_NUMPY_KERNELS")
+    clean = {k: v for k, v in os.environ.items() if k not in drop}
     clean.update(env)
     return subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, env=clean, timeout=600

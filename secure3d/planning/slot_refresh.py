@@ -10,6 +10,8 @@ solution is stopped and, where the call allows it, replaced by a solve from the 
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from secure3d.planning import lookback as lb
@@ -18,10 +20,28 @@ from secure3d.planning.nlp_cache import NLPCache
 from secure3d.planning.nlp_solve import SolveCost, _Solve, _solve_once
 from secure3d.planning.problem import PlanningProblem
 
-__all__ = ["REFRESH_RUNAWAY", "SLOT_REFRESHES", "refresh_slots", "resolve_from", "restart_from"]
+__all__ = [
+    "KEEP_STALE",
+    "REFRESH_RUNAWAY",
+    "SLOT_REFRESHES",
+    "refresh_slots",
+    "resolve_from",
+    "restart_from",
+]
+
+log = logging.getLogger(__name__)
 
 #: Re-selections of the obstacle slots on a solution before it is accepted.
 SLOT_REFRESHES = 3
+
+#: A refresh whose re-solve ends without a solution keeps the solution it refreshed: optimal for an
+#: NLP that left a box out (a relaxation), so not proven optimal, but the certificate judges every
+#: box, and a plan it certifies is as safe as any other. Without this, such a call threw that
+#: solution away and, near the many small boxes of a scan or of a robot braked beside a wall,
+#: spent its whole budget on refreshes that ran away one after another (holdout seed 4001,
+#: geb079_region_attacks corner variant 2: eight plan calls at rest of ~8.5 s each, every one
+#: with a solution in hand; benchmarks/results/session40.md).
+KEEP_STALE = True
 
 #: A slot refresh re-solves from the solution it refreshes, which may pass through boxes its slots
 #: left out. That is a good start when the new rows only nudge it, but from a solution that runs
@@ -106,14 +126,16 @@ def refresh_slots(
 ) -> tuple[_Solve, SolveCost]:
     """Re-select the obstacle slots on solution ``s`` and re-solve warm, up to SLOT_REFRESHES
     times, while :func:`~secure3d.planning.lookback.slots_stale` (a box left out of them comes
-    closer than part of the margin). Returns the last solve, and what the re-solves cost.
+    closer than part of the margin). Returns the last solution, and what the re-solves cost.
     ``extra_margin``: one margin (m), or one per node, added to the re-solves' margin rows.
     ``start``: the (T, X, U, grid) the solve of ``s`` started from, if the re-solves are watched:
     one whose final time runs past REFRESH_RUNAWAY times its solution's is stopped
     (``ITERATION_LIMIT``) and, if the call tries slower guesses (``slower_guesses``; a moving
     robot's replan does not: it brakes instead, and from a moving start the restart found the same
-    slow plan), replaced once by a solve from ``start`` (:func:`restart_from`), after which the
-    refreshes are no longer watched.
+    slow plan), replaced once by a solve from ``start`` (:func:`restart_from`).
+
+    A re-solve that ends without a solution (stopped, iteration limit, infeasible) hands back the
+    solution it refreshed, its slots stale, for the certificate to judge (:data:`KEEP_STALE`).
 
     Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may have come
     closer. With the slots the NLP is a relaxation of the NLP with every box, so a solution no
@@ -127,6 +149,7 @@ def refresh_slots(
     margins down to -0.8 m).
     """
     cost = SolveCost()
+    restarted = False
     for _ in range(SLOT_REFRESHES):
         if (
             not s.status.ok
@@ -134,13 +157,21 @@ def refresh_slots(
             or not lb.slots_stale(problem, planner, s.X, s.assignment, s.slots)
         ):
             break
-        with final_time_watch(REFRESH_RUNAWAY * s.T if start is not None else np.inf):
+        watch = start is not None and (KEEP_STALE or not restarted)
+        with final_time_watch(REFRESH_RUNAWAY * s.T if watch else np.inf):
             r = resolve_from(problem, planner, s, cache, None, extra_margin)
         cost = cost + SolveCost(0.0, r.solve_time, r.iterations)
-        restart = start is not None and problem.options.slower_guesses
+        restart = watch and not restarted and problem.options.slower_guesses
         if restart and ran_away() and not budget_spent():
             r = restart_from(problem, planner, s, start, cache, extra_margin)
             cost = cost + SolveCost(0.0, r.solve_time, r.iterations)
-            start = None
+            restarted = True
+        if KEEP_STALE and not r.status.ok:
+            log.debug(
+                "slot refresh: re-solve ended %s (%s); keeping the solution it refreshed",
+                r.status.name,
+                r.message,
+            )
+            return s, cost
         s = r
     return s, cost

@@ -1,4 +1,4 @@
-"""A slot refresh whose re-solve runs away from the solution it refreshes restarts from the guess
+"""A slot refresh whose re-solve runs away from the solution it refreshes restarts from the guess, or keeps that solution
 (``planning.slot_refresh.REFRESH_RUNAWAY``), with real IPOPT solves."""
 
 from __future__ import annotations
@@ -76,12 +76,34 @@ def test_a_refresh_that_runs_away_restarts_from_the_guess_with_the_left_out_boxe
     assert restart.status is PlanStatus.SUCCESS
 
 
-def test_a_call_without_slower_guesses_fails_at_a_runaway_refresh_instead_of_restarting(
+def test_a_call_without_slower_guesses_keeps_the_solution_a_runaway_refresh_started_from(
     mesh_server, monkeypatch
 ):
     """A replan of a moving robot tries no slower guesses (its fallback is braking), and no
-    restart either: the stopped refresh ends the call, well before its budget."""
+    restart either: the stopped refresh hands back the solution it refreshed, stale slots and
+    all (``slot_refresh.KEEP_STALE``), and the certificate judges that. Here it finds a box the
+    slots left out too near, and its local re-solve certifies, near the reference's final time."""
+    reference = secure3d.plan(mesh_server, "secure")
     monkeypatch.setattr(slot_refresh, "REFRESH_RUNAWAY", 1.0 + 1e-9)
+    calls = _recorded_solves(monkeypatch)
+    plan = secure3d.plan(mesh_server, "secure", slower_guesses=False)
+    assert plan.status is PlanStatus.SUCCESS and plan.certificate.ok, plan.message
+    assert plan.times[-1] == pytest.approx(reference.times[-1], rel=0.01)
+    (_, first, _), (kw_ref, refresh, _) = calls[:2]
+    assert first.status is PlanStatus.SUCCESS
+    assert kw_ref.get("left_out_limit") is not None
+    assert refresh.status is PlanStatus.ITERATION_LIMIT
+    assert "final time ran past" in refresh.message
+    assert all(kw.get("slots") is None for kw, _, _ in calls)  # no restart from the guess
+    problem = problem_from_scenario(mesh_server)
+    assert lb.slots_stale(problem, "secure", first.X, first.assignment, first.slots)
+
+
+def test_without_keep_stale_a_runaway_refresh_ends_the_call(mesh_server, monkeypatch):
+    """The rule before KEEP_STALE, for contrast: the stopped refresh ended the call, and the
+    solution in hand was lost."""
+    monkeypatch.setattr(slot_refresh, "REFRESH_RUNAWAY", 1.0 + 1e-9)
+    monkeypatch.setattr(slot_refresh, "KEEP_STALE", False)
     calls = _recorded_solves(monkeypatch)
     plan = secure3d.plan(mesh_server, "secure", slower_guesses=False)
     assert plan.status is PlanStatus.ITERATION_LIMIT, plan.status

@@ -36,13 +36,14 @@ def head():
     """A Ray head of one CPU, started without the numpy variable; yields its address. Its temp
     folder is its own (short, for Ray's socket paths), so the file naming the latest cluster
     started on this machine is not the one ``ray.init()`` looks for in other tests."""
-    if not RAY.exists() and shutil.which("ray") is None:
+    ray_cmd = str(RAY) if RAY.exists() else shutil.which("ray")
+    if ray_cmd is None:
         pytest.skip("no ray command")
     port = _free_port()
     folder = tempfile.mkdtemp(prefix="s3dray", dir="/tmp")
     env = {k: v for k, v in os.environ.items() if k != NUMPY_ENV}
     env["RAY_TMPDIR"] = folder
-    cmd = [str(RAY if RAY.exists() else shutil.which("ray")), "start", "--head", "--block"]
+    cmd = [ray_cmd, "start", "--head", "--block"]
     cmd += [f"--port={port}", "--num-cpus=1", "--include-dashboard=false", "--disable-usage-stats"]
     proc = subprocess.Popen(
         cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True
