@@ -1,5 +1,6 @@
-"""A slot refresh whose re-solve runs away from the solution it refreshes restarts from the guess, or keeps that solution
-(``planning.slot_refresh.REFRESH_RUNAWAY``), with real IPOPT solves."""
+"""A slot refresh whose re-solve runs away from the solution it refreshes restarts from the guess
+(``planning.slot_refresh.REFRESH_RUNAWAY``) or keeps that solution (``KEEP_STALE``), with real
+IPOPT solves."""
 
 from __future__ import annotations
 
