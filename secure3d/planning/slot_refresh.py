@@ -34,13 +34,17 @@ log = logging.getLogger(__name__)
 #: Re-selections of the obstacle slots on a solution before it is accepted.
 SLOT_REFRESHES = 3
 
-#: A refresh whose re-solve ends without a solution keeps the solution it refreshed: optimal for an
-#: NLP that left a box out (a relaxation), so not proven optimal, but the certificate judges every
-#: box, and a plan it certifies is as safe as any other. Without this, such a call threw that
-#: solution away and, near the many small boxes of a scan or of a robot braked beside a wall,
-#: spent its whole budget on refreshes that ran away one after another (holdout seed 4001,
-#: geb079_region_attacks corner variant 2: eight plan calls at rest of ~8.5 s each, every one
-#: with a solution in hand; benchmarks/results/session40.md).
+#: A refresh whose re-solve ends without a solution, in a call that tries slower guesses (a plan
+#: from rest, whose alternative is failing and holding still), keeps the solution it refreshed:
+#: optimal for an NLP that left a box out (a relaxation), so not proven optimal, but the
+#: certificate judges every box, and a plan it certifies is as safe as any other. Without this,
+#: such a call threw that solution away and, near the many small boxes of a scan or of a robot
+#: braked beside a wall, spent its whole budget on refreshes that ran away one after another
+#: (holdout seed 4001, geb079_region_attacks corner variant 2: eight plan calls at rest of ~8.5 s
+#: each, every one with a solution in hand; benchmarks/results/session40.md). A moving robot's
+#: replan still fails there and brakes: keeping its stale solution too, the 200-run forest
+#: campaign arrived 2.5-3.4 s later in three runs (the certificate refused the stale plans, and
+#: their tightened re-solves were slower than braking and planning from rest) and sooner in one.
 KEEP_STALE = True
 
 #: A slot refresh re-solves from the solution it refreshes, which may pass through boxes its slots
@@ -134,8 +138,9 @@ def refresh_slots(
     robot's replan does not: it brakes instead, and from a moving start the restart found the same
     slow plan), replaced once by a solve from ``start`` (:func:`restart_from`).
 
-    A re-solve that ends without a solution (stopped, iteration limit, infeasible) hands back the
-    solution it refreshed, its slots stale, for the certificate to judge (:data:`KEEP_STALE`).
+    In a call that tries slower guesses, a re-solve that ends without a solution (stopped,
+    iteration limit, infeasible) hands back the solution it refreshed, its slots stale, for the
+    certificate to judge (:data:`KEEP_STALE`).
 
     Obstacles are NLP parameters chosen near the iterate; on the solution other boxes may have come
     closer. With the slots the NLP is a relaxation of the NLP with every box, so a solution no
@@ -150,6 +155,7 @@ def refresh_slots(
     """
     cost = SolveCost()
     restarted = False
+    keep = KEEP_STALE and problem.options.slower_guesses
     for _ in range(SLOT_REFRESHES):
         if (
             not s.status.ok
@@ -157,7 +163,7 @@ def refresh_slots(
             or not lb.slots_stale(problem, planner, s.X, s.assignment, s.slots)
         ):
             break
-        watch = start is not None and (KEEP_STALE or not restarted)
+        watch = start is not None and (keep or not restarted)
         with final_time_watch(REFRESH_RUNAWAY * s.T if watch else np.inf):
             r = resolve_from(problem, planner, s, cache, None, extra_margin)
         cost = cost + SolveCost(0.0, r.solve_time, r.iterations)
@@ -166,7 +172,7 @@ def refresh_slots(
             r = restart_from(problem, planner, s, start, cache, extra_margin)
             cost = cost + SolveCost(0.0, r.solve_time, r.iterations)
             restarted = True
-        if KEEP_STALE and not r.status.ok:
+        if keep and not r.status.ok:
             log.debug(
                 "slot refresh: re-solve ended %s (%s); keeping the solution it refreshed",
                 r.status.name,
