@@ -5,7 +5,8 @@ The NLP's obstacles are parameters, a fixed number of slots per node chosen near
 closer. :func:`refresh_slots` re-selects the slots on the solution and re-solves, warm from it
 (:func:`resolve_from`), while a box left out comes too close; a re-solve that runs away from the
 solution is stopped and, where the call allows it, replaced by a solve from the round's own start
-(:func:`restart_from`).
+(:func:`restart_from`); in a plan from rest, a re-solve that ends without a solution leaves the
+solution it refreshed to the certificate (:data:`KEEP_STALE`).
 """
 
 from __future__ import annotations
@@ -167,7 +168,7 @@ def refresh_slots(
         with final_time_watch(REFRESH_RUNAWAY * s.T if watch else np.inf):
             r = resolve_from(problem, planner, s, cache, None, extra_margin)
         cost = cost + SolveCost(0.0, r.solve_time, r.iterations)
-        restart = watch and not restarted and problem.options.slower_guesses
+        restart = start is not None and not restarted and problem.options.slower_guesses
         if restart and ran_away() and not budget_spent():
             r = restart_from(problem, planner, s, start, cache, extra_margin)
             cost = cost + SolveCost(0.0, r.solve_time, r.iterations)
