@@ -16,7 +16,12 @@ from secure3d.errors import PlanningError
 from secure3d.geometry.frustum import frustum_halfspaces
 from secure3d.geometry.polytope import box_pair_distances
 from secure3d.planning.problem import Planner, PlanningProblem
-from secure3d.planning.slot_screen import INDEXED_MIN_BOXES, indexed_slot_boxes, screened_pairs
+from secure3d.planning.slot_screen import (
+    INDEXED_MIN_BOXES,
+    indexed_slot_boxes,
+    nearest_slots,
+    screened_pairs,
+)
 
 #: Penalty (m) on a candidate camera whose line of sight to the reactive set crosses a known obstacle.
 OCCLUSION_PENALTY = 5.0
@@ -502,6 +507,8 @@ def select_slots(
     n = len(problem.boxes_lo)
     if n == 0:
         return slots
+    directions = planner == Planner.SECURE and o.slot_pick == "directions"
+    centres = node_geometry(problem, states)["C"] if directions else None
     if n >= INDEXED_MIN_BOXES:  # the nearest through the box index: the same choice
         pts, reach = _hull_samples(problem, planner, states, assignment)
 
@@ -509,13 +516,12 @@ def select_slots(
             sets = constrained_sets(problem, "secure", states, assignment)
             return _exact_distances(problem, sets, k_idx, b_idx)
 
-        chosen = indexed_slot_boxes(problem, planner, pts, reach, exact)
+        chosen = indexed_slot_boxes(problem, planner, pts, reach, exact, centres)
     else:
         d = _hull_box_distances(problem, planner, states, assignment)
         if planner == Planner.SECURE:
             d = _refine_distances(problem, states, assignment, d, 2 * S)
-        order = np.argsort(d, axis=1)[:, :S]
-        chosen = np.where(np.take_along_axis(d, order, axis=1) <= o.obstacle_radius, order, -1)
+        chosen = nearest_slots(problem, d, S, centres)
     for k in range(K):
         for s, idx in enumerate(chosen[k]):
             if idx >= 0:

@@ -40,6 +40,13 @@ def _check_positive(name: str, value: float, *, allow_zero: bool = False) -> Non
         )
 
 
+def _check_choice(name: str, value: object, choices: tuple[str, ...]) -> None:
+    if value not in choices:
+        raise ConfigError(
+            f"planner option {name}: {' or '.join(map(repr, choices))}, got {value!r}"
+        )
+
+
 #: Farthest look-back of the adaptive rule with fatrop (its register depth), unless set.
 FATROP_MAX_SPAN = 6
 
@@ -88,13 +95,9 @@ class PlannerOptions:
     margin : clearance required of every visibility and obstacle constraint (m): the ε of the
         paper's Assumption 2, which makes the discrete constraints imply the continuous ones.
     obstacle_slots : obstacles considered per node (the nearest to that node's line-of-sight hull).
-    one_sided_duals : separation duals with one component per box axis, on the side of the box
-        where the node's set lies (3 variables per slot instead of 6; IPOPT only). Sound: any
-        dual-feasible lam gives a lower bound on the distance, a restricted one included. Measured
-        (K=40, medians of 3): blind_corner cold secure solve 0.52 -> 0.29 s, baseline 0.55 -> 0.13
-        s, same final time; but planar_passage_50cm's baseline fails (IPOPT step error) and in
-        closed loop replans find slower plans (8 blind-corner variants: 4.5-5.2 s -> 5.6-13.9 s to
-        the goal), so it is off by default.
+    slot_pick : ``"nearest"`` (default) or, opt-in, ``"directions"``: S of the 2S nearest, first the
+        nearest in each direction (:func:`~secure3d.planning.slot_screen.by_direction`; secure
+        only). Fewer cold iterations, some slower plans: ``benchmarks/results/session41.md``.
     obstacle_radius : obstacles farther than this from a node's hull are ignored there (m).
     occlusion : require the line-of-sight hull conv({o_j} ∪ E_i) to miss known obstacles (beyond the
         paper, whose frustum sees through walls).
@@ -139,6 +142,7 @@ class PlannerOptions:
     solver: Literal["ipopt", "fatrop"] = "ipopt"
     margin: float = 0.02
     obstacle_slots: int = 8
+    slot_pick: Literal["nearest", "directions"] = "nearest"
     one_sided_duals: bool = False
     obstacle_radius: float = 1.5
     occlusion: bool = True
@@ -168,24 +172,14 @@ class PlannerOptions:
             raise ConfigError(
                 f"planner option nodes: must be an integer in [5, 400], got {self.nodes!r}"
             )
-        if self.collocation not in ("trapezoidal", "hermite_simpson"):
-            raise ConfigError(
-                f"planner option collocation: 'trapezoidal' or 'hermite_simpson', got {self.collocation!r}"
-            )
+        _check_choice("collocation", self.collocation, ("trapezoidal", "hermite_simpson"))
         if self.lookback_max_span is not None and not is_int_in(self.lookback_max_span, 1):
             raise ConfigError(
                 "planner option lookback_max_span: must be None or an integer >= 1, got"
                 f" {self.lookback_max_span!r}"
             )
-        if self.lookback_encoding not in ("structure", "parameter"):
-            raise ConfigError(
-                "planner option lookback_encoding: 'structure' or 'parameter', got"
-                f" {self.lookback_encoding!r}"
-            )
-        if self.lookback not in ("adaptive", "fixed"):
-            raise ConfigError(
-                f"planner option lookback: 'adaptive' or 'fixed', got {self.lookback!r}"
-            )
+        _check_choice("lookback_encoding", self.lookback_encoding, ("structure", "parameter"))
+        _check_choice("lookback", self.lookback, ("adaptive", "fixed"))
         if not isinstance(self.lookback_steps, int) or not 1 <= self.lookback_steps < self.nodes:
             raise ConfigError(
                 f"planner option lookback_steps: must be an integer in [1, nodes), got {self.lookback_steps!r}"
@@ -194,8 +188,8 @@ class PlannerOptions:
             raise ConfigError(
                 f"planner option lookback_rounds: must be >= 1, got {self.lookback_rounds!r}"
             )
-        if self.solver not in ("ipopt", "fatrop"):
-            raise ConfigError(f"planner option solver: 'ipopt' or 'fatrop', got {self.solver!r}")
+        _check_choice("solver", self.solver, ("ipopt", "fatrop"))
+        _check_choice("slot_pick", self.slot_pick, ("nearest", "directions"))
         _check_positive("margin", self.margin, allow_zero=True)
         if not isinstance(self.obstacle_slots, int) or not 1 <= self.obstacle_slots <= 64:
             raise ConfigError(

@@ -27,10 +27,47 @@ import numpy as np
 
 from secure3d.planning.problem import Planner, PlanningProblem
 
-__all__ = ["INDEXED_MIN_BOXES", "indexed_slot_boxes", "screened_pairs"]
+__all__ = [
+    "INDEXED_MIN_BOXES",
+    "SLOT_CONE_DEG",
+    "by_direction",
+    "indexed_slot_boxes",
+    "screened_pairs",
+]
 
 #: Boxes from which the screens go through the index (below, the matrix is as cheap).
 INDEXED_MIN_BOXES = 256
+
+#: ``slot_pick="directions"``: a box whose nearest point lies within this angle (deg) of a nearer
+#: box's, seen from the node's reactive-set centre, waits until every direction has its nearest.
+#: Over a scanned building a door jamb is a dozen merged voxel boxes, and a node's 8 nearest all
+#: lay on one jamb while the solution moved towards the other (geb079_hidden_crate: a slot
+#: refresh, 29 of its 80 cold iterations). 20 and 45 deg measured alike (session41.md).
+SLOT_CONE_DEG = 30.0
+
+
+def by_direction(
+    centre: np.ndarray, lo: np.ndarray, hi: np.ndarray, ranked: np.ndarray, n: int
+) -> np.ndarray:
+    """Up to ``n`` of the boxes ``ranked`` (m,) (indices into ``lo``, ``hi`` (B, 3), nearest
+    first), kept in that order: greedily each box whose direction from ``centre`` (3,) to its
+    nearest point is more than SLOT_CONE_DEG from that of every box taken before it (a box holding
+    ``centre`` always counts as a new direction), then the others, nearest first."""
+    ranked = np.asarray(ranked, dtype=np.int64)
+    if len(ranked) <= n:
+        return ranked
+    v = np.clip(centre, lo[ranked], hi[ranked]) - centre
+    norm = np.linalg.norm(v, axis=1)
+    u = np.divide(v, norm[:, None], out=np.zeros_like(v), where=norm[:, None] > 0.0)
+    cos_limit = np.cos(np.radians(SLOT_CONE_DEG))
+    taken: list[int] = []
+    for i in range(len(ranked)):
+        if norm[i] == 0.0 or not taken or bool(np.all(u[taken] @ u[i] < cos_limit)):
+            taken.append(i)
+            if len(taken) == n:
+                break
+    rest = np.setdiff1d(np.arange(len(ranked)), taken)[: n - len(taken)]
+    return ranked[np.sort(np.concatenate([np.asarray(taken, dtype=np.int64), rest]))]
 
 
 def screened_pairs(
@@ -123,11 +160,13 @@ def indexed_slot_boxes(
     pts: np.ndarray,
     reach: np.ndarray,
     exact: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    centres: np.ndarray | None = None,
 ) -> np.ndarray:
     """(K, S) box per node slot (-1: empty) as :func:`~secure3d.planning.lookback.select_slots`
     picks them from the full screen of the samples ``pts`` (K, P, 3) and ``reach`` (K,), found
     through the box index (a row whose ranking a tie decides is ranked in full); the secure planner
-    ranks its 2S nearest by ``exact(k_idx, b_idx)``, their exact distances."""
+    ranks its 2S nearest by ``exact(k_idx, b_idx)``, their exact distances, and with the nodes'
+    reactive-set ``centres`` (K, 3) picks S of them :func:`by_direction`."""
     m = len(problem.boxes_lo)
     o = problem.options
     K, S, R = len(pts), o.obstacle_slots, o.obstacle_radius
@@ -141,15 +180,38 @@ def indexed_slot_boxes(
     else:
         ranked = [(js[row], vs[row]) for row in rows]
     chosen = np.full((K, min(S, m)), -1, dtype=np.int64)
+    n_rank = 2 * S if secure and centres is not None else S
     for k, (boxes, values) in enumerate(ranked):
-        keep = _smallest(values, S, R, ordered=True)
+        keep = _smallest(values, n_rank, R, ordered=True)
         if keep is not None:
             sel = boxes[keep]
         elif secure:  # the refined row as _refine_distances writes it: inf but its 2S boxes
             full = np.full(m, np.inf)
             full[boxes] = values
-            sel = _first(full, S, R)
+            sel = _first(full, n_rank, R)
         else:
             sel = _first(_screen_row(problem, pts, reach, k), S, R)
+        if n_rank > S:
+            sel = by_direction(centres[k], problem.boxes_lo, problem.boxes_hi, sel, S)
         chosen[k, : len(sel)] = sel
     return chosen
+
+
+def nearest_slots(
+    problem: PlanningProblem, d: np.ndarray, S: int, centres: np.ndarray | None
+) -> np.ndarray:
+    """(K, S) slots (-1: empty) from the distances ``d`` (K, m): per node its S nearest within the
+    slot radius, or with ``centres`` (K, 3) S of its 2S nearest picked
+    :func:`by_direction`."""
+    n_rank = S if centres is None else 2 * S
+    order = np.argsort(d, axis=1)[:, :n_rank]
+    chosen = np.where(
+        np.take_along_axis(d, order, axis=1) <= problem.options.obstacle_radius, order, -1
+    )
+    if centres is None:
+        return chosen
+    out = np.full((len(d), min(S, d.shape[1])), -1, dtype=np.int64)
+    for k, row in enumerate(chosen):
+        sel = by_direction(centres[k], problem.boxes_lo, problem.boxes_hi, row[row >= 0], S)
+        out[k, : len(sel)] = sel
+    return out
