@@ -31,7 +31,7 @@ def _planners(choice: str) -> tuple[str, ...]:
 
 
 def _add_planner_options(parser: argparse.ArgumentParser) -> None:
-    """Planner settings shared by plan, simulate, campaign and demo (default: the scenario's)."""
+    """Planner settings shared by plan, simulate and campaign (default: the scenario's)."""
     group = parser.add_argument_group("planner options (default: the scenario's planner section)")
     group.add_argument("--nodes", type=int, metavar="K", help="collocation nodes K")
     group.add_argument("--solver", choices=("ipopt", "fatrop"), help="NLP solver")
@@ -44,10 +44,16 @@ def _add_planner_options(parser: argparse.ArgumentParser) -> None:
         metavar="S",
         help="wall-clock budget of one plan call, retries included (s; default 60)",
     )
+    group.add_argument(
+        "--slot-pick",
+        choices=("nearest", "directions"),
+        help="obstacle slots of a node: its nearest boxes (default), or first the nearest in each"
+        " direction (secure planner, opt-in)",
+    )
 
 
 def _planner_options(args: argparse.Namespace) -> dict[str, object]:
-    names = ("nodes", "solver", "lookback", "plan_budget")
+    names = ("nodes", "solver", "lookback", "plan_budget", "slot_pick")
     return {name: getattr(args, name) for name in names if getattr(args, name) is not None}
 
 

@@ -163,6 +163,22 @@ def test_campaign_writes_csv_and_summary(tiny: Path, tmp_path: Path, capsys) -> 
     assert err == "", "no progress bar with --no-progress"
 
 
+def test_campaign_flies_and_records_the_slot_pick(tiny: Path, tmp_path: Path, capsys) -> None:
+    out_dir = tmp_path / "campaign"
+    argv = ["campaign", str(tiny), "-n", "1", "--planners", "secure", "--workers", "1"]
+    argv += ["--out", str(out_dir), "--no-progress", "--slot-pick", "directions"]
+    assert main(argv) == 0
+    header = (out_dir / "runs.csv").read_text().splitlines()[0]
+    assert json.loads(header.removeprefix("# secure3d campaign "))["options"] == {
+        "slot_pick": "directions"
+    }
+    with open(out_dir / "campaign.csv", newline="") as fh:
+        (row,) = list(csv.DictReader(fh))
+    assert row["error"] == "" and row["collided"] == "0"
+    assert main(["plan", str(tiny), "--slot-pick", "farthest"]) == 2
+    assert "--slot-pick" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     ("argv", "needle"),
     [
