@@ -98,6 +98,13 @@ class PlannerOptions:
     slot_pick : ``"nearest"`` (default) or, opt-in, ``"directions"``: S of the 2S nearest, first the
         nearest in each direction (:func:`~secure3d.planning.slot_screen.by_direction`; secure
         only). Fewer cold iterations, some slower plans: ``benchmarks/results/session41.md``.
+    one_sided_duals : separation duals with one component per box axis, on the side of the box
+        where the node's set lies (3 variables per slot instead of 6; IPOPT only). Sound: any
+        dual-feasible lam gives a lower bound on the distance, a restricted one included. Measured
+        (K=40, medians of 3): blind_corner cold secure solve 0.52 -> 0.29 s, baseline 0.55 -> 0.13
+        s, same final time; but planar_passage_50cm's baseline fails (IPOPT step error) and in
+        closed loop replans find slower plans (8 blind-corner variants: 4.5-5.2 s -> 5.6-13.9 s to
+        the goal), so it is off by default.
     obstacle_radius : obstacles farther than this from a node's hull are ignored there (m).
     occlusion : require the line-of-sight hull conv({o_j} ∪ E_i) to miss known obstacles (beyond the
         paper, whose frustum sees through walls).

@@ -25,6 +25,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from secure3d.errors import PlanningError
 from secure3d.planning.problem import Planner, PlanningProblem
 
 __all__ = [
@@ -32,6 +33,7 @@ __all__ = [
     "SLOT_CONE_DEG",
     "by_direction",
     "indexed_slot_boxes",
+    "nearest_slots",
     "screened_pairs",
 ]
 
@@ -53,7 +55,14 @@ def by_direction(
     first), kept in that order: greedily each box whose direction from ``centre`` (3,) to its
     nearest point is more than SLOT_CONE_DEG from that of every box taken before it (a box holding
     ``centre`` always counts as a new direction), then the others, nearest first."""
+    centre = np.asarray(centre, dtype=float)
     ranked = np.asarray(ranked, dtype=np.int64)
+    if centre.shape != (3,) or not np.all(np.isfinite(centre)):
+        raise PlanningError(f"by_direction: centre must be 3 finite numbers, got {centre!r}")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise PlanningError(f"by_direction: n must be an integer >= 1, got {n!r}")
+    if ranked.ndim != 1 or (len(ranked) and not 0 <= ranked.min() <= ranked.max() < len(lo)):
+        raise PlanningError(f"by_direction: ranked must index the {len(lo)} boxes, got {ranked!r}")
     if len(ranked) <= n:
         return ranked
     v = np.clip(centre, lo[ranked], hi[ranked]) - centre

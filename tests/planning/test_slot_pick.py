@@ -45,6 +45,18 @@ def test_by_direction_changes_nothing_with_room_for_every_box():
     assert 0.0 < SLOT_CONE_DEG < 90.0
 
 
+def test_by_direction_refuses_bad_input():
+    from secure3d.errors import PlanningError
+
+    lo, hi, ranked, _ = _jamb_and_far_side()
+    with pytest.raises(PlanningError, match="centre"):
+        by_direction(np.zeros(2), lo, hi, ranked, 3)
+    with pytest.raises(PlanningError, match="n must"):
+        by_direction(np.zeros(3), lo, hi, ranked, 0)
+    with pytest.raises(PlanningError, match="ranked"):
+        by_direction(np.zeros(3), lo, hi, np.array([0, 99]), 1)
+
+
 def test_an_unknown_slot_pick_is_refused():
     with pytest.raises(ConfigError, match="slot_pick"):
         PlannerOptions(slot_pick="farthest")
