@@ -37,6 +37,7 @@ from secure3d.simulation.guard import TrackingGuard
 from secure3d.simulation.loop import (
     CERT_STEP,
     CLOSED_LOOP_MAX_ITER,
+    CLOSED_LOOP_NODES,
     CLOSED_LOOP_OBSTACLE_SLOTS,
     SCAN_RATE_FRACTION,
     SCAN_TOLERANCE,
@@ -68,6 +69,7 @@ __all__ = [
     "ARRIVAL_SPEED",
     "CERT_STEP",
     "CLOSED_LOOP_MAX_ITER",
+    "CLOSED_LOOP_NODES",
     "CLOSED_LOOP_OBSTACLE_SLOTS",
     "CONTACT_SAMPLES",
     "DEFAULT_REPLAN_DEFER",
