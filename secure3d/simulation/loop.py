@@ -47,7 +47,7 @@ CLOSED_LOOP_MAX_ITER = 200
 #: Collocation nodes of every plan in closed loop, unless the scenario's ``planner.nodes`` is fewer
 #: or the caller sets ``nodes`` (``plan()`` keeps ``planner.nodes``). The certificate judges the
 #: continuous trajectory whatever K is, so fewer nodes weaken nothing; they cut the solve time
-#: (about K^1.6). Every shipped scenario's flight, 40-50 nodes against 24, one run each: plan
+#: (about K^1.6). Every shipped scenario's flight, 40 nodes against 24, one run each: plan
 #: calls 75.7 -> 34.3 s in all, 23 of 23 at the goal, 0 collisions either way
 #: (``benchmarks/results/session42.md``).
 CLOSED_LOOP_NODES = 24

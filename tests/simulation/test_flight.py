@@ -53,8 +53,8 @@ def test_the_tracking_guard_brakes_a_robot_whose_tracker_fails(maps_dir, x0, fau
 
     model = problem_from_scenario(scenario).model
     k = scenario.planner.nodes  # the faults are placed along the 40-node plan's path
-    fly = {"tracker": _FaultyTracker(model, x0, fault), "nodes": k}
-    unguarded = simulate(scenario, tracking_guard=False, **fly)
+    faulty = _FaultyTracker(model, x0, fault)
+    unguarded = simulate(scenario, tracker=faulty, tracking_guard=False, nodes=k)
     assert unguarded.collided, "without the guard the fault must end in a wall"
     guarded = simulate(scenario, tracker=_FaultyTracker(model, x0, fault), nodes=k)
     assert not guarded.collided and guarded.min_clearance > 0.0
