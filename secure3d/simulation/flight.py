@@ -349,7 +349,9 @@ class Flight(AtRest):
 
         loop = self.loop
         speed = RETRY_SPEEDS[self.failures % len(RETRY_SPEEDS)] if self.failures else None
-        problem = loop.plan_problem_from(x, in_flight=self.t != 0.0, speed=speed, goal=goal)
+        # a replan at rest has failed: the next at rest with the scenario's own, finer nodes
+        nodes = loop.rest_nodes if self.held_failures else None
+        problem = loop.plan_problem_from(x, self.t != 0.0, speed=speed, goal=goal, nodes=nodes)
         loop.start_problem = problem
         t0 = time.perf_counter()
         # a replan the robot would fly: not too long a detour (round the planner's route), nor

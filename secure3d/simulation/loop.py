@@ -24,7 +24,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from secure3d.simulation.recheck import Recheck
     from secure3d.simulation.recording import Recorder
     from secure3d.simulation.retreat import Retreat
-    from secure3d.world.spec import Scenario
+    from secure3d.world.spec import PlannerSpec, Scenario
 
 #: Fraction of the model's yaw-rate limit used to look around at rest, and the yaw error (rad) at
 #: which a look-around heading counts as reached.
@@ -49,7 +49,9 @@ CLOSED_LOOP_MAX_ITER = 200
 #: continuous trajectory whatever K is, so fewer nodes weaken nothing; they cut the solve time
 #: (about K^1.6). Every shipped scenario's flight, 40 nodes against 24, one run each: plan
 #: calls 75.7 -> 34.3 s in all, 23 of 23 at the goal, 0 collisions either way
-#: (``benchmarks/results/session42.md``).
+#: (``benchmarks/results/session42.md``). After a replan at rest has failed, the robot's next
+#: replans at rest use the scenario's own ``planner.nodes`` (``Loop.rest_nodes``): in 400 quadrotor
+#: campaign runs, 3 robots held still at 24 nodes where 40-50 reached the goal.
 CLOSED_LOOP_NODES = 24
 #: Frames (the latest) a replan's certificate counts as views taken before the plan: half a second
 #: to a second at 15-30 Hz. The NLP plans with its start box; these let the certificate accept the first
@@ -93,16 +95,7 @@ class Loop:
         # cost most of a flight's wall time (CHANGELOG, session 27).
         bounds = scenario.world.bounds
         self.map_box = np.array([bounds.lo, bounds.hi], dtype=float)
-        # The look-back assignment is compiled into each NLP's structure (the planner's default):
-        # a new assignment costs a ~0.1 s build, and the NLP's KKT factorisation stays sparse.
-        # As a parameter (one NLP for every assignment) the dense selection rows cost 3-5x the
-        # time per IPOPT iteration (benchmarks/results/nlp_iteration.md).
-        # Sensed surfaces reach the planner as many small boxes: with 8 slots per node most
-        # replans in flight re-selected slots and re-solved 3 times (8 hidden-obstacle variants:
-        # 0.44x real time with 8 slots, 0.52x with 10, 0.54x with 12, 0.26x with 16).
-        options.setdefault("obstacle_slots", CLOSED_LOOP_OBSTACLE_SLOTS)
-        options.setdefault("max_iter", min(scenario.planner.max_iter, CLOSED_LOOP_MAX_ITER))
-        options.setdefault("nodes", min(scenario.planner.nodes, CLOSED_LOOP_NODES))
+        options, self.rest_nodes = closed_loop_options(scenario.planner, options)
         # no obstacle boxes yet: the first frame goes into the map before the first plan, which
         # merges them (:meth:`refresh_obstacles`)
         no_boxes = (np.empty((0, 3)), np.empty((0, 3)))
@@ -171,12 +164,14 @@ class Loop:
         in_flight: bool,
         speed: float | None = None,
         goal: np.ndarray | None = None,
+        nodes: int | None = None,
     ) -> PlanningProblem:
         """The problem of a plan from state ``x`` (Algorithm 1, line 1) on the current obstacle
         boxes. Before take-off the start region is the one observed then (the paper's premise); in
         flight it is the box the camera has actually seen around the robot (:func:`observed_box`),
         and a moving robot's plan call fails when the first guess's solve does (no slower
-        guesses). ``speed``: the guess's speed fraction after failed plans; ``goal``: another goal."""
+        guesses). ``speed``: the guess's speed fraction after failed plans; ``goal``: another goal;
+        ``nodes``: other collocation nodes."""
         self.refresh_obstacles()
         problem = self.problem
         if in_flight:
@@ -200,6 +195,8 @@ class Loop:
             problem = problem.with_start(x, region=region, past_views=views)
         if speed is not None:
             problem = problem.with_options(guess_speed_fraction=speed)
+        if nodes is not None:
+            problem = problem.with_options(nodes=nodes)
         if goal is not None:
             problem = dataclasses.replace(problem, goal=np.asarray(goal, dtype=float))
         return problem
@@ -300,6 +297,26 @@ class Loop:
         # these boxes find it by content (BoxIndex.of)
         index = BoxIndex.of(self.judged_lo, self.judged_hi).extended(klo * res, (khi + 1) * res)
         return index.lo, index.hi
+
+
+def closed_loop_options(spec: PlannerSpec, options: dict) -> tuple[dict, int | None]:
+    """The planner options of a closed-loop run: the caller's ``options`` with the closed loop's
+    defaults for what they leave out (``spec``: the scenario's planner section), and the nodes of a
+    replan at rest after one there failed (None: the same as every other plan)."""
+    # The look-back assignment is compiled into each NLP's structure (the planner's default):
+    # a new assignment costs a ~0.1 s build, and the NLP's KKT factorisation stays sparse.
+    # As a parameter (one NLP for every assignment) the dense selection rows cost 3-5x the
+    # time per IPOPT iteration (benchmarks/results/nlp_iteration.md).
+    # Sensed surfaces reach the planner as many small boxes: with 8 slots per node most
+    # replans in flight re-selected slots and re-solved 3 times (8 hidden-obstacle variants:
+    # 0.44x real time with 8 slots, 0.52x with 10, 0.54x with 12, 0.26x with 16).
+    options = dict(options)
+    options.setdefault("obstacle_slots", CLOSED_LOOP_OBSTACLE_SLOTS)
+    options.setdefault("max_iter", min(spec.max_iter, CLOSED_LOOP_MAX_ITER))
+    chosen = "nodes" in options
+    options.setdefault("nodes", min(spec.nodes, CLOSED_LOOP_NODES))
+    rest_nodes = None if chosen or spec.nodes <= options["nodes"] else spec.nodes
+    return options, rest_nodes
 
 
 def voxel_colors(scenario: Scenario) -> np.ndarray | None:

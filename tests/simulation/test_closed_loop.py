@@ -473,6 +473,32 @@ def test_a_robot_stuck_at_rest_looks_around_once_then_holds(maps_dir, monkeypatc
     assert "holding" not in [e.kind for e in run.events] and len(run.solve_times) == 4
 
 
+def test_replans_at_rest_after_a_failed_one_use_the_scenarios_own_nodes(maps_dir, monkeypatch):
+    """Plans in closed loop have at most CLOSED_LOOP_NODES nodes; once a replan at rest has failed,
+    the next ones at rest use the scenario's planner.nodes, unless the caller chose the nodes."""
+    import secure3d.planning.solve as solve_module
+    from secure3d.planning.outcome import failed_result
+    from secure3d.planning.result import PlanStatus
+    from secure3d.simulation.loop import CLOSED_LOOP_NODES
+
+    nodes: list[int] = []
+
+    def no_plan(problem, planner, **_):
+        nodes.append(problem.options.nodes)
+        return failed_result(problem, planner, PlanStatus.INFEASIBLE, "test: no plan")
+
+    monkeypatch.setattr(solve_module, "plan_problem", no_plan)
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    own = scenario.planner.nodes
+    assert own > CLOSED_LOOP_NODES
+    simulate(scenario, "secure", cache=NLPCache(), max_replans=4)
+    # the take-off plan and the first replan at rest, then the replans after a failed one at rest
+    assert nodes == [CLOSED_LOOP_NODES, CLOSED_LOOP_NODES, own, own, own], nodes
+    nodes.clear()
+    simulate(scenario, "secure", cache=NLPCache(), max_replans=4, nodes=CLOSED_LOOP_NODES)
+    assert nodes == [CLOSED_LOOP_NODES] * 5, nodes
+
+
 def test_a_flight_logs_a_heartbeat_and_its_events(maps_dir, monkeypatch, caplog):
     """simulate never runs silently: INFO heartbeat lines (every HEARTBEAT_SECONDS of wall time)
     and every event at DEBUG on the ``secure3d.simulation`` logger."""
