@@ -63,6 +63,27 @@ def test_the_tracking_guard_brakes_a_robot_whose_tracker_fails(maps_dir, x0, fau
     assert takeovers[0].time < unguarded.collision_time
 
 
+def test_the_tracking_guard_brakes_a_robot_a_gust_speeds_up(maps_dir):
+    """The ``disturbance`` seam: one gust at t = 1 s makes the robot 1.55x faster. Unguarded, it
+    ends in a wall; guarded, the guard hands it to the braking controller, it comes to rest,
+    replans and reaches the goal."""
+
+    def gust(t, x, u):
+        if 1.0 <= t < 1.005:  # one 0.01 s step
+            x = x.copy()
+            x[3:6] *= 1.55
+        return x, u
+
+    scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
+    unguarded = simulate(scenario, disturbance=gust, tracking_guard=False)
+    assert unguarded.collided, "without the guard the gust must end in a wall"
+    guarded = simulate(scenario, disturbance=gust)
+    assert not guarded.collided and guarded.min_clearance > 0.0 and guarded.reached_goal
+    takeovers = [e for e in guarded.events if e.kind == "take-over"]
+    assert takeovers and takeovers[0].detail.startswith("tracking guard"), takeovers
+    assert 1.0 <= takeovers[0].time < unguarded.collision_time
+
+
 def test_a_healthy_flight_is_not_stopped_by_the_guard(maps_dir):
     scenario = secure3d.load_scenario(maps_dir / "blind_corner.yaml")
     run = simulate(scenario, "secure")
