@@ -2,8 +2,9 @@
 its budget (issue 16: "no plan call over its budget").
 
 Re-flies variant ``I`` of a campaign (``BASE``, family ``KIND``, ``--seed``, default 0: the
-campaign's own variant and camera seed) with the secure planner and prints, per plan call, its wall time, status and IPOPT
-iterations, and the time and count of its stages (guess, solves, slot refreshes, certificate).
+campaign's own variant and camera seed) with the secure planner and prints, per plan call, its
+wall time, status and IPOPT iterations, and the time and count of its stages (guess, solves, slot
+refreshes, certificate).
 Run::
 
     PYTHONPATH=. .venv/bin/python benchmarks/plan_call_stages.py maps/geb079_region_attacks.yaml \\
