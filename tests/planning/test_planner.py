@@ -268,6 +268,41 @@ def test_extra_starts_keep_the_fastest_certified_plan(corner_problem, plans):
         corner_problem.with_start(corner_problem.x0, region=(np.ones(3), np.zeros(3)))
 
 
+def test_an_extra_start_from_a_guess_already_solved_is_skipped(corner_problem, plans):
+    """A start whose guess is the first guess bit for bit (here the same speed fraction; on
+    paper_passage_20cm 1.0 against 0.8, both capped to the same speeds) would re-solve to the
+    same plan: it is not solved again. Another guess still is."""
+    from secure3d.planning.solve import _solve_rounds
+
+    def counted(calls):
+        def rounds(*args, **kwargs):
+            calls.append(args[2].final_time)
+            return _solve_rounds(*args, **kwargs)
+
+        return rounds
+
+    first = corner_problem.options.guess_speed_fraction
+    cache, calls = NLPCache(), []
+    same = plan_problem(
+        corner_problem.with_options(extra_starts=[first]),
+        "secure",
+        cache=cache,
+        solve_rounds=counted(calls),
+    )
+    assert same.ok and len(calls) == 1, calls
+    assert same.final_time == plans["secure"].final_time
+    assert same.iterations == plans["secure"].iterations
+    calls.clear()
+    other = plan_problem(
+        corner_problem.with_options(extra_starts=[first, 0.4]),
+        "secure",
+        cache=cache,
+        solve_rounds=counted(calls),
+    )
+    assert other.ok and len(calls) == 2 and calls[1] > calls[0], calls  # 0.4: a slower guess
+    assert other.iterations > plans["secure"].iterations
+
+
 def test_one_sided_duals_plan_the_same_corner_and_certify(corner_problem, plans):
     problem = corner_problem.with_options(one_sided_duals=True)
     cache = NLPCache()
