@@ -448,3 +448,64 @@ def box_distances(O, C, M, lo, hi, los, rel_tol):
             for j in range(6):  # not lams[i] = lam: see solve_separation's J
                 lams[i, j] = lam[j]
     return status, dist, lams
+
+
+@njit(cache=True, inline="always")
+def _box_support(n0, n1, n2, lo, hi):
+    """max of n . y over the box lo <= y <= hi (rows of (m, 3) arrays)."""
+    return max(n0 * lo[0], n0 * hi[0]) + max(n1 * lo[1], n1 * hi[1]) + max(n2 * lo[2], n2 * hi[2])
+
+
+@njit(cache=True)
+def _plane_apart(o, c, M, lo, hi, p, los, tol):
+    """Whether the plane through the box's point nearest ``p``, normal to the way from it to
+    ``p``, separates the box from E = {c + M z : |z| <= 1} (and from ``o`` where ``los``) by more
+    than ``tol``: a sufficient test (the box lies in ``n . y <= h_B(n)``; E's least ``n . y`` is
+    ``n . c - |M^T n|``)."""
+    n0 = p[0] - min(max(p[0], lo[0]), hi[0])
+    n1 = p[1] - min(max(p[1], lo[1]), hi[1])
+    n2 = p[2] - min(max(p[2], lo[2]), hi[2])
+    norm = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    if norm <= 0.0:
+        return False  # p in the box
+    n0, n1, n2 = n0 / norm, n1 / norm, n2 / norm
+    m0 = M[0, 0] * n0 + M[1, 0] * n1 + M[2, 0] * n2
+    m1 = M[0, 1] * n0 + M[1, 1] * n1 + M[2, 1] * n2
+    m2 = M[0, 2] * n0 + M[1, 2] * n1 + M[2, 2] * n2
+    least = n0 * c[0] + n1 * c[1] + n2 * c[2] - np.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+    if los:
+        least = min(least, n0 * o[0] + n1 * o[1] + n2 * o[2])
+    return least > _box_support(n0, n1, n2, lo, hi) + tol
+
+
+@njit(cache=True)
+def boxes_apart(o, c, M, lo, hi, near, los, rel_tol):
+    """Whether every box ``near`` (indices into ``lo, hi`` (n, 3)) lies at a positive distance from
+    E = {c + M z : |z| <= 1} (``los`` False; ``o`` ignored) or from conv({o} ∪ E): the answer of
+    :func:`box_distances` (> 0 for every pair), stopping at the first box that touches. A box that
+    a plane through its point nearest ``c`` (for the hull also nearest ``o`` or the midpoint of o
+    and c) shows apart by more than the solve's tolerance needs no solve. Returns (status, apart):
+    status ``OK`` or the first solve's error code."""
+    b = np.empty(6)
+    mid = 0.5 * (o + c)
+    for i in near:
+        for j in range(3):
+            b[j] = hi[i, j]
+            b[3 + j] = -lo[i, j]
+        scale = 1.0
+        for j in range(3):
+            scale = max(scale, abs(b[j]), abs(b[3 + j]), abs(c[j]), abs(o[j]))
+        tol = rel_tol * scale
+        if _plane_apart(o, c, M, lo[i], hi[i], c, los, tol):
+            continue
+        if los and (
+            _plane_apart(o, c, M, lo[i], hi[i], o, los, tol)
+            or _plane_apart(o, c, M, lo[i], hi[i], mid, los, tol)
+        ):
+            continue
+        st, lower, upper, lam, _ = solve_separation(o, c, M, _BOX_A, b, los, tol)
+        if st != OK:
+            return st, False
+        if not (upper > tol and lower > 0.0):
+            return OK, False
+    return OK, True

@@ -505,6 +505,42 @@ def box_pair_distances(
     return (dist, lams) if with_duals else dist
 
 
+def boxes_apart(
+    origin: np.ndarray | None,
+    center: np.ndarray,
+    shape: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    near: np.ndarray,
+) -> bool:
+    """Whether every box ``near`` lies at a positive distance from the ellipsoid ``E = {c + M z :
+    |z| <= 1}`` (``origin`` None) or from the line-of-sight hull ``conv({o} ∪ E)``: the answer of
+    :func:`box_pair_distances` (every distance > 0) in one compiled call, which stops at the first
+    box that touches and settles a box without a solve where a plane through the box's point
+    nearest ``c`` (for the hull also nearest ``o`` or the midpoint of o and c) shows it apart by
+    more than the solve's tolerance.
+
+    Parameters
+    ----------
+    origin : (3,) float or None. center : (3,) float. shape : (3, 3) float, symmetric positive
+    definite. lo, hi : (n, 3) float, the boxes. near : (m,) int, indices of the boxes to judge.
+    """
+    kern = _kernel()
+    c = _vec3(center, "center")
+    o = c if origin is None else _vec3(origin, "origin")
+    M = np.ascontiguousarray(shape, dtype=float)
+    if M.shape != (3, 3) or not np.isfinite(M.sum()):
+        raise GeometryError(f"shape: expected a finite (3, 3) matrix, got shape {M.shape}")
+    near = np.ascontiguousarray(near, dtype=np.int64)
+    if not len(near):
+        return True
+    lo, hi = np.ascontiguousarray(lo, dtype=float), np.ascontiguousarray(hi, dtype=float)
+    status, apart = kern.boxes_apart(o, c, M, lo, hi, near, origin is not None, DISTANCE_REL_TOL)
+    if status != kern.OK:
+        raise GeometryError(f"{kern.STATUS_MESSAGES[status]}, got {M.tolist()}")
+    return bool(apart)
+
+
 def los_hull_distance(
     origin: object, center: object, shape: object, A: object, b: object
 ) -> tuple[float, np.ndarray]:

@@ -39,6 +39,7 @@ import numpy as np
 from secure3d.errors import SimulationError
 from secure3d.geometry.box_index import BoxIndex
 from secure3d.geometry.frustum import frustum_halfspaces
+from secure3d.geometry.polytope import boxes_apart
 from secure3d.planning.certificate import state_margin
 from secure3d.validation import is_real
 
@@ -72,15 +73,10 @@ def _clear_of_boxes(
     c: np.ndarray, M: np.ndarray, lo: np.ndarray, hi: np.ndarray, index: BoxIndex | None = None
 ) -> bool:
     """E = {c + M z} misses every box (lo, hi (n, 3); ``index`` theirs, optional): boxes beyond
-    E's bounding box are separated by a box face; each remaining one by its exact distance to E."""
-    from secure3d.geometry.polytope import box_halfspaces, ellipsoid_polytope_distance
-
+    E's bounding box are separated by a box face; the remaining ones by their exact distances to
+    E, in one compiled call (:func:`~secure3d.geometry.polytope.boxes_apart`)."""
     s = _support(M, np.eye(3))
-    for i in _boxes_touching(lo, hi, c - s, c + s, index):
-        A, b = box_halfspaces(lo[i], hi[i])
-        if ellipsoid_polytope_distance(c, M, A, b)[0] <= 0.0:
-            return False
-    return True
+    return boxes_apart(None, c, M, lo, hi, _boxes_touching(lo, hi, c - s, c + s, index))
 
 
 def _sight_clear(
@@ -92,16 +88,11 @@ def _sight_clear(
     index: BoxIndex | None = None,
 ) -> bool:
     """The line-of-sight hull conv({o} ∪ E) misses every box: boxes beyond the hull's bounding
-    box are separated by a box face; each remaining one by its exact distance to the hull."""
-    from secure3d.geometry.polytope import box_halfspaces, los_hull_distance
-
+    box are separated by a box face; the remaining ones by their exact distances to the hull, in
+    one compiled call."""
     s = _support(M, np.eye(3))
     a, b = np.minimum(o, c - s), np.maximum(o, c + s)
-    for i in _boxes_touching(lo, hi, a, b, index):
-        A, bb = box_halfspaces(lo[i], hi[i])
-        if los_hull_distance(o, c, M, A, bb)[0] <= 0.0:
-            return False
-    return True
+    return boxes_apart(o, c, M, lo, hi, _boxes_touching(lo, hi, a, b, index))
 
 
 def ellipsoid_shown_safe(

@@ -15,6 +15,7 @@ from secure3d.geometry.ellipsoid import ellipsoid_from_axes, surface_points
 from secure3d.geometry.polytope import (
     box_halfspaces,
     box_pair_distances,
+    boxes_apart,
     box_signed_distance,
     boxes_halfspaces,
     convex_hull_halfspaces,
@@ -336,6 +337,41 @@ def test_casadi_twins_match_numpy(rng):
     # The smooth norm keeps the gradient finite where A^T lam = 0 (opposite faces balanced).
     grad = np.array(f(np.zeros(3), np.ones(3), np.eye(3), np.r_[1.0, 0, 0, 1.0, 0, 0])[3])
     assert np.all(np.isfinite(grad))
+
+
+def test_boxes_apart_answers_as_the_exact_distances_do():
+    """boxes_apart (the guard's quick tests) is the exact distances' verdict, every distance > 0,
+    for ellipsoids and line-of-sight hulls among random boxes: far, near, touching and a hair
+    (1e-7 m) apart, where its separating planes and its solves must both be right."""
+    rng = np.random.default_rng(5)
+    verdicts = {True: 0, False: 0}
+    for trial in range(400):
+        c, M, _, _ = random_ellipsoid(rng, spread=1.5)
+        o = rng.uniform(-4, 4, 3)
+        lo = rng.uniform(-3, 3, (5, 3))
+        hi = lo + rng.uniform(0.05, 1.5, (5, 3))
+        if trial % 4 == 0:  # a box face a hair beyond E's extent along x
+            x_max = c[0] + np.linalg.norm(M[0])
+            lo[0, 0], hi[0, 0] = x_max + 1e-7, x_max + 0.5
+            lo[0, 1:], hi[0, 1:] = c[1:] - 0.2, c[1:] + 0.2
+        near = rng.permutation(5)[: rng.integers(1, 6)]
+        for los in (False, True):
+            origin = o if los else None
+            d = box_pair_distances(
+                np.broadcast_to(o if los else c, (len(near), 3)),
+                np.broadcast_to(c, (len(near), 3)),
+                np.broadcast_to(M, (len(near), 3, 3)),
+                lo[near],
+                hi[near],
+                np.full(len(near), los),
+            )
+            expected = bool(np.all(d > 0.0))
+            assert boxes_apart(origin, c, M, lo, hi, near) == expected, (trial, los, d)
+            verdicts[expected] += 1
+    assert min(verdicts.values()) > 100, verdicts  # both answers are exercised
+    assert boxes_apart(None, c, M, lo, hi, np.zeros(0, int))  # no boxes: apart
+    with pytest.raises(GeometryError, match="positive definite"):
+        boxes_apart(None, c, np.diag([1.0, 1.0, -1.0]), lo, hi, np.arange(5))
 
 
 def test_box_pair_distances_match_the_pairwise_solvers():
