@@ -243,17 +243,7 @@ def polyline_distance(points: object, path: object) -> np.ndarray:
         raise GeometryError(f"polyline_distance: path must be (m >= 1, 3) finite, got {q.shape}")
     if len(q) == 1:
         return np.linalg.norm(p - q[0], axis=1)
-    a, d = q[:-1], np.diff(q, axis=0)  # (s, 3)
-    dd = np.einsum("ij,ij->i", d, d)
-    out = np.empty(len(p))
-    step = max(1, (1 << 20) // len(a))  # about a million point-segment pairs at a time
-    for i in range(0, len(p), step):
-        rel = p[i : i + step, None, :] - a[None]  # (k, s, 3)
-        t = np.einsum("ksj,sj->ks", rel, d) / np.where(dd > 0, dd, 1.0)
-        t = np.clip(t, 0.0, 1.0)
-        gap = rel - t[..., None] * d[None]
-        out[i : i + step] = np.sqrt(np.einsum("ksj,ksj->ks", gap, gap).min(axis=1))
-    return out
+    return _kernels().polyline_distances(np.ascontiguousarray(p), np.ascontiguousarray(q))
 
 
 def cones_blocked(
