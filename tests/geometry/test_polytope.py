@@ -15,8 +15,8 @@ from secure3d.geometry.ellipsoid import ellipsoid_from_axes, surface_points
 from secure3d.geometry.polytope import (
     box_halfspaces,
     box_pair_distances,
-    boxes_apart,
     box_signed_distance,
+    boxes_apart,
     boxes_halfspaces,
     convex_hull_halfspaces,
     dual_separation_margin,
