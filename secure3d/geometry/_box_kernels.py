@@ -191,14 +191,18 @@ def polyline_distances(p, q):  # pragma: no cover - compiled
     projection (a zero-length segment: its vertex). :func:`polytope.polyline_distance`'s loop,
     without its (points x segments x 3) temporaries."""
     n, s = p.shape[0], q.shape[0] - 1
+    d = q[1:] - q[:-1]  # (s, 3) segment directions, and their squared lengths (1 if zero)
+    dd = np.empty(s)
+    for j in range(s):
+        sq = d[j, 0] * d[j, 0] + d[j, 1] * d[j, 1] + d[j, 2] * d[j, 2]
+        dd[j] = sq if sq > 0.0 else 1.0
     out = np.empty(n)
     for i in range(n):
         best = np.inf
         for j in range(s):
-            d0, d1, d2 = q[j + 1, 0] - q[j, 0], q[j + 1, 1] - q[j, 1], q[j + 1, 2] - q[j, 2]
+            d0, d1, d2 = d[j, 0], d[j, 1], d[j, 2]
             r0, r1, r2 = p[i, 0] - q[j, 0], p[i, 1] - q[j, 1], p[i, 2] - q[j, 2]
-            dd = d0 * d0 + d1 * d1 + d2 * d2
-            t = (r0 * d0 + r1 * d1 + r2 * d2) / (dd if dd > 0.0 else 1.0)
+            t = (r0 * d0 + r1 * d1 + r2 * d2) / dd[j]
             t = min(max(t, 0.0), 1.0)
             g0, g1, g2 = r0 - t * d0, r1 - t * d1, r2 - t * d2
             best = min(best, g0 * g0 + g1 * g1 + g2 * g2)

@@ -418,6 +418,19 @@ _BOX_A = np.array(
 )
 
 
+@njit(cache=True, inline="always")
+def _box_rows(lo, hi, c, o, rel_tol, b):
+    """The box lo <= y <= hi as the offsets ``b`` (6,) of the faces :data:`_BOX_A` (written in
+    place), and the solve's tolerance for it against a set about ``c`` seen from ``o``:
+    ``rel_tol`` times the scene's size (at least 1 m)."""
+    scale = 1.0
+    for j in range(3):
+        b[j] = hi[j]
+        b[3 + j] = -lo[j]
+        scale = max(scale, abs(b[j]), abs(b[3 + j]), abs(c[j]), abs(o[j]))
+    return rel_tol * scale
+
+
 @njit(cache=True)
 def box_distances(O, C, M, lo, hi, los, rel_tol):
     """Distances of ``n`` (ellipsoid or line-of-sight hull, box) pairs in one call.
@@ -434,13 +447,7 @@ def box_distances(O, C, M, lo, hi, los, rel_tol):
     lams = np.zeros((n, 6))
     b = np.empty(6)
     for i in range(n):
-        for j in range(3):
-            b[j] = hi[i, j]
-            b[3 + j] = -lo[i, j]
-        scale = 1.0
-        for j in range(3):
-            scale = max(scale, abs(b[j]), abs(b[3 + j]), abs(C[i, j]), abs(O[i, j]))
-        tol = rel_tol * scale
+        tol = _box_rows(lo[i], hi[i], C[i], O[i], rel_tol, b)
         st, lower, upper, lam, _ = solve_separation(O[i], C[i], M[i], _BOX_A, b, los[i], tol)
         status[i] = st
         if st == OK and upper > tol and lower > 0.0:
@@ -489,13 +496,7 @@ def boxes_apart(o, c, M, lo, hi, near, los, rel_tol):
     b = np.empty(6)
     mid = 0.5 * (o + c)
     for i in near:
-        for j in range(3):
-            b[j] = hi[i, j]
-            b[3 + j] = -lo[i, j]
-        scale = 1.0
-        for j in range(3):
-            scale = max(scale, abs(b[j]), abs(b[3 + j]), abs(c[j]), abs(o[j]))
-        tol = rel_tol * scale
+        tol = _box_rows(lo[i], hi[i], c, o, rel_tol, b)
         if _plane_apart(o, c, M, lo[i], hi[i], c, los, tol):
             continue
         if los and (

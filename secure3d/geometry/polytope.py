@@ -521,10 +521,20 @@ def boxes_apart(
     M = np.ascontiguousarray(shape, dtype=float)
     if M.shape != (3, 3) or not np.isfinite(M.sum()):
         raise GeometryError(f"shape: expected a finite (3, 3) matrix, got shape {M.shape}")
-    near = np.ascontiguousarray(near, dtype=np.int64)
+    near = np.ascontiguousarray(near, dtype=np.int64).reshape(-1)
     if not len(near):
         return True
     lo, hi = np.ascontiguousarray(lo, dtype=float), np.ascontiguousarray(hi, dtype=float)
+    if lo.ndim != 2 or lo.shape[1:] != (3,) or hi.shape != lo.shape:
+        raise GeometryError(f"boxes_apart: lo, hi must be (n, 3) alike, got {lo.shape}, {hi.shape}")
+    if near.min() < 0 or near.max() >= len(lo):
+        raise GeometryError(
+            f"boxes_apart: near must index the {len(lo)} boxes, got {near.min()}..{near.max()}"
+        )
+    # only the judged boxes: the guard's map holds up to ~18,000 (validated where they are merged)
+    blo, bhi = lo[near], hi[near]
+    if not (np.isfinite(blo.sum() + bhi.sum()) and np.all(blo <= bhi)):
+        raise GeometryError("boxes_apart: the boxes near must be finite with lo <= hi")
     status, apart = kern.boxes_apart(o, c, M, lo, hi, near, origin is not None, DISTANCE_REL_TOL)
     if status != kern.OK:
         raise GeometryError(f"{kern.STATUS_MESSAGES[status]}, got {M.tolist()}")

@@ -339,11 +339,9 @@ def _first_solved(
 def _same_guess(a: Guess, b: Guess) -> bool:
     """Whether two guesses are the same start, bit for bit (then a solve from either ends alike:
     the solves are deterministic, planning/blas.py)."""
-    return all(np.array_equal(x, y) for x, y in zip(_parts(a), _parts(b), strict=True))
-
-
-def _parts(g: Guess) -> tuple[np.ndarray, ...]:
-    return (g.times, g.states, g.controls)
+    return all(
+        np.array_equal(getattr(a, f), getattr(b, f)) for f in ("times", "states", "controls")
+    )
 
 
 def _solved_before(

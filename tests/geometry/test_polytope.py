@@ -372,6 +372,12 @@ def test_boxes_apart_answers_as_the_exact_distances_do():
     assert boxes_apart(None, c, M, lo, hi, np.zeros(0, int))  # no boxes: apart
     with pytest.raises(GeometryError, match="positive definite"):
         boxes_apart(None, c, np.diag([1.0, 1.0, -1.0]), lo, hi, np.arange(5))
+    with pytest.raises(GeometryError, match=r"near must index the 5 boxes, got 0\.\.5"):
+        boxes_apart(None, c, M, lo, hi, np.arange(6))
+    with pytest.raises(GeometryError, match=r"lo, hi must be \(n, 3\) alike"):
+        boxes_apart(None, c, M, lo, hi[:4], np.arange(4))
+    with pytest.raises(GeometryError, match="finite with lo <= hi"):
+        boxes_apart(None, c, M, hi, lo, np.arange(5))
 
 
 def test_box_pair_distances_match_the_pairwise_solvers():
