@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import dijkstra
 
 from secure3d.errors import PlanningError
 from secure3d.mapping.sensor_model import Trust
@@ -118,11 +117,7 @@ def _graph_path(problem: PlanningProblem, resolution: float, clearance_pad: floa
         lo[2] = height
 
     weight = clearance_weight(clearance.ravel(), r, clearance_pad) * unknown_cost(problem, centres)
-
-    def cost(src: np.ndarray, dst: np.ndarray, length: np.ndarray) -> np.ndarray:
-        return length * np.maximum(weight[src], weight[dst])
-
-    pts = grid_route(centres, lo, res, free, cost, start, goal)
+    pts = grid_route(centres, lo, res, free, weight, start, goal)
     return _shortcut(pts, lambda p: _clear_at(p, clearance, lo, res) > r + 0.5 * clearance_pad)
 
 
@@ -161,7 +156,7 @@ def grid_route(
     lo: np.ndarray,
     res: float,
     free: np.ndarray,
-    edge_cost: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+    weight: np.ndarray,
     start: np.ndarray,
     goal: np.ndarray,
 ) -> np.ndarray:
@@ -173,15 +168,23 @@ def grid_route(
     centres : (N, 3) cell centres of a grid of shape ``free.shape`` whose cell (0, 0, 0) is at
         ``lo``, spaced ``res``.
     free : (a, b, c) bool, the cells a route may use (the start's and goal's cells always may).
-    edge_cost : ``(src, dst, length) -> (k,)`` cost of the edges between flat cells ``src`` and
-        ``dst`` (k,), ``length`` (k,) metres long.
+    weight : (N,) float > 0, cost per metre of each cell: an edge between neighbouring cells costs
+        its length times the larger of its ends' weights (the graph of :func:`grid_graph` with
+        ``edge_cost = length * max(weight[src], weight[dst])``, searched by the compiled
+        :func:`~secure3d.planning._grid_kernel.grid_search`: scipy's ``dijkstra`` route on it,
+        ties included, without building the graph).
 
     Raises
     ------
     NoPathError
         No route of free cells joins them.
     """
+    from secure3d.planning._grid_kernel import grid_search
+
     shape = free.shape
+    weight = np.ascontiguousarray(np.broadcast_to(np.asarray(weight, dtype=float), free.size))
+    if not np.all(weight > 0):  # NaN too
+        raise PlanningError("grid_route: every cell weight must be a number > 0")
 
     def cell_of(p: np.ndarray) -> int:
         idx = np.clip(np.round((p - lo) / res).astype(int), 0, np.array(shape) - 1)
@@ -197,16 +200,15 @@ def grid_route(
     # The start/goal cells may be blocked by discretisation: free them.
     for c in (s_cell, g_cell):
         flat_free[c] = True
-    graph = grid_graph(flat_free, shape, res, edge_cost)
-    dist, pred = dijkstra(graph, indices=s_cell, return_predecessors=True)
-    if not np.isfinite(dist[g_cell]):
+    dims = np.asarray(shape, np.int64)
+    cells, _ = grid_search(
+        flat_free, dims, GRID_OFFSETS, res * _OFFSET_LENGTHS, weight, s_cell, g_cell
+    )
+    if not len(cells):
         raise NoPathError(
             f"no collision-free path from {np.round(start, 2)} to {np.round(goal, 2)} in the belief map"
         )
-    cells = [g_cell]
-    while cells[-1] != s_cell:
-        cells.append(int(pred[cells[-1]]))
-    pts = centres[np.array(cells[::-1])]
+    pts = centres[cells]
     pts[0], pts[-1] = start, goal
     return pts
 

@@ -71,11 +71,10 @@ def _least_claimed_route(
     if height is not None:
         lo[2] = height
 
-    def cost(src: np.ndarray, dst: np.ndarray, length: np.ndarray) -> np.ndarray:
-        return length * np.where(in_claim[src] | in_claim[dst], CLAIM_COST, 1.0)
-
+    # an edge with an end in claimed space costs CLAIM_COST (>= 1) per metre, else 1
+    weight = np.where(in_claim, CLAIM_COST, 1.0)
     try:
-        return grid_route(centres, lo, res, clear > r, cost, problem.start_position, problem.goal)
+        return grid_route(centres, lo, res, clear > r, weight, problem.start_position, problem.goal)
     except NoPathError:
         raise NoPathError("the sensed obstacles alone close every route") from None
 

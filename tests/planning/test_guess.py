@@ -131,6 +131,75 @@ def test_the_compiled_grid_graph_is_the_numpy_one_bit_for_bit(shape):
     assert new.nnz > 0
 
 
+def _scipy_route(free, shape, res, weight, s, g):
+    """The route as grid_route found it before the compiled search: scipy's dijkstra on the
+    grid's CSR graph, the path read back from its predecessors (None: unreachable)."""
+    from scipy.sparse.csgraph import dijkstra
+
+    from secure3d.planning.guess import grid_graph
+
+    def cost(src, dst, length):
+        return length * np.maximum(weight[src], weight[dst])
+
+    dist, pred = dijkstra(grid_graph(free, shape, res, cost), indices=s, return_predecessors=True)
+    if not np.isfinite(dist[g]):
+        return None, np.inf
+    cells = [g]
+    while cells[-1] != s:
+        cells.append(int(pred[cells[-1]]))
+    return cells[::-1], dist[g]
+
+
+def test_the_compiled_grid_search_takes_scipys_route_ties_included():
+    """grid_search: the cost and the very route of scipy's dijkstra on the grid graph, on grids
+    with equal weights everywhere (many routes of equal cost), few distinct weights, random ones,
+    axes of one or two cells, blocked cells and unreachable goals."""
+    from secure3d.planning._grid_kernel import grid_search
+    from secure3d.planning.guess import _OFFSET_LENGTHS, GRID_OFFSETS
+
+    rng = np.random.default_rng(7)
+    routes = unreachable = 0
+    for trial in range(300):
+        shape = tuple(int(x) for x in rng.integers(1, 11, 3))
+        n = int(np.prod(shape))
+        free = rng.random(n) < rng.uniform(0.4, 0.95)
+        weight = [np.ones(n), rng.choice([1.0, 1.5, 2.0], n), 1.0 + rng.random(n)][trial % 3]
+        res = float(rng.choice([0.1, 0.13, 0.25]))
+        s, g = (int(c) for c in rng.integers(n, size=2))
+        if s == g:
+            continue
+        free[s] = free[g] = True
+        want, want_cost = _scipy_route(free, shape, res, weight, s, g)
+        cells, cost = grid_search(
+            free, np.array(shape, np.int64), GRID_OFFSETS, res * _OFFSET_LENGTHS, weight, s, g
+        )
+        if want is None:
+            assert len(cells) == 0 and cost == np.inf
+            unreachable += 1
+        else:
+            assert cells.tolist() == want and cost == want_cost, (trial, shape)
+            routes += 1
+    assert routes > 150 and unreachable > 5
+
+
+def test_a_grid_route_refuses_cell_weights_that_are_not_positive():
+    from secure3d.errors import PlanningError
+    from secure3d.planning.guess import grid_route
+
+    shape = (4, 3, 2)
+    lo, res = np.zeros(3), 0.5
+    centres = np.stack(np.meshgrid(*[np.arange(k) * res for k in shape], indexing="ij"), -1)
+    free = np.ones(shape, bool)
+    start, goal = np.zeros(3), np.array([1.5, 1.0, 0.5])
+    path = grid_route(centres.reshape(-1, 3), lo, res, free, 1.0, start, goal)
+    assert np.array_equal(path[0], start) and np.array_equal(path[-1], goal)
+    for bad in (0.0, -1.0, np.nan):
+        weight = np.ones(free.size)
+        weight[5] = bad
+        with pytest.raises(PlanningError, match="weight"):
+            grid_route(centres.reshape(-1, 3), lo, res, free, weight, start, goal)
+
+
 def test_the_grid_graph_names_a_free_mask_that_does_not_fit_its_shape():
     from secure3d.errors import PlanningError
     from secure3d.planning.guess import grid_graph
@@ -240,7 +309,8 @@ def test_frustum_margins_of_earlier_cameras_are_the_full_matrixs(maps_dir):
     owner = np.repeat(np.arange(0, K, 4), 4)[:K]
     full, part = frustum_margins(problem, geo), frustum_margins(problem, geo, owner)
     earlier = np.arange(K)[None, :] < owner[:, None]
-    assert np.array_equal(part[earlier], full[earlier])
+    # the compiled loop's sums may round apart from numpy's (einsum's fused multiply-adds)
+    np.testing.assert_allclose(part[earlier], full[earlier], rtol=0, atol=1e-12)
     assert np.all(np.isneginf(part[~earlier])) and np.isfinite(full).all()
     with pytest.raises(PlanningError, match="owner"):
         frustum_margins(problem, geo, owner[::-1])
