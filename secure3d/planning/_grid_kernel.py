@@ -63,8 +63,6 @@ def grid_edges(
     return indptr, src[:e], dst[:e], kind[:e]
 
 
-
-
 # ---- Dijkstra over the grid's implicit graph ---------------------------------------------------
 #
 # scipy's ``dijkstra`` on the graph of :func:`grid_edges` costs a CSR matrix of every edge (26 per

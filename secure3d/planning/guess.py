@@ -168,11 +168,9 @@ def grid_route(
     centres : (N, 3) cell centres of a grid of shape ``free.shape`` whose cell (0, 0, 0) is at
         ``lo``, spaced ``res``.
     free : (a, b, c) bool, the cells a route may use (the start's and goal's cells always may).
-    weight : (N,) float > 0, cost per metre of each cell: an edge between neighbouring cells costs
-        its length times the larger of its ends' weights (the graph of :func:`grid_graph` with
-        ``edge_cost = length * max(weight[src], weight[dst])``, searched by the compiled
-        :func:`~secure3d.planning._grid_kernel.grid_search`: scipy's ``dijkstra`` route on it,
-        ties included, without building the graph).
+    weight : (N,) float > 0, cost per metre of each cell: an edge costs its length times the
+        larger of its ends' weights (:func:`~secure3d.planning._grid_kernel.grid_search`: scipy's
+        ``dijkstra`` route on the graph of :func:`grid_graph`, ties included, without building it).
 
     Raises
     ------
