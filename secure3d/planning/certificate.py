@@ -25,7 +25,6 @@ import numpy as np
 
 from secure3d.errors import PlanningError
 from secure3d.geometry.box_index import BoxIndex
-from secure3d.geometry.polytope import min_box_distance
 from secure3d.planning.interrupt import BudgetSpent, deadline_passed
 from secure3d.planning.result import Certificate, PlanResult, Violation
 from secure3d.planning.trajectory import interpolate
@@ -200,6 +199,11 @@ def sample_plan(
 CHUNK_POINTS = 4096
 
 
+#: Manoeuvre points judged at a time when only the first failure is asked for (``first_only``):
+#: 32 samples of 16 points, so that little is judged past it.
+FIRST_CHUNK_POINTS = 512
+
+
 def _judge_in_chunks(
     flat: np.ndarray,
     owner: np.ndarray,
@@ -208,27 +212,59 @@ def _judge_in_chunks(
     problem: object,
     r: float,
     tol: float,
+    first_only: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_judge_points` over :data:`CHUNK_POINTS` points at a time, raising
     :class:`~secure3d.planning.interrupt.BudgetSpent` before a chunk once the plan call's deadline
-    has passed (outside a plan call there is none)."""
+    has passed (outside a plan call there is none).
+
+    With ``first_only``, the points (``owner`` sorted, as :func:`sample_plan` orders them) are
+    judged in time order, :data:`FIRST_CHUNK_POINTS` at a time, up to the last point of the first
+    sample with a failing point, and the answers cover that prefix only: everything
+    :func:`_first_violation` needs to name the same violation as a pass over all points."""
     index = _box_index(problem)
-    parts = []
-    for a in range(0, max(len(flat), 1), CHUNK_POINTS):
+    n, step = len(flat), CHUNK_POINTS
+    end = n
+    if first_only:
+        step = FIRST_CHUNK_POINTS
+        # no point after the first sample with an obstacle hit can fail first: stop there at most
+        hits = _obstacle_margins(flat, problem, r, index) < -tol
+        if hits.any():
+            end = int(np.searchsorted(owner, owner[np.argmax(hits)], side="right"))
+    parts, starts, a = [], [], 0
+    while a < max(end, 1):
         if deadline_passed():
             raise BudgetSpent("the plan call's budget was spent while certifying")
-        b = a + CHUNK_POINTS
-        parts.append(_judge_points(flat[a:b], owner[a:b], R, o, problem, r, tol, index))
+        b = min(a + step, max(end, 1)) if first_only else a + step
+        part = _judge_points(flat[a:b], owner[a:b], R, o, problem, r, tol, index)
+        parts.append(part)
+        starts.append(a)
+        bad = np.minimum(part[0], part[1]) < -tol
+        if first_only and bad.any():
+            end = min(end, int(np.searchsorted(owner, owner[a + np.argmax(bad)], side="right")))
+        a = b
     if len(parts) == 1:
-        return parts[0]
-    offsets = range(0, len(flat), CHUNK_POINTS)
-    return (
-        np.concatenate([p[0] for p in parts]),
-        np.concatenate([p[1] for p in parts]),
-        np.concatenate([p[2] for p in parts]),
-        np.concatenate([p[3] + a for p, a in zip(parts, offsets, strict=True)]),
-        np.concatenate([p[4] for p in parts]),
-    )
+        out = parts[0]
+    else:
+        out = (
+            np.concatenate([p[0] for p in parts]),
+            np.concatenate([p[1] for p in parts]),
+            np.concatenate([p[2] for p in parts]),
+            np.concatenate([p[3] + a for p, a in zip(parts, starts, strict=True)]),
+            np.concatenate([p[4] for p in parts]),
+        )
+    if len(out[0]) <= end:
+        return out
+    needed = out[3] < end  # the last chunk went past the first failing sample: cut there
+    return out[0][:end], out[1][:end], out[2][:end], out[3][needed], out[4][needed]
+
+
+def _obstacle_margins(flat: np.ndarray, problem: object, r: float, index: BoxIndex) -> np.ndarray:
+    """(n,) how far each point of ``flat`` (n, 3), grown by ``r``, stays from the boxes of
+    ``index`` (0 inside one) and inside the map bounds of ``problem``."""
+    dist = np.maximum(index.min_distance(flat), 0.0)  # 0 inside a box
+    in_map = np.minimum(flat - problem.bounds_lo, problem.bounds_hi - flat).min(axis=1)
+    return np.minimum(dist, in_map) - r
 
 
 def _judge_points(
@@ -247,9 +283,7 @@ def _judge_points(
     inside an earlier field of view but occluded). ``index``: the problem's box index, if built."""
     # ---- clear of known obstacles and inside the map -------------------------------------------
     index = _box_index(problem) if index is None else index
-    dist = np.maximum(index.min_distance(flat), 0.0)  # 0 inside a box
-    in_map = np.minimum(flat - problem.bounds_lo, problem.bounds_hi - flat).min(axis=1)
-    obstacle_margin = np.minimum(dist, in_map) - r
+    obstacle_margin = _obstacle_margins(flat, problem, r, index)
 
     # ---- observed before: start ball, or an earlier view with a clear line of sight -------------
     start_margin = problem.start_margins(flat, r)
@@ -334,6 +368,7 @@ def certify(
     t_from: float = 0.0,
     t_until: float = np.inf,
     sampled: SampledPlan | None = None,
+    first_only: bool = False,
 ) -> Certificate:
     """Check a plan against the paper's safety definition, independently of the planner.
 
@@ -351,6 +386,10 @@ def certify(
         deferred before a manoeuvre known to fail at ``t_until`` (only an earlier failure matters).
     sampled : the plan's sampled manoeuvres and camera poses (:func:`sample_plan`): they do not
         depend on the map, so re-certifying after every camera frame reuses them.
+    first_only : stop judging after the first sample with a failing point (in flight, where only
+        whether and where the rest of a plan first fails matters). ``ok`` and ``first_violation``
+        are those of a full pass; a failing certificate's margins, ``n_points`` and ``views`` then
+        cover the points up to that sample (the rest count as not shown: views -2).
 
     Returns
     -------
@@ -381,8 +420,10 @@ def certify(
 
     k, R, o = _with_past_views(problem, R, o)
     obstacle_margin, vis_margin, view, unresolved, occluded_only = _judge_in_chunks(
-        flat, owner + k, R, o, problem, r, tol
+        flat, owner + k, R, o, problem, r, tol, first_only
     )
+    judged = len(obstacle_margin)  # all of them, but with first_only a prefix through the failure
+    kept, flat, owner = kept[:judged], flat[:judged], owner[:judged]
     view = _stored_views(view, k)
     margin = np.minimum(vis_margin, obstacle_margin)
     bad = margin < -tol
@@ -474,96 +515,6 @@ def _first_violation(
     return Violation(
         time=float(t[owner[k]]), point=points[k].copy(), reason=reason, margin=float(margin[k])
     )
-
-
-def views_after_adding(
-    views: np.ndarray,
-    sampled: SampledPlan,
-    problem: object,
-    added_lo: np.ndarray,
-    added_hi: np.ndarray,
-    *,
-    t_from: float = 0.0,
-    settings: CertificateSettings | None = None,
-) -> np.ndarray | None:
-    """Re-certify, from ``t_from`` on, a plan that passed with ``views`` (a passing
-    :attr:`Certificate.views`, from ``sampled``) once the boxes (``added_lo``, ``added_hi``) joined
-    the obstacles it passed against; ``problem`` holds all of them now. A sound shortcut of
-    :func:`certify` for a map whose obstacles only grew.
-
-    More obstacles never help a plan, so only the checks the added boxes take part in can fail:
-    every judged manoeuvre point must stay clear of them by the body radius, and the sight cone
-    that observed it must stay clear of them. Points whose cone an added box blocks get the view
-    search of :func:`certify` again, against all the boxes. Returns the views that now observe each
-    point (a passing certificate against all the boxes would hold such views), or None when a point
-    is not shown safe so (an added box near a manoeuvre, no clear view left, a point not judged
-    before): then :func:`certify` in full, which also names the violation.
-    """
-    from secure3d.geometry._box_kernels import cone_box_blocked_any
-
-    settings = settings or CertificateSettings()
-    tol, r = settings.tolerance, problem.model.body_radius
-    if views is None or len(views) != len(sampled.points):
-        return None
-    judge = np.flatnonzero(sampled.times[sampled.owner] >= t_from - 1e-9)
-    if np.any(views[judge] == -2):
-        return None
-    added_lo, added_hi = _added_boxes(added_lo, added_hi)
-    if not len(added_lo):
-        return views
-    points = sampled.points[judge]
-    if np.any(np.maximum(min_box_distance(points, added_lo, added_hi), 0.0) - r < -tol):
-        return None
-    seen = judge[(views[judge] >= 0) | (views[judge] <= PAST_VIEW)]
-    origins = _view_origins(views[seen], sampled, problem)
-    if origins is None:
-        return None
-    blocked = seen[
-        cone_box_blocked_any(
-            np.ascontiguousarray(origins),
-            np.ascontiguousarray(sampled.points[seen]),
-            added_lo,
-            added_hi,
-            float(r),
-        )
-    ]
-    if not len(blocked):
-        return views
-    k, R, o = _with_past_views(problem, sampled.rotations, sampled.origins)
-    found, best, _, view = _clear_views(
-        sampled.points[blocked],
-        sampled.owner[blocked] + k,
-        R,
-        o,
-        problem.frustum,
-        r,
-        problem.boxes_lo,
-        problem.boxes_hi,
-        tol,
-        _box_index(problem),
-    )
-    if not np.all(found & (best >= -tol)):
-        return None
-    out = views.copy()
-    out[blocked] = _stored_views(view, k)
-    return out
-
-
-def _added_boxes(added_lo: object, added_hi: object) -> tuple[np.ndarray, np.ndarray]:
-    """The boxes :func:`views_after_adding` is given, as contiguous (n, 3) arrays, validated."""
-    added_lo = np.ascontiguousarray(np.asarray(added_lo, dtype=float))
-    added_hi = np.ascontiguousarray(np.asarray(added_hi, dtype=float))
-    if (
-        added_lo.ndim != 2
-        or added_lo.shape[1:] != (3,)
-        or added_hi.shape != added_lo.shape
-        or not (np.all(np.isfinite(added_lo)) and np.all(added_hi >= added_lo))
-    ):
-        raise PlanningError(
-            "views_after_adding: added boxes must be finite (n, 3) corners with hi >= lo, got"
-            f" lo {added_lo.shape}, hi {added_hi.shape}"
-        )
-    return added_lo, added_hi
 
 
 def failing_nodes(cert: Certificate, times: np.ndarray) -> np.ndarray:

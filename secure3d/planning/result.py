@@ -66,7 +66,7 @@ class Certificate:
         frame j of those taken before the plan (``PlanningProblem.past_views``).
     sampled : that sampled plan (:class:`~secure3d.planning.certificate.SampledPlan`: sample
         times, manoeuvre points, camera poses), so the views can be re-checked later
-        (:func:`~secure3d.planning.certificate.views_after_adding`).
+        (:func:`~secure3d.planning.recertify.views_after_adding`).
     """
 
     ok: bool

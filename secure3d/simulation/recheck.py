@@ -65,9 +65,10 @@ def plan_unsafe(
 
     A secure plan that already passed against a prefix of these boxes (the boxes only grew, as
     :meth:`Loop.judged_plus` grows them) is judged against the added boxes alone first
-    (:func:`~secure3d.planning.certificate.views_after_adding`, sound); the full certificate runs
+    (:func:`~secure3d.planning.recertify.views_after_adding`, sound); the full certificate runs
     only if that does not show it safe."""
-    from secure3d.planning.certificate import certify, sample_plan, views_after_adding
+    from secure3d.planning.certificate import certify, sample_plan
+    from secure3d.planning.recertify import views_after_adding
 
     if loop.planner == Planner.SECURE:
         judged = dataclasses.replace(plan_problem_, boxes_lo=lo, boxes_hi=hi)
@@ -75,7 +76,9 @@ def plan_unsafe(
             # known to fail at t_until: judge the window before it in full (the views kept for
             # the incremental check below stay those of the last full pass)
             sampled = plan.certificate.sampled if plan.certificate is not None else None
-            cert = certify(plan, judged, t_from=t_rel, t_until=t_until, sampled=sampled)
+            cert = certify(
+                plan, judged, t_from=t_rel, t_until=t_until, sampled=sampled, first_only=True
+            )
             first = cert.first_violation
             return None if cert.ok else (str(first), float(first.time))
         rec = loop.rechecks.get(id(plan))
@@ -100,7 +103,8 @@ def plan_unsafe(
             if views is not None:
                 rec.views, rec.lo, rec.hi = views, lo, hi
                 return None
-        cert = certify(plan, judged, t_from=t_rel, sampled=rec.sampled)
+        # only where the rest first fails matters (a pass judges every point, views and all)
+        cert = certify(plan, judged, t_from=t_rel, sampled=rec.sampled, first_only=True)
         if cert.ok:
             rec.views, rec.lo, rec.hi = cert.views, lo, hi
             return None

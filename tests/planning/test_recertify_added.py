@@ -12,8 +12,9 @@ import secure3d
 from secure3d.errors import PlanningError
 from secure3d.geometry._box_kernels import cone_box_blocked_any
 from secure3d.planning import certify, plan_problem, problem_from_scenario
-from secure3d.planning.certificate import sample_plan, views_after_adding
+from secure3d.planning.certificate import sample_plan
 from secure3d.planning.collocation import NLPCache
+from secure3d.planning.recertify import views_after_adding
 
 
 @pytest.fixture(scope="module")
