@@ -223,20 +223,21 @@ def _judge_in_chunks(
     sample with a failing point, and the answers cover that prefix only: everything
     :func:`_first_violation` needs to name the same violation as a pass over all points."""
     index = _box_index(problem)
-    n, step = len(flat), CHUNK_POINTS
-    end = n
+    end, step, obstacle = len(flat), CHUNK_POINTS, None
     if first_only:
         step = FIRST_CHUNK_POINTS
         # no point after the first sample with an obstacle hit can fail first: stop there at most
-        hits = _obstacle_margins(flat, problem, r, index) < -tol
+        obstacle = _obstacle_margins(flat, problem, r, index)
+        hits = obstacle < -tol
         if hits.any():
             end = int(np.searchsorted(owner, owner[np.argmax(hits)], side="right"))
     parts, starts, a = [], [], 0
     while a < max(end, 1):
         if deadline_passed():
             raise BudgetSpent("the plan call's budget was spent while certifying")
-        b = min(a + step, max(end, 1)) if first_only else a + step
-        part = _judge_points(flat[a:b], owner[a:b], R, o, problem, r, tol, index)
+        b = min(a + step, max(end, 1))
+        margins = None if obstacle is None else obstacle[a:b]
+        part = _judge_points(flat[a:b], owner[a:b], R, o, problem, r, tol, index, margins)
         parts.append(part)
         starts.append(a)
         bad = np.minimum(part[0], part[1]) < -tol
@@ -276,14 +277,17 @@ def _judge_points(
     r: float,
     tol: float,
     index: BoxIndex | None = None,
+    obstacle_margin: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The certificate's test of manoeuvre points ``flat`` (n, 3), each seen only from the cameras
     (R, o) before ``owner``: (obstacle margin (n,), visibility margin (n,), the view that observes
     each point (-1: the start region), the points that needed a view, and which of those were
-    inside an earlier field of view but occluded). ``index``: the problem's box index, if built."""
+    inside an earlier field of view but occluded). ``index``: the problem's box index, if built;
+    ``obstacle_margin``: the points' :func:`_obstacle_margins`, if computed already."""
     # ---- clear of known obstacles and inside the map -------------------------------------------
     index = _box_index(problem) if index is None else index
-    obstacle_margin = _obstacle_margins(flat, problem, r, index)
+    if obstacle_margin is None:
+        obstacle_margin = _obstacle_margins(flat, problem, r, index)
 
     # ---- observed before: start ball, or an earlier view with a clear line of sight -------------
     start_margin = problem.start_margins(flat, r)

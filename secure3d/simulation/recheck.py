@@ -73,8 +73,8 @@ def plan_unsafe(
     if loop.planner == Planner.SECURE:
         judged = dataclasses.replace(plan_problem_, boxes_lo=lo, boxes_hi=hi)
         if np.isfinite(t_until):
-            # known to fail at t_until: judge the window before it in full (the views kept for
-            # the incremental check below stay those of the last full pass)
+            # known to fail at t_until: judge the window before it, up to its first failure (the
+            # views kept for the incremental check below stay those of the last full pass)
             sampled = plan.certificate.sampled if plan.certificate is not None else None
             cert = certify(
                 plan, judged, t_from=t_rel, t_until=t_until, sampled=sampled, first_only=True
