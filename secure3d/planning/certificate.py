@@ -402,27 +402,15 @@ def certify(
     """
     settings = settings or CertificateSettings()
     _check_window(t_from, t_until)
-    model = problem.model
-    r = model.body_radius
+    r = problem.model.body_radius
     tol = settings.tolerance
     if sampled is None:
         if deadline_passed():
             raise BudgetSpent("the plan call's budget was spent before certifying")
         sampled = sample_plan(plan, problem, controller=controller, settings=settings)
-    t, flat, owner, R, o = (
-        sampled.times,
-        sampled.points,
-        sampled.owner,
-        sampled.rotations,
-        sampled.origins,
-    )
-    n_t = len(t)
-    # only the part of the plan in [t_from, t_until) is judged (views from before it still count)
-    keep = (t[owner] >= t_from - 1e-9) & (t[owner] < t_until - 1e-9)
-    kept = np.flatnonzero(keep)
-    flat, owner = flat[keep], owner[keep]
-
-    k, R, o = _with_past_views(problem, R, o)
+    t, n_t = sampled.times, len(sampled.times)
+    kept, flat, owner = _window(sampled, t_from, t_until)
+    k, R, o = _with_past_views(problem, sampled.rotations, sampled.origins)
     obstacle_margin, vis_margin, view, unresolved, occluded_only = _judge_in_chunks(
         flat, owner + k, R, o, problem, r, tol, first_only
     )
@@ -448,6 +436,17 @@ def certify(
         views=views,
         sampled=sampled,
     )
+
+
+def _window(
+    sampled: SampledPlan, t_from: float, t_until: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sampled points of the part of the plan in [t_from, t_until) (views from before it
+    still count): their indices into ``sampled.points`` (n,) int, the points (n, 3) and the index
+    of each one's sample (n,) int."""
+    t, owner = sampled.times, sampled.owner
+    kept = np.flatnonzero((t[owner] >= t_from - 1e-9) & (t[owner] < t_until - 1e-9))
+    return kept, sampled.points[kept], owner[kept]
 
 
 def _with_past_views(

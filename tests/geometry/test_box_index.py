@@ -64,6 +64,26 @@ def test_index_queries_equal_brute_force(rng, m):
     assert np.all((d[:, extra] - radius[:, None]).min(axis=0) <= 1e-6) if len(extra) else True
 
 
+@pytest.mark.parametrize("m", [1, 40, 2000])
+def test_min_distance_along_grids_and_paths_equals_brute_force(rng, m):
+    """Each point's search starts from the box nearest the point before it: along a raster grid,
+    a path and its probes, with caps that hide that box now and then (so the start box is
+    sometimes the answer, sometimes beaten, sometimes absent), the values stay the brute force's
+    bit for bit."""
+    lo, hi = _voxel_boxes(rng, m)
+    index = BoxIndex(lo, hi)
+    axes = [np.linspace(-0.5, 6.5, n) for n in (23, 19, 11)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    path = np.cumsum(rng.normal(0.0, 0.05, (2000, 3)), axis=0) + 3.0
+    probes = np.concatenate([path + e for e in (0.0, 1e-3, -1e-3)])
+    for pts in (grid, path, probes, grid[::-1]):
+        want = min_box_distance(pts, lo, hi)
+        assert np.array_equal(index.min_distance(pts), want)
+        cap = np.where(rng.random(len(pts)) < 0.3, rng.uniform(-0.05, 0.3, len(pts)), np.inf)
+        assert np.array_equal(index.min_distance(pts, cap), np.minimum(cap, want))
+        assert np.array_equal(index.inside_any(pts), inside_any_box(pts, lo, hi))
+
+
 @pytest.mark.parametrize("m", [1, 50, 2000])
 def test_overlapping_boxes_equal_the_scan(rng, m):
     """overlapping(a, b) is the scan's sorted indices, ties (shared faces, zero-size query boxes)
