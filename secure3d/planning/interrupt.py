@@ -16,11 +16,17 @@ compiled solvers are cached across calls, so it cannot carry a per-call budget.)
 Inside :func:`final_time_watch` the callback also stops a solve whose iterate's final time passes
 a cap (:func:`ran_away` tells it apart): a slot refresh's re-solve that runs away from the solution
 it started on (``planning/slot_refresh.py``).
+
+A solve that runs longer than :data:`SOLVE_HEARTBEAT_SECONDS` logs an INFO line (iterations and
+final time so far) from the same callback, and again every as many seconds, so that ``secure3d
+plan`` on a hard map says what it is doing instead of staying silent (the command line shows the
+library's INFO lines on stderr).
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import threading
 import time
@@ -43,8 +49,13 @@ __all__ = [
     "stopped_for_budget",
 ]
 
+log = logging.getLogger(__name__)
+
 _requested = threading.Event()
 _budget = threading.local()
+
+#: Wall time (s) of one solve after which, and every as many seconds, it logs its progress.
+SOLVE_HEARTBEAT_SECONDS = 5.0
 
 #: The next IPOPT iteration is taken to cost up to this many times the longest one so far within
 #: the plan call's budget (see ``_StopCallback.eval``).
@@ -154,6 +165,7 @@ class _StopCallback(ca.Callback):
         now = time.monotonic()
         last = getattr(_budget, "last_iteration", None)  # set by interruptible() per solve
         _budget.last_iteration = now
+        self._beat(now, args)
         gap = now - last if last is not None else 0.0
         _budget.longest = max(getattr(_budget, "longest", 0.0), gap)
         if budget_spent(ahead=ITERATION_SAFETY * _budget.longest):
@@ -165,6 +177,20 @@ class _StopCallback(ca.Callback):
             _budget.ran_away = True
             return [1.0]
         return [0.0]
+
+    def _beat(self, now: float, args: list) -> None:
+        """Count the solve's iterations; log its progress every SOLVE_HEARTBEAT_SECONDS."""
+        _budget.iterations = getattr(_budget, "iterations", 0) + 1
+        start = getattr(_budget, "solve_start", now)
+        if now - start < getattr(_budget, "beats", 1) * SOLVE_HEARTBEAT_SECONDS:
+            return
+        _budget.beats = getattr(_budget, "beats", 1) + 1
+        final = (
+            "" if self._t_index is None else f", final time {float(args[0][self._t_index]):.2f} s"
+        )
+        log.info(
+            "still solving: %d IPOPT iterations in %.0f s%s", _budget.iterations, now - start, final
+        )
 
 
 def stop_callback(n_x: int, n_g: int, n_p: int, t_index: int | None = None) -> ca.Callback:
@@ -197,6 +223,7 @@ def interruptible() -> Iterator[None]:
     starts the solve's iteration clock, by which the budget stops a solve one iteration early.
     """
     _budget.last_iteration = time.monotonic()  # the first gap includes the solve's set-up
+    _budget.solve_start, _budget.iterations, _budget.beats = _budget.last_iteration, 0, 1
     _budget.stopped = False
     _budget.ran_away = False
     with held_sigint(_requested, "plan interrupted"):

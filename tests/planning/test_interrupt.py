@@ -196,3 +196,35 @@ def test_a_bad_final_time_cap_or_index_is_refused_by_name():
     for t_index in (-1, 3, 1.0):
         with pytest.raises(PlanningError, match="stop_callback: t_index"):
             interrupt.stop_callback(3, 1, 1, t_index=t_index)
+
+
+def test_a_long_solve_logs_its_progress_every_heartbeat(monkeypatch, caplog):
+    """A solve longer than SOLVE_HEARTBEAT_SECONDS logs an INFO line with its iterations and final
+    time so far, once per heartbeat; a short one logs nothing, and each solve counts afresh."""
+    import logging
+    import types
+
+    from secure3d.planning import interrupt
+
+    clock = types.SimpleNamespace(now=100.0)
+    monkeypatch.setattr(interrupt, "time", types.SimpleNamespace(monotonic=lambda: clock.now))
+    monkeypatch.setattr(interrupt, "SOLVE_HEARTBEAT_SECONDS", 5.0)
+    callback = interrupt.stop_callback(2, 1, 1, t_index=0)
+    args = [[7.25, 0.0]] + [[0.0]] * 5
+    caplog.set_level(logging.INFO, logger="secure3d.planning.interrupt")
+
+    def solve(iterations: int, seconds: float) -> list[str]:
+        caplog.clear()
+        with interrupt.interruptible():
+            for _ in range(iterations):
+                clock.now += seconds
+                assert not callback.eval(args)[0]
+        return [r.getMessage() for r in caplog.records if "still solving" in r.getMessage()]
+
+    assert solve(4, 1.0) == []  # 4 s: under one heartbeat
+    lines = solve(12, 1.0)  # 12 s: beats at 5 s and 10 s
+    assert lines == [
+        "still solving: 5 IPOPT iterations in 5 s, final time 7.25 s",
+        "still solving: 10 IPOPT iterations in 10 s, final time 7.25 s",
+    ], lines
+    assert solve(2, 3.0) == ["still solving: 2 IPOPT iterations in 6 s, final time 7.25 s"]
