@@ -179,12 +179,13 @@ class _StopCallback(ca.Callback):
         return [0.0]
 
     def _beat(self, now: float, args: list) -> None:
-        """Count the solve's iterations; log its progress every SOLVE_HEARTBEAT_SECONDS."""
+        """Count the solve's iterations; log its progress once SOLVE_HEARTBEAT_SECONDS have passed
+        since the solve began or since the last such line."""
         _budget.iterations = getattr(_budget, "iterations", 0) + 1
         start = getattr(_budget, "solve_start", now)
-        if now - start < getattr(_budget, "beats", 1) * SOLVE_HEARTBEAT_SECONDS:
+        if now < getattr(_budget, "next_beat", start + SOLVE_HEARTBEAT_SECONDS):
             return
-        _budget.beats = getattr(_budget, "beats", 1) + 1
+        _budget.next_beat = now + SOLVE_HEARTBEAT_SECONDS  # one line per heartbeat, no bursts
         final = (
             "" if self._t_index is None else f", final time {float(args[0][self._t_index]):.2f} s"
         )
@@ -223,7 +224,8 @@ def interruptible() -> Iterator[None]:
     starts the solve's iteration clock, by which the budget stops a solve one iteration early.
     """
     _budget.last_iteration = time.monotonic()  # the first gap includes the solve's set-up
-    _budget.solve_start, _budget.iterations, _budget.beats = _budget.last_iteration, 0, 1
+    _budget.solve_start, _budget.iterations = _budget.last_iteration, 0
+    _budget.next_beat = _budget.solve_start + SOLVE_HEARTBEAT_SECONDS
     _budget.stopped = False
     _budget.ran_away = False
     with held_sigint(_requested, "plan interrupted"):
