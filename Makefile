@@ -33,8 +33,10 @@ demo: $(STAMP)
 # instead of 9.09 s). Elsewhere (and on CPUs without AVX-512) the variable changes nothing.
 # `import secure3d` sets it too (secure3d/_numpy_kernels.py), but pytest imports numpy first.
 test: export NPY_DISABLE_CPU_FEATURES := X86_V4 AVX512_ICL AVX512_SPR
+# The suite runs on every core (pytest-xdist); `make test PYTEST_WORKERS=0` runs it in one process.
+PYTEST_WORKERS ?= auto
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(PYTEST_WORKERS)
 
 lint: $(STAMP)
 	$(PY) -m ruff check secure3d tests benchmarks examples

@@ -87,3 +87,9 @@ def octomap_voxels():
         return n_occ, n_free
 
     return count
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Slow tests first (a stable sort): under ``pytest -n`` (``make test``) the longest ones then
+    start at once and do not leave one worker busy alone at the end."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)

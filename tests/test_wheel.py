@@ -10,6 +10,8 @@ import venv
 import zipfile
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -33,6 +35,7 @@ def _run(cmd: list[str], env: dict[str, str], cwd: Path, timeout: float) -> str:
     return done.stdout
 
 
+@pytest.mark.slow
 def test_the_wheel_installs_into_a_fresh_venv_and_flies_the_demo(tmp_path, original_env):
     env = _pip_env(original_env, tmp_path / "home")
     dist = tmp_path / "dist"

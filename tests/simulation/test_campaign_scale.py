@@ -154,6 +154,7 @@ def _rows(out: Path) -> list[tuple[int, str]]:
     return [(r.variant, r.planner) for r in read_runs(path)[1]]
 
 
+@pytest.mark.slow
 def test_sigint_then_resume_flies_each_run_exactly_once(tiny: Path, tmp_path: Path):
     import psutil
 

@@ -402,6 +402,7 @@ def test_deferred_replans_wait_for_more_of_the_obstacle_and_stay_safe(maps_dir, 
     assert replan_defer_for(0.0, 0.1) == 0.0 and replan_defer_for(0.3, 0.0) == 0.3
 
 
+@pytest.mark.slow
 def test_the_judged_boxes_cover_every_known_obstacle_voxel_through_deferred_replans(
     maps_dir, monkeypatch
 ):

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 from numba import types
 
 from secure3d import _kernel_manifest as km
@@ -59,6 +60,7 @@ def _fly(manifest: Path, *names: str) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_a_new_process_loads_every_kernel_its_flights_call_before_take_off(tmp_path):
     manifest = tmp_path / "kernels.pickle"
     names = ("blind_corner", "planar_blind_corner")  # point mass and diff drive

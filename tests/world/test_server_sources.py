@@ -227,6 +227,7 @@ def test_mesh_server_map_claims_the_building_surface() -> None:
     assert (84, 50, 12) in occ and (60, 40, 12) not in occ
 
 
+@pytest.mark.slow
 def test_region_attack_family_is_pure_and_valid() -> None:
     base = load_scenario(MAPS / "geb079_region_attacks.yaml")
     prep = REGION_ATTACKS.prepare(base)
