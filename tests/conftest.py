@@ -90,6 +90,8 @@ def octomap_voxels():
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Slow tests first (a stable sort): under ``pytest -n`` (``make test``) the longest ones then
-    start at once and do not leave one worker busy alone at the end."""
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+    """Modules with a slow test first (a stable sort, each module's tests kept together, so that
+    no module-scoped fixture is set up twice): under ``pytest -n`` (``make test``) the longest
+    tests then start early and do not leave one worker busy alone at the end."""
+    slow = {item.path for item in items if item.get_closest_marker("slow") is not None}
+    items.sort(key=lambda item: item.path not in slow)
