@@ -91,6 +91,7 @@ class Flight(AtRest):
         self.events: list[SimEvent] = []
         self.plans: list[tuple[float, PlanResult]] = []
         self.solve_times: list[float] = []
+        self.plan_iterations: list[int] = []
         # per judged plan call: (rejections, certified)
         self.certify_log: list[tuple[int, bool]] = []
         self.failures = 0  # failed plan calls in a row
@@ -361,6 +362,7 @@ class Flight(AtRest):
         limit = replan_time_limit(p0, problem.goal, vmax, slow, np.inf) if self.t else np.inf
         result = plan_problem(problem, loop.planner, cache=loop.cache, max_final_time=limit)
         self.solve_times.append(time.perf_counter() - t0)
+        self.plan_iterations.append(int(result.iterations))
         self.log_certificates(result)
         why = None  # TOO_SLOW: the planner stopped at a plan these rules refuse
         if self.t != 0.0 and (result.ok or result.status is PlanStatus.TOO_SLOW):

@@ -47,6 +47,8 @@ class SimResult:
     plans : (time, PlanResult) of every plan followed.
     detection_time, detection_point : first frame that saw a hidden obstacle, and where the robot was.
     frames, takeovers, replans : counts. solve_times : wall time of every plan call (s).
+    plan_iterations : the solver's iterations in every plan call (all its solves), in the order of
+        ``solve_times``: unlike the wall times, the same on every machine for the same code.
     certify_log : per plan call whose solver succeeded (secure planner): (how many solutions the
         certificate rejected first, whether the returned plan certified). (0, True): first try.
     wall_time : the whole run's wall time (s), set-up included.
@@ -81,6 +83,7 @@ class SimResult:
     wall_time: float
     setup_time: float = 0.0
     certify_log: tuple[tuple[int, bool], ...] = ()
+    plan_iterations: tuple[int, ...] = ()
     outputs: dict[str, Path] = field(default_factory=dict)
 
     @property
@@ -111,6 +114,7 @@ class SimResult:
             "frames": int(self.frames),
             "takeovers": int(self.takeovers),
             "replans": int(self.replans),
+            "plan_iterations": [int(i) for i in self.plan_iterations],
             "wall_time": num(self.wall_time),
             "setup_time": num(self.setup_time),
             "real_time_factor": num(self.real_time_factor),
@@ -185,6 +189,7 @@ def flight_result(flight: Flight) -> SimResult:
         takeovers=flight.takeovers,
         replans=flight.replans,
         solve_times=tuple(flight.solve_times),
+        plan_iterations=tuple(flight.plan_iterations),
         certify_log=tuple(flight.certify_log),
         wall_time=time.perf_counter() - flight.s.wall0,
     )

@@ -115,6 +115,10 @@ def test_blind_corner_secure_flight_sees_the_crate_and_arrives_without_collision
     assert not list(tmp_path.glob("*.part"))
     # every plan the secure robot followed was certified when it was made
     assert all(p.certificate is not None and p.certificate.ok for _, p in run.plans)
+    # one iteration count per plan call; here every call made a plan the robot followed
+    assert len(run.plan_iterations) == len(run.solve_times) == len(run.plans)
+    assert list(run.plan_iterations) == [p.iterations for _, p in run.plans]
+    assert run.to_dict()["plan_iterations"] == list(run.plan_iterations)
 
 
 def test_a_frame_is_news_only_if_it_finds_obstacle_voxels_outside_the_judged_boxes(maps_dir):
@@ -468,6 +472,7 @@ def test_a_robot_stuck_at_rest_looks_around_once_then_holds(maps_dir, monkeypatc
     assert failed_before == 1 + STUCK_RETRIES  # the plan at take-off, then the retries at rest
     assert kinds.index("holding") == len(kinds) - 2 and kinds[-1] == "time limit"
     assert len(run.solve_times) == 1 + 2 * STUCK_RETRIES and run.replans == 2 * STUCK_RETRIES
+    assert run.plan_iterations == (0,) * len(run.solve_times)  # failed calls count too
     assert not run.collided and np.ptp(run.positions, axis=0).max() < 0.05, "it never left"
     # with fewer replans allowed, the budget ends it first
     run = simulate(scenario, "secure", cache=NLPCache(), max_replans=3)
