@@ -58,7 +58,10 @@ from secure3d.errors import Secure3DError
 from secure3d.simulation.campaign_run import campaign_family
 from secure3d.world import load_scenario
 from secure3d.world.families import variant_rng
+from secure3d.simulation.results import SimResult
 assert secure3d.__file__.startswith(sys.argv[1]), secure3d.__file__
+if not hasattr(SimResult, "plan_iterations"):
+    sys.exit(f"{sys.argv[1]}: its SimResult has no plan_iterations (a tree before session 53)")
 spec = json.loads(sys.argv[2])
 seed = spec["seed"]
 for pair in spec["pairs"]:
@@ -116,6 +119,7 @@ def fly_both(trees: dict[str, Path], args: argparse.Namespace, work: Path) -> di
             ),
             log,
         )
+    _progress(procs, work, len(args.pairs) * args.n)
     for label, (proc, log) in procs.items():
         _, err = proc.communicate()
         log.close()
@@ -123,6 +127,26 @@ def fly_both(trees: dict[str, Path], args: argparse.Namespace, work: Path) -> di
             tail = err.strip().splitlines()[-1:] if err else []
             raise SystemExit(f"{label} tree ({trees[label]}): the flights stopped: {tail}")
     return {label: read_runs(work / f"{label}.jsonl") for label in trees}
+
+
+def _progress(procs: dict, work: Path, total: int, every: float = 5.0) -> None:
+    """Until both trees' processes end, a line on stderr whenever their count of runs moved."""
+    last = None
+    while any(proc.poll() is None for proc, _ in procs.values()):
+        time.sleep(every)
+        done = {label: _lines(work / f"{label}.jsonl") for label in procs}
+        if done != last:
+            runs = ", ".join(f"{label} {n}/{total}" for label, n in done.items())
+            print(f"flown: {runs}", file=sys.stderr, flush=True)
+            last = done
+
+
+def _lines(path: Path) -> int:
+    """Complete lines in ``path`` so far (0 if it is not there yet)."""
+    try:
+        return path.read_text().count("\n")
+    except FileNotFoundError:
+        return 0
 
 
 def read_runs(path: Path) -> dict[tuple[str, int], dict]:
