@@ -130,9 +130,15 @@ def fly_both(trees: dict[str, Path], args: argparse.Namespace, work: Path) -> di
 
 
 def _progress(procs: dict, work: Path, total: int, every: float = 5.0) -> None:
-    """Until both trees' processes end, a line on stderr whenever their count of runs moved."""
+    """Until both trees' processes end, a line on stderr whenever their count of runs moved; once
+    one tree's process fails, the other is stopped (its comparison is lost anyway)."""
     last = None
     while any(proc.poll() is None for proc, _ in procs.values()):
+        if any(proc.poll() not in (None, 0) for proc, _ in procs.values()):
+            for proc, _ in procs.values():
+                if proc.poll() is None:
+                    proc.terminate()
+            return
         time.sleep(every)
         done = {label: _lines(work / f"{label}.jsonl") for label in procs}
         if done != last:
@@ -247,6 +253,14 @@ def main() -> None:
     for pair in args.pairs:
         if pair.count(":") != 1:
             raise SystemExit(f"{pair}: expected BASE:KIND, e.g. forest:thin")
+    if args.n < 1 or not args.tie >= 0 or not args.plan_budget > 0:
+        raise SystemExit(
+            f"-n must be >= 1, --tie >= 0 and --plan-budget > 0 (got {args.n}, {args.tie},"
+            f" {args.plan_budget})"
+        )
+    for label, tree in (("--before", args.before), ("--after", args.after)):
+        if not (tree / "secure3d" / "__init__.py").is_file():
+            raise SystemExit(f"{label} {tree}: not a source tree (no secure3d/__init__.py)")
     t0, load0, info = time.perf_counter(), os.getloadavg()[0], machine_info()
     runs = fly_both({"before": args.before, "after": args.after}, args, args.work.resolve())
     before, after = runs["before"], runs["after"]
