@@ -26,8 +26,9 @@ class PlanStatus(enum.Enum):
     NOT_CERTIFIED = "not_certified"
     #: the plan call's wall-time budget (``PlannerOptions.plan_budget``) ran out
     TIME_BUDGET = "time_budget"
-    #: a solve's plan is longer than the caller's ``max_final_time`` (``plan_problem``): not
-    #: refined, re-solved or certified further, since the caller would not fly it
+    #: a solve's plan is longer than the caller's ``max_final_time`` or ``route_time_limit``
+    #: (``plan_problem``): not refined, re-solved or certified further, since the caller would
+    #: not fly it
     TOO_SLOW = "too_slow"
 
     @property

@@ -203,6 +203,7 @@ def plan_problem(
     cache: NLPCache | None = None,
     solve_rounds: Callable[..., tuple[_Solve, SolveCost]] | None = None,
     max_final_time: float = np.inf,
+    route_time_limit: Callable[[float], float] | None = None,
 ) -> PlanResult:
     """Solve a :class:`PlanningProblem` (see :func:`plan` for the scenario-level entry point).
 
@@ -222,6 +223,11 @@ def plan_problem(
         beat braking). A solution longer than that ends the call with status ``TOO_SLOW``, before
         its slot refreshes, look-back rounds and certificate: they would cost a solve or more
         each for a plan nobody flies.
+    route_time_limit : the longest plan (s) the caller would use as a function of the length (m)
+        of the route the call's first guess follows through the belief (the result's
+        ``route_length``), for a cold call; it lowers ``max_final_time`` once that guess exists.
+        A closed loop that refuses detours measured against that route passes its rule here, so
+        a plan it would refuse ends the call as early as ``max_final_time`` would end it.
     """
     if planner not in tuple(Planner):
         raise ConfigError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
@@ -229,6 +235,11 @@ def plan_problem(
         isinstance(max_final_time, (int, float)) and max_final_time > 0
     ):
         raise ConfigError(f"max_final_time: must be a time > 0 (s), got {max_final_time!r}")
+    if route_time_limit is not None and not callable(route_time_limit):
+        raise ConfigError(
+            f"route_time_limit: must be a function of the route length (m), got"
+            f" {route_time_limit!r}"
+        )
     cache = DEFAULT_CACHE if cache is None else cache
     pin_blas_threads()  # the same iterates whatever the machine's cores (planning/blas.py)
     budget = problem.options.plan_budget
@@ -236,7 +247,8 @@ def plan_problem(
     reserve = min(CERTIFY_RESERVE * budget, CERTIFY_RESERVE_MAX) if certifies else 0.0
     with deadline(budget - min(BUDGET_RESERVE * budget, BUDGET_RESERVE_MAX), reserve):
         call = _Call(problem, planner, warm, warm_time, cache, solve_rounds or _solve_rounds)
-        return _plan_within_budget(replace(call, max_final_time=max_final_time))
+        call = replace(call, max_final_time=max_final_time, route_time_limit=route_time_limit)
+        return _plan_within_budget(call)
 
 
 @dataclass(frozen=True)
@@ -250,6 +262,7 @@ class _Call:
     cache: NLPCache
     solve_rounds: Callable[..., tuple[_Solve, SolveCost]]
     max_final_time: float = np.inf
+    route_time_limit: Callable[[float], float] | None = None
 
 
 def _plan_within_budget(call: _Call) -> PlanResult:
@@ -286,11 +299,25 @@ def _plan_within_budget(call: _Call) -> PlanResult:
         attempts = _cold_attempts(problem, planner, from_other, warm_time)
         if isinstance(attempts, str):
             return failed_result(problem, planner, PlanStatus.INFEASIBLE, attempts)
-    result = _first_solved(replace(call, warm=warm), attempts)
+    route = np.nan
     if warm is None:  # a cold plan: the route its first guess follows through the belief
-        route = np.linalg.norm(np.diff(attempts[0][0].path, axis=0), axis=1).sum()
-        result = replace(result, route_length=float(route))
-    return result
+        route = float(np.linalg.norm(np.diff(attempts[0][0].path, axis=0), axis=1).sum())
+        call = replace(call, max_final_time=_route_limited(call, route))
+    result = _first_solved(replace(call, warm=warm), attempts)
+    return result if np.isnan(route) else replace(result, route_length=route)
+
+
+def _route_limited(call: _Call, route: float) -> float:
+    """The call's ``max_final_time``, lowered by its ``route_time_limit`` of ``route`` m."""
+    if call.route_time_limit is None:
+        return call.max_final_time
+    limit = call.route_time_limit(route)
+    if isinstance(limit, bool) or not (isinstance(limit, (int, float)) and limit > 0):
+        raise ConfigError(
+            f"route_time_limit: must return a time > 0 (s) for a route of {route:.3f} m, got"
+            f" {limit!r}"
+        )
+    return min(call.max_final_time, float(limit))
 
 
 def _first_solved(

@@ -355,12 +355,16 @@ class Flight(AtRest):
         problem = loop.plan_problem_from(x, self.t != 0.0, speed=speed, goal=goal, nodes=nodes)
         loop.start_problem = problem
         t0 = time.perf_counter()
-        # a replan the robot would fly: not too long a detour (round the planner's route), nor
-        # slower than braking
+        # a replan the robot would fly: not too long a detour (round the planner's route, known
+        # once the call has its first guess), nor slower than braking
         p0, vmax = np.asarray(self.model.position(x), float).ravel(), self.model.limits.max_speed
-        slow = self.braking_instead(x) if self.t != 0.0 else None
-        limit = replan_time_limit(p0, problem.goal, vmax, slow, np.inf) if self.t else np.inf
-        result = plan_problem(problem, loop.planner, cache=loop.cache, max_final_time=limit)
+        replan = self.t != 0.0  # the take-off plan has no limit
+        slow = self.braking_instead(x) if replan else None
+
+        def limit(route: float) -> float:
+            return replan_time_limit(p0, problem.goal, vmax, slow, route) if replan else np.inf
+
+        result = plan_problem(problem, loop.planner, cache=loop.cache, route_time_limit=limit)
         self.solve_times.append(time.perf_counter() - t0)
         self.plan_iterations.append(int(result.iterations))
         self.log_certificates(result)

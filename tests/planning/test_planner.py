@@ -405,6 +405,58 @@ def test_a_plan_longer_than_the_callers_limit_stops_before_refresh_and_certifica
             plan_problem(corner_problem, "secure", cache=cache, max_final_time=bad)
 
 
+def test_a_route_time_limit_is_judged_on_the_first_guesss_route(corner_problem):
+    """route_time_limit: called once with the route the first guess follows (the result's
+    route_length); below the plan's duration it ends the call TOO_SLOW after the first solve, as
+    max_final_time does; the smaller of the two limits holds; a bad limit or return is named."""
+    from secure3d.planning import solve as solve_mod
+
+    cache = NLPCache()
+    free = plan_problem(corner_problem, "secure", cache=cache)
+    assert free.ok and np.isfinite(free.route_length) and free.route_length > 0
+    routes = []
+
+    def limit(route):
+        routes.append(route)
+        return 0.5 * free.final_time
+
+    n_solves = []
+    real = solve_mod._solve_once
+
+    def counted(*args, **kwargs):
+        n_solves.append(1)
+        return real(*args, **kwargs)
+
+    solve_mod._solve_once = counted
+    try:
+        capped = plan_problem(corner_problem, "secure", cache=cache, route_time_limit=limit)
+    finally:
+        solve_mod._solve_once = real
+    assert routes == [pytest.approx(free.route_length, rel=1e-12)]
+    assert capped.status is PlanStatus.TOO_SLOW and len(n_solves) == 1
+    assert capped.certificate is None and capped.route_length == free.route_length
+    assert f"over the limit of {0.5 * free.final_time:.2f} s" in capped.message
+    loose = plan_problem(
+        corner_problem, "secure", cache=cache, route_time_limit=lambda r: 10 * free.final_time
+    )
+    assert loose.ok and loose.final_time == pytest.approx(free.final_time, rel=1e-9)
+    both = plan_problem(
+        corner_problem,
+        "secure",
+        cache=cache,
+        max_final_time=0.5 * free.final_time,
+        route_time_limit=lambda r: 10 * free.final_time,
+    )
+    assert both.status is PlanStatus.TOO_SLOW  # the smaller limit holds
+    with pytest.raises(secure3d.errors.ConfigError, match="route_time_limit: must be a function"):
+        plan_problem(corner_problem, "secure", cache=cache, route_time_limit=5.0)
+    for bad in (0.0, -1.0, float("nan"), "5"):
+        with pytest.raises(secure3d.errors.ConfigError, match="route_time_limit: must return"):
+            plan_problem(
+                corner_problem, "secure", cache=cache, route_time_limit=lambda r, bad=bad: bad
+            )
+
+
 def test_without_slower_guesses_a_failed_first_solve_ends_the_call(corner_problem):
     """``slower_guesses=False`` (the closed loop's replans from a moving state, which brake
     instead): one start, and the call reports the first solve's failure."""

@@ -9,6 +9,7 @@ import pytest
 
 import secure3d
 from secure3d.errors import SimulationError
+from secure3d.planning.result import PlanStatus
 from secure3d.simulation.closed_loop import simulate
 from secure3d.simulation.flight import Flight
 from secure3d.simulation.modes import TRANSITIONS, Mode, Trigger
@@ -344,10 +345,31 @@ def test_a_moving_robot_brakes_rather_than_fly_a_slow_replan(maps_dir, monkeypat
     """planar_dead_end: the diff drive sees the dead end at speed; its replan in flight turns round
     in 16.5 s, where the old plan had 2.5 s left. It is refused: the robot brakes, plans from rest
     and arrives sooner than flying it (as it did before the rule, turning round beside the wall)."""
+    from secure3d.planning import solve as solve_mod
     from secure3d.simulation import modes
 
+    calls = []  # (route_time_limit, result) of each plan call
+    real = solve_mod.plan_problem
+
+    def recorded(*args, **kwargs):
+        result = real(*args, **kwargs)
+        calls.append((kwargs.get("route_time_limit"), result))
+        return result
+
+    monkeypatch.setattr(solve_mod, "plan_problem", recorded)
     scenario = secure3d.load_scenario(maps_dir / "planar_dead_end.yaml")
     run = simulate(scenario, "secure", seed=0, plan_budget=10.0, replan_defer=0.5)
+    monkeypatch.setattr(solve_mod, "plan_problem", real)
+    # every call is told the detour rule, judged on its own route: the take-off plan has no limit,
+    # a replan's limit is the one replan_refusal applies, and nothing over it comes back as a plan
+    assert len(calls) == len(run.solve_times) >= 2
+    assert calls[0][0](calls[0][1].route_length) == np.inf
+    for limit, result in calls[1:]:
+        top = limit(result.route_length)
+        assert np.isfinite(top) and top > 0
+        judged = (PlanStatus.SUCCESS, PlanStatus.TOO_SLOW, PlanStatus.NOT_CERTIFIED)
+        if result.status in judged:  # a solve that ended (not a solver failure)
+            assert (result.final_time > top) == (result.status is PlanStatus.TOO_SLOW)
     refused = [e for e in run.events if "replan refused" in e.detail and "in flight" in e.detail]
     assert refused, [str(e) for e in run.events]
     kinds = [e.kind for e in run.events]
