@@ -231,9 +231,7 @@ def plan_problem(
     """
     if planner not in tuple(Planner):
         raise ConfigError(f"planner: must be 'secure' or 'baseline', got {planner!r}")
-    if isinstance(max_final_time, bool) or not (
-        isinstance(max_final_time, (int, float)) and max_final_time > 0
-    ):
+    if not _is_time(max_final_time):
         raise ConfigError(f"max_final_time: must be a time > 0 (s), got {max_final_time!r}")
     if route_time_limit is not None and not callable(route_time_limit):
         raise ConfigError(
@@ -299,12 +297,17 @@ def _plan_within_budget(call: _Call) -> PlanResult:
         attempts = _cold_attempts(problem, planner, from_other, warm_time)
         if isinstance(attempts, str):
             return failed_result(problem, planner, PlanStatus.INFEASIBLE, attempts)
-    route = np.nan
-    if warm is None:  # a cold plan: the route its first guess follows through the belief
-        route = float(np.linalg.norm(np.diff(attempts[0][0].path, axis=0), axis=1).sum())
-        call = replace(call, max_final_time=_route_limited(call, route))
-    result = _first_solved(replace(call, warm=warm), attempts)
-    return result if np.isnan(route) else replace(result, route_length=route)
+    if warm is not None:
+        return _first_solved(call, attempts)
+    # a cold plan: the route its first guess follows through the belief
+    route = float(np.linalg.norm(np.diff(attempts[0][0].path, axis=0), axis=1).sum())
+    call = replace(call, warm=None, max_final_time=_route_limited(call, route))
+    return replace(_first_solved(call, attempts), route_length=route)
+
+
+def _is_time(value: object) -> bool:
+    """Whether ``value`` is a duration > 0 (s): a real number, not a bool, inf allowed."""
+    return not isinstance(value, bool) and isinstance(value, (int, float)) and value > 0
 
 
 def _route_limited(call: _Call, route: float) -> float:
@@ -312,7 +315,7 @@ def _route_limited(call: _Call, route: float) -> float:
     if call.route_time_limit is None:
         return call.max_final_time
     limit = call.route_time_limit(route)
-    if isinstance(limit, bool) or not (isinstance(limit, (int, float)) and limit > 0):
+    if not _is_time(limit):
         raise ConfigError(
             f"route_time_limit: must return a time > 0 (s) for a route of {route:.3f} m, got"
             f" {limit!r}"

@@ -352,13 +352,13 @@ class Flight(AtRest):
         speed = RETRY_SPEEDS[self.failures % len(RETRY_SPEEDS)] if self.failures else None
         # a replan at rest has failed: the next at rest with the scenario's own, finer nodes
         nodes = loop.rest_nodes if self.held_failures else None
-        problem = loop.plan_problem_from(x, self.t != 0.0, speed=speed, goal=goal, nodes=nodes)
+        replan = self.t != 0.0  # not the take-off plan, which has no limit
+        problem = loop.plan_problem_from(x, replan, speed=speed, goal=goal, nodes=nodes)
         loop.start_problem = problem
         t0 = time.perf_counter()
         # a replan the robot would fly: not too long a detour (round the planner's route, known
         # once the call has its first guess), nor slower than braking
         p0, vmax = np.asarray(self.model.position(x), float).ravel(), self.model.limits.max_speed
-        replan = self.t != 0.0  # the take-off plan has no limit
         slow = self.braking_instead(x) if replan else None
 
         def limit(route: float) -> float:
@@ -369,7 +369,7 @@ class Flight(AtRest):
         self.plan_iterations.append(int(result.iterations))
         self.log_certificates(result)
         why = None  # TOO_SLOW: the planner stopped at a plan these rules refuse
-        if self.t != 0.0 and (result.ok or result.status is PlanStatus.TOO_SLOW):
+        if replan and (result.ok or result.status is PlanStatus.TOO_SLOW):
             positions, route = self.model.position(result.states), result.route_length
             why = replan_refusal(positions, result.final_time, p0, problem.goal, vmax, slow, route)
         if not result.ok or why is not None:
