@@ -18,8 +18,11 @@ from secure3d.geometry.polytope import box_pair_distances
 from secure3d.planning.problem import Planner, PlanningProblem
 from secure3d.planning.slot_screen import (
     INDEXED_MIN_BOXES,
+    REFINED_PER_SLOT,
+    SLOT_NEIGHBOURS,
     indexed_slot_boxes,
     nearest_slots,
+    neighbour_minimum,
     screened_pairs,
 )
 
@@ -453,8 +456,9 @@ def with_left_out_boxes(
     that slot's box is farther than it.
 
     :func:`select_slots` ranks a node's candidates by a screen that is loose beside long reactive
-    sets, and only its 2S nearest by exact distance; a box the solution came close to can stay
-    outside them at every re-selection, so that re-solves repeat the same solution (measured on
+    sets, and only its ``REFINED_PER_SLOT`` S nearest by exact distance; a box the solution came
+    close to can stay outside them at every re-selection, so that re-solves repeat the same
+    solution (measured on
     ``geb079_hidden_crate``: three re-solves of 41, 23 and 20 iterations, each leaving a box 6.6 mm
     away against a 20 mm margin). Putting the boxes in by their exact distance ends that."""
     pairs, d = left_out_boxes(problem, states, assignment, slots, limit)
@@ -495,11 +499,17 @@ def empty_slots(problem: PlanningProblem, slots: np.ndarray) -> np.ndarray:
 
 
 def select_slots(
-    problem: PlanningProblem, planner: str, states: np.ndarray, assignment: tuple[int, ...]
+    problem: PlanningProblem,
+    planner: str,
+    states: np.ndarray,
+    assignment: tuple[int, ...],
+    neighbours: int = SLOT_NEIGHBOURS,
 ) -> np.ndarray:
     """(K, S, 6) boxes [lo, hi] per node slot: the known obstacles nearest to what node k constrains
-    (the body for the baseline; the line-of-sight hull from camera j to E_k for the secure planner).
-    Empty slots hold a small box far outside the world (its constraint is inactive)."""
+    (the body for the baseline; for the secure planner, the line-of-sight hull from camera j to
+    E_k, or that of one of the ``neighbours`` nodes either side of it, at exact distances:
+    ``slot_screen.SLOT_NEIGHBOURS``). Empty slots hold a small box far outside the world (its
+    constraint is inactive)."""
     o = problem.options
     K, S = len(states), o.obstacle_slots
     far = empty_slot_lo(problem)
@@ -518,11 +528,12 @@ def select_slots(
             sets = constrained_sets(problem, "secure", states, assignment)
             return _exact_distances(problem, sets, k_idx, b_idx)
 
-        chosen = indexed_slot_boxes(problem, planner, pts, reach, exact, centres)
+        chosen = indexed_slot_boxes(problem, planner, pts, reach, exact, centres, neighbours)
     else:
         d = _hull_box_distances(problem, planner, states, assignment)
         if planner == Planner.SECURE:
-            d = _refine_distances(problem, states, assignment, d, 2 * S)
+            d = _refine_distances(problem, states, assignment, d, REFINED_PER_SLOT * S)
+            d = neighbour_minimum(d, neighbours)
         chosen = nearest_slots(problem, d, S, centres)
     for k in range(K):
         for s, idx in enumerate(chosen[k]):

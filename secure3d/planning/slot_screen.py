@@ -11,12 +11,13 @@ Here the box index's tree yields just those, with the matrix's entries bit for b
 
 - the pairs below a limit (``hull_near``) are the matrix's, in its row-major order
   (``np.argwhere``), so ``slots_missing`` gets the same pairs;
-- the S nearest boxes of a row (``hull_nearest``: its S + 1 smallest entries, or 2S + 1 where the
-  secure planner refines 2S of them) are the full argsort's first S whenever their values are
-  distinct: a sort of the full row can only order *equal* values differently (its tie order
-  depends on the sort algorithm and on every other entry). A row where a tie could matter (among
-  the first S + 1 values within the radius, or at the boundary of the 2S refined ones) is ranked
-  in full, as before: numpy sorts each row of a matrix as it sorts that row alone.
+- the S nearest boxes of a row (``hull_nearest``: its S + 1 smallest entries, or
+  ``REFINED_PER_SLOT`` S + 1 where the secure planner refines that many of them) are the full
+  argsort's first S whenever their values are distinct: a sort of the full row can only order
+  *equal* values differently (its tie order depends on the sort algorithm and on every other
+  entry). A row where a tie could matter (among the first S + 1 values within the radius, or at
+  the boundary of the refined ones) is ranked in full, as before: numpy sorts each row of a matrix
+  as it sorts that row alone.
 """
 
 from __future__ import annotations
@@ -30,15 +31,33 @@ from secure3d.planning.problem import Planner, PlanningProblem
 
 __all__ = [
     "INDEXED_MIN_BOXES",
+    "REFINED_PER_SLOT",
     "SLOT_CONE_DEG",
+    "SLOT_NEIGHBOURS",
     "by_direction",
     "indexed_slot_boxes",
     "nearest_slots",
+    "neighbour_minimum",
     "screened_pairs",
 ]
 
 #: Boxes from which the screens go through the index (below, the matrix is as cheap).
 INDEXED_MIN_BOXES = 256
+
+#: The secure planner ranks a node's boxes by their exact distance from what the node constrains,
+#: but computes it only for this many times S of the node's nearest by the screen (which subtracts
+#: the largest semi-axis of the reactive set, so ranks boxes poorly beside a long one). With 2S,
+#: geb079_hidden_crate's node 14 left out its two nearest boxes (0.121 and 0.124 m exactly; not
+#: among the 16 nearest by the screen), and the solution went through them.
+REFINED_PER_SLOT = 4
+
+#: A node's slots hold the S boxes nearest to what it, or any node up to this many either side of
+#: it, constrains (each box at its least distance over those nodes). A solution slides along its
+#: guess: on geb079_hidden_crate node 13 of the solution came within the margin of boxes that on the
+#: guess were node 14's two nearest and only node 13's 13th-15th, and the slot refresh this forced
+#: cost 29 of the call's 87 iterations; with one neighbour, 0 of 53. Over the 23 shipped maps' cold
+#: plans, 1,459 -> 1,274 iterations (2 neighbours: 1,391; benchmarks/results/session55.md).
+SLOT_NEIGHBOURS = 1
 
 #: ``slot_pick="directions"``: a box whose nearest point lies within this angle (deg) of a nearer
 #: box's, seen from the node's reactive-set centre, waits until every direction has its nearest.
@@ -144,16 +163,18 @@ def _refined(
     rows: list[np.ndarray],
     exact: Callable[[np.ndarray, np.ndarray], np.ndarray],
 ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """:func:`~secure3d.planning.lookback._refine_distances` on the screened pairs: each row's 2S
-    nearest by the screen (a row with a tie at the 2S-th: by its full screen row), with their exact
-    distances (``exact(k_idx, b_idx)``); per node (boxes, exact distances)."""
+    """:func:`~secure3d.planning.lookback._refine_distances` on the screened pairs: each row's
+    ``REFINED_PER_SLOT`` S nearest by the screen (a row with a tie at the last of them: by its full
+    screen row), with their exact distances (``exact(k_idx, b_idx)``); per node (boxes, exact
+    distances)."""
     pts, reach, js, vs = screened
     S, R = problem.options.obstacle_slots, problem.options.obstacle_radius
+    n = REFINED_PER_SLOT * S
     picked = []
     for k, row in enumerate(rows):
-        keep = _smallest(vs[row], 2 * S, R, ordered=False)
+        keep = _smallest(vs[row], n, R, ordered=False)
         if keep is None:
-            picked.append(_first(_screen_row(problem, pts, reach, k), 2 * S, R))
+            picked.append(_first(_screen_row(problem, pts, reach, k), n, R))
         else:
             picked.append(js[row[keep]])
     k_idx = np.repeat(np.arange(len(rows)), [len(b) for b in picked])
@@ -163,6 +184,42 @@ def _refined(
     return [(b, distances[e - len(b) : e]) for b, e in zip(picked, ends, strict=True)]
 
 
+def neighbour_minimum(d: np.ndarray, n: int) -> np.ndarray:
+    """(K, m) distances ``d`` (K, m), each row replaced by the elementwise least of rows k - n to
+    k + n (those that exist): how near box j comes to what node k or a neighbour constrains."""
+    d = np.asarray(d, dtype=float)
+    if d.ndim != 2:
+        raise PlanningError(f"neighbour_minimum: d must have shape (K, m), got {d.shape}")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+        raise PlanningError(f"neighbour_minimum: n must be an integer >= 0, got {n!r}")
+    out = d.copy()
+    for i in range(1, min(n, len(d) - 1) + 1):
+        np.minimum(out[i:], d[:-i], out=out[i:])
+        np.minimum(out[:-i], d[i:], out=out[:-i])
+    return out
+
+
+def _neighbour_rows(
+    ranked: list[tuple[np.ndarray, np.ndarray]], n: int
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`neighbour_minimum` on sparse rows: per node the (boxes, values) of rows k - n to
+    k + n, each box once at its least value, ordered by value (then box)."""
+    K = len(ranked)
+    out = []
+    for k in range(K):
+        near = ranked[max(0, k - n) : k + n + 1]
+        boxes = np.concatenate([b for b, _ in near]).astype(np.int64)
+        values = np.concatenate([v for _, v in near]).astype(float)
+        order = np.lexsort((values, boxes))  # by box, then value: the first of a box is its least
+        boxes, values = boxes[order], values[order]
+        first = np.ones(len(boxes), bool)
+        first[1:] = boxes[1:] != boxes[:-1]
+        boxes, values = boxes[first], values[first]
+        order = np.lexsort((boxes, values))
+        out.append((boxes[order], values[order]))
+    return out
+
+
 def indexed_slot_boxes(
     problem: PlanningProblem,
     planner: str,
@@ -170,22 +227,25 @@ def indexed_slot_boxes(
     reach: np.ndarray,
     exact: Callable[[np.ndarray, np.ndarray], np.ndarray],
     centres: np.ndarray | None = None,
+    neighbours: int = SLOT_NEIGHBOURS,
 ) -> np.ndarray:
     """(K, S) box per node slot (-1: empty) as :func:`~secure3d.planning.lookback.select_slots`
     picks them from the full screen of the samples ``pts`` (K, P, 3) and ``reach`` (K,), found
     through the box index (a row whose ranking a tie decides is ranked in full); the secure planner
-    ranks its 2S nearest by ``exact(k_idx, b_idx)``, their exact distances, and with the nodes'
-    reactive-set ``centres`` (K, 3) picks S of them :func:`by_direction`."""
+    ranks its ``REFINED_PER_SLOT`` S nearest by ``exact(k_idx, b_idx)``, their exact distances, at
+    their least over the node and ``neighbours`` nodes either side (:func:`neighbour_minimum`), and
+    with the nodes' reactive-set ``centres`` (K, 3) picks S of its 2S nearest
+    :func:`by_direction`."""
     m = len(problem.boxes_lo)
     o = problem.options
     K, S, R = len(pts), o.obstacle_slots, o.obstacle_radius
     # per row the n + 1 smallest entries within the radius: the ranking and a tie at its end
-    ks, js, vs = _nearest(problem, pts, reach, R, (2 * S if planner == Planner.SECURE else S) + 1)
+    secure = planner == Planner.SECURE
+    ks, js, vs = _nearest(problem, pts, reach, R, (REFINED_PER_SLOT * S if secure else S) + 1)
     bounds = np.searchsorted(ks, np.arange(K + 1))
     rows = [np.arange(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
-    secure = planner == Planner.SECURE
     if secure:
-        ranked = _refined(problem, (pts, reach, js, vs), rows, exact)
+        ranked = _neighbour_rows(_refined(problem, (pts, reach, js, vs), rows, exact), neighbours)
     else:
         ranked = [(js[row], vs[row]) for row in rows]
     chosen = np.full((K, min(S, m)), -1, dtype=np.int64)
@@ -194,7 +254,7 @@ def indexed_slot_boxes(
         keep = _smallest(values, n_rank, R, ordered=True)
         if keep is not None:
             sel = boxes[keep]
-        elif secure:  # the refined row as _refine_distances writes it: inf but its 2S boxes
+        elif secure:  # the refined row as select_slots writes it: inf but its refined boxes
             full = np.full(m, np.inf)
             full[boxes] = values
             sel = _first(full, n_rank, R)

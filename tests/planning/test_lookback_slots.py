@@ -90,7 +90,10 @@ def _full_slot_boxes(problem, planner, states, assignment):
     o = problem.options
     d = lb._hull_box_distances(problem, planner, states, assignment)
     if planner == "secure":
-        d = lb._refine_distances(problem, states, assignment, d, 2 * o.obstacle_slots)
+        d = lb._refine_distances(
+            problem, states, assignment, d, lb.REFINED_PER_SLOT * o.obstacle_slots
+        )
+        d = lb.neighbour_minimum(d, lb.SLOT_NEIGHBOURS)
     order = np.argsort(d, axis=1)[:, : o.obstacle_slots]
     return np.where(np.take_along_axis(d, order, axis=1) <= o.obstacle_radius, order, -1)
 

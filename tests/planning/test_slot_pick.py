@@ -84,7 +84,8 @@ def test_directions_through_the_index_equal_the_full_screen(maps_dir):
     assignment, _ = lb.adaptive_assignment(many, guess.states)
     S = many.options.obstacle_slots
     d = lb._hull_box_distances(many, "secure", guess.states, assignment)
-    d = lb._refine_distances(many, guess.states, assignment, d, 2 * S)
+    d = lb._refine_distances(many, guess.states, assignment, d, lb.REFINED_PER_SLOT * S)
+    d = ss.neighbour_minimum(d, ss.SLOT_NEIGHBOURS)
     centres = lb.node_geometry(many, guess.states)["C"]
     changed = 0
     for pick, want in (
@@ -112,3 +113,56 @@ def test_a_plan_with_slots_by_direction_is_certified(maps_dir):
     assert nearest.ok and directions.ok
     assert directions.certificate is not None and directions.certificate.ok
     assert directions.final_time == pytest.approx(nearest.final_time, rel=0.05)
+
+
+def test_neighbour_minimum_is_the_least_over_the_nodes_either_side():
+    """neighbour_minimum against a loop over the window, at its edges and for any width; bad input
+    is refused by name."""
+    from secure3d.errors import PlanningError
+    from secure3d.planning import slot_screen as ss
+
+    rng = np.random.default_rng(5)
+    d = rng.random((7, 9))
+    d[rng.random(d.shape) < 0.3] = np.inf  # unrefined entries, as select_slots writes them
+    for n in (0, 1, 2, 6, 10):
+        got = ss.neighbour_minimum(d, n)
+        want = np.array([d[max(0, k - n) : k + n + 1].min(axis=0) for k in range(len(d))])
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(ss.neighbour_minimum(d, 0), d)
+    with pytest.raises(PlanningError, match="n must be"):
+        ss.neighbour_minimum(d, -1)
+    with pytest.raises(PlanningError, match="shape"):
+        ss.neighbour_minimum(d[0], 1)
+
+
+def test_a_node_takes_its_neighbours_nearest_boxes_into_its_slots(maps_dir):
+    """select_slots (secure, through the box index, on a scan): with one neighbour a node's
+    slots hold boxes from its own or a neighbour's slots as they are without neighbours (the S
+    nearest at their least distance over the window are among some node's own S nearest), and on
+    this scan some nodes do take a neighbour's box."""
+    import secure3d
+    from secure3d.planning import lookback as lb
+    from secure3d.planning import problem_from_scenario
+    from secure3d.planning import slot_screen as ss
+    from secure3d.planning.guess import initial_guess
+
+    problem = problem_from_scenario(secure3d.load_scenario(maps_dir / "geb079_hidden_crate.yaml"))
+    assert len(problem.boxes_lo) >= ss.INDEXED_MIN_BOXES
+    guess = initial_guess(problem, secure=True)
+    assignment, _ = lb.adaptive_assignment(problem, guess.states)
+    boxes = np.concatenate([problem.boxes_lo, problem.boxes_hi], axis=1)
+    key = {tuple(b): j for j, b in enumerate(boxes)}
+
+    def held(n):
+        slots = lb.select_slots(problem, "secure", guess.states, assignment, neighbours=n)
+        return [{key[tuple(b)] for b in node if tuple(b) in key} for node in slots]
+
+    own, with_neighbours = held(0), held(1)
+    assert held(ss.SLOT_NEIGHBOURS) == with_neighbours  # the default
+    K = len(own)
+    for k in range(K):
+        window = set().union(*own[max(0, k - 1) : k + 2])
+        assert with_neighbours[k] <= window, f"node {k}: a box from outside its window"
+        assert len(with_neighbours[k]) == len(own[k])  # as many slots filled
+    taken = [k for k in range(K) if with_neighbours[k] != own[k]]
+    assert taken, "no node took a neighbour's box"
