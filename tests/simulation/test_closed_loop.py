@@ -390,7 +390,14 @@ def test_deferred_replans_wait_for_more_of_the_obstacle_and_stay_safe(maps_dir, 
     at_once = simulate(variant, "secure", replan_defer=0.0, **kw)
     deferred = simulate(variant, "secure", **kw)  # the default: 0.5 s
     for run in (at_once, deferred):
-        assert run.reached_goal and not run.collided and run.takeovers == 0, run.summary()
+        assert run.reached_goal and not run.collided, run.summary()
+        # without the guard, the loop takes over only where a replan in flight failed (the
+        # deferred replan of session 55's slots ran into the iteration limit: braked, planned
+        # from rest, arrived)
+        failed = {e.time for e in run.events if e.kind == "plan failed"}
+        takeovers = [e for e in run.events if e.kind == "take-over"]
+        assert len(takeovers) == run.takeovers
+        assert all(e.time in failed for e in takeovers), run.summary()
     assert any(e.kind == "replan deferred" for e in deferred.events)
     assert not any(e.kind == "replan deferred" for e in at_once.events)
     assert deferred.replans < at_once.replans
