@@ -20,6 +20,7 @@ from secure3d.planning.slot_screen import (
     INDEXED_MIN_BOXES,
     REFINED_PER_SLOT,
     SLOT_NEIGHBOURS,
+    check_neighbours,
     indexed_slot_boxes,
     nearest_slots,
     neighbour_minimum,
@@ -458,9 +459,9 @@ def with_left_out_boxes(
     :func:`select_slots` ranks a node's candidates by a screen that is loose beside long reactive
     sets, and only its ``REFINED_PER_SLOT`` S nearest by exact distance; a box the solution came
     close to can stay outside them at every re-selection, so that re-solves repeat the same
-    solution (measured on
-    ``geb079_hidden_crate``: three re-solves of 41, 23 and 20 iterations, each leaving a box 6.6 mm
-    away against a 20 mm margin). Putting the boxes in by their exact distance ends that."""
+    solution (measured on ``geb079_hidden_crate``: three re-solves of 41, 23 and 20 iterations,
+    each leaving a box 6.6 mm away against a 20 mm margin). Putting the boxes in by their exact
+    distance ends that."""
     pairs, d = left_out_boxes(problem, states, assignment, slots, limit)
     if len(pairs) == 0:
         return slots
@@ -510,6 +511,7 @@ def select_slots(
     E_k, or that of one of the ``neighbours`` nodes either side of it, at exact distances:
     ``slot_screen.SLOT_NEIGHBOURS``). Empty slots hold a small box far outside the world (its
     constraint is inactive)."""
+    check_neighbours(neighbours, "select_slots: neighbours")
     o = problem.options
     K, S = len(states), o.obstacle_slots
     far = empty_slot_lo(problem)

@@ -35,6 +35,7 @@ __all__ = [
     "SLOT_CONE_DEG",
     "SLOT_NEIGHBOURS",
     "by_direction",
+    "check_neighbours",
     "indexed_slot_boxes",
     "nearest_slots",
     "neighbour_minimum",
@@ -184,14 +185,19 @@ def _refined(
     return [(b, distances[e - len(b) : e]) for b, e in zip(picked, ends, strict=True)]
 
 
+def check_neighbours(n: object, name: str) -> None:
+    """Raise a PlanningError naming ``name`` unless ``n`` is an integer >= 0 (a window of nodes)."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+        raise PlanningError(f"{name} must be an integer >= 0, got {n!r}")
+
+
 def neighbour_minimum(d: np.ndarray, n: int) -> np.ndarray:
     """(K, m) distances ``d`` (K, m), each row replaced by the elementwise least of rows k - n to
     k + n (those that exist): how near box j comes to what node k or a neighbour constrains."""
     d = np.asarray(d, dtype=float)
     if d.ndim != 2:
         raise PlanningError(f"neighbour_minimum: d must have shape (K, m), got {d.shape}")
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
-        raise PlanningError(f"neighbour_minimum: n must be an integer >= 0, got {n!r}")
+    check_neighbours(n, "neighbour_minimum: n")
     out = d.copy()
     for i in range(1, min(n, len(d) - 1) + 1):
         np.minimum(out[i:], d[:-i], out=out[i:])
@@ -203,20 +209,19 @@ def _neighbour_rows(
     ranked: list[tuple[np.ndarray, np.ndarray]], n: int
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """:func:`neighbour_minimum` on sparse rows: per node the (boxes, values) of rows k - n to
-    k + n, each box once at its least value, ordered by value (then box)."""
-    K = len(ranked)
+    k + n, each box once at its least value, ordered by value (then box); ``ranked`` itself for
+    n = 0."""
+    if n == 0:
+        return ranked
     out = []
-    for k in range(K):
+    for k in range(len(ranked)):
         near = ranked[max(0, k - n) : k + n + 1]
         boxes = np.concatenate([b for b, _ in near]).astype(np.int64)
         values = np.concatenate([v for _, v in near]).astype(float)
-        order = np.lexsort((values, boxes))  # by box, then value: the first of a box is its least
+        order = np.lexsort((boxes, values))  # by value, then box
         boxes, values = boxes[order], values[order]
-        first = np.ones(len(boxes), bool)
-        first[1:] = boxes[1:] != boxes[:-1]
-        boxes, values = boxes[first], values[first]
-        order = np.lexsort((boxes, values))
-        out.append((boxes[order], values[order]))
+        first = np.sort(np.unique(boxes, return_index=True)[1])  # each box at its least value
+        out.append((boxes[first], values[first]))
     return out
 
 

@@ -166,3 +166,7 @@ def test_a_node_takes_its_neighbours_nearest_boxes_into_its_slots(maps_dir):
         assert len(with_neighbours[k]) == len(own[k])  # as many slots filled
     taken = [k for k in range(K) if with_neighbours[k] != own[k]]
     assert taken, "no node took a neighbour's box"
+    from secure3d.errors import PlanningError
+
+    with pytest.raises(PlanningError, match="neighbours must be"):
+        lb.select_slots(problem, "secure", guess.states, assignment, neighbours=-1)
