@@ -124,7 +124,10 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
         self._hits = HitLayer()  # sticky hits: the planner's safety layer (mapping/hits.py)
         self._claim = ClaimLayer()  # the server's claims (mapping/claim.py)
         self._version = 0
-        self._box_cache: tuple[int, int | None, bool, int, NDArray, NDArray] | None = None
+        # Merged obstacle boxes by (max_boxes, include_bounds, close_gaps). Copies share this dict
+        # until either changes (``_changed`` gives the changed map a fresh one), so what one copy
+        # merges serves every copy with the same content.
+        self._box_cache: dict[tuple[int | None, bool, int], tuple[NDArray, NDArray]] = {}
 
     # ------------------------------------------------------------------ basic properties
 
@@ -171,11 +174,12 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
         out._hits = self._hits.copy()
         out._claim = self._claim.copy()
         out._version = self._version
-        out._box_cache = self._box_cache
+        out._box_cache = self._box_cache  # shared until either map changes
         return out
 
     def _changed(self) -> None:
         self._version += 1
+        self._box_cache = {}
 
     # ------------------------------------------------------------------ sensor updates
 

@@ -15,11 +15,14 @@ from secure3d.validation import is_int_in
 
 __all__ = ["ObstacleViews"]
 
+MAX_BOX_CACHE = 4  # merged box sets kept per map content (one per option combination asked)
+
 
 class ObstacleViews:
     """The planner views of :class:`~secure3d.mapping.occupancy.OccupancyMap` (a mixin: it reads
     the map's ``_known_obstacle_codes``, ``_sensor_voxels``, ``_claim``, ``_params``,
-    ``_resolution``, ``_bounds``, ``_version`` and caches boxes in ``_box_cache``)."""
+    ``_resolution``, ``_bounds`` and caches boxes in ``_box_cache``, a dict the map's copies share
+    until one changes)."""
 
     def known_obstacle_boxes(
         self, max_boxes: int | None = None, include_bounds: bool = True, close_gaps: int = 0
@@ -48,9 +51,10 @@ class ObstacleViews:
         """
         if not is_int_in(close_gaps, 0):
             raise ConfigError(f"close_gaps: must be an integer >= 0, got {close_gaps!r}")
-        key = (self._version, max_boxes, include_bounds, close_gaps)
-        if self._box_cache is not None and self._box_cache[:4] == key:
-            return self._box_cache[4].copy(), self._box_cache[5].copy()
+        key = (max_boxes, include_bounds, close_gaps)
+        cached = self._box_cache.get(key)
+        if cached is not None:
+            return cached[0].copy(), cached[1].copy()
         lo, hi = obstacle_boxes(
             self._known_obstacle_codes(),
             self._resolution,
@@ -58,7 +62,9 @@ class ObstacleViews:
             max_boxes,
             close_gaps,
         )
-        self._box_cache = (*key, lo, hi)
+        if len(self._box_cache) >= MAX_BOX_CACHE:
+            self._box_cache.pop(next(iter(self._box_cache)))
+        self._box_cache[key] = (lo, hi)
         return lo.copy(), hi.copy()
 
     def boxes_near(

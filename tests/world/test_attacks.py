@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from secure3d.errors import ScenarioError
+from secure3d.mapping.occupancy import OccupancyMap
 from secure3d.world import (
     Attack,
     Bounds,
@@ -393,6 +394,53 @@ def test_belief_from_server_bt_at_any_resolution() -> None:
         np.testing.assert_array_equal(belief.is_known_obstacle(probes), [1, 0, 0, 0], err_msg=res)
     exact = belief_map(s)
     assert len(exact.claimed_voxels(occupied=False)) > 0, "a .bt also claims free space"
+
+
+def _claim_arrays(belief):  # type: ignore[no-untyped-def]
+    return belief.claimed_voxels(True), belief.claimed_voxels(False)
+
+
+def test_cached_belief_is_a_fresh_independent_copy(tmp_path: Path) -> None:
+    """A second belief of the same claim comes from the cache: equal to a fresh build, its own
+    copy (changing it leaves the next one alone), and rebuilt when the file's content changes."""
+    import shutil
+
+    from secure3d.world import attacks
+
+    bt = tmp_path / "server.bt"
+    shutil.copy(MAPS / "octomaps" / "office_server.bt", bt)
+    s = load_scenario(MAPS / "office_bt.yaml")
+    s = dataclasses.replace(s, server_map=dataclasses.replace(s.server_map, bt=bt))
+    first = belief_map(s)
+    built = attacks._claimed_belief(server_claim(s), 0.1, (s.world.bounds.lo, s.world.bounds.hi))
+    second = belief_map(s)
+    assert second is not first
+    for a, b in zip(_claim_arrays(second), _claim_arrays(built), strict=True):
+        np.testing.assert_array_equal(a, b)
+    boxes = second.known_obstacle_boxes()
+    wall = np.array([[5.05, 1.05, 1.25]])  # a voxel centre in the partition wall
+    assert first.is_known_obstacle(wall)[0]
+    first.set_claim_voxels(wall, False)  # the caller's copy changes; the cache's does not
+    assert not first.is_known_obstacle(wall)[0]
+    third = belief_map(s)
+    assert third.is_known_obstacle(wall)[0]
+    for a, b in zip(third.known_obstacle_boxes(), boxes, strict=True):
+        np.testing.assert_array_equal(a, b)  # merged once, shared by unchanged copies
+    mine = first.known_obstacle_boxes()
+    assert not any(
+        np.all((m_lo < wall[0]) & (wall[0] < m_hi)) for m_lo, m_hi in zip(*mine, strict=True)
+    ), "the changed copy merges its own boxes, without the voxel it freed"
+    # Same size, other content: the digest, not a timestamp, notices.
+    other = MAPS / "octomaps" / "office_truth.bt"
+    data = other.read_bytes()
+    bt.write_bytes(data)
+    rebuilt = belief_map(s)
+    truth = OccupancyMap.read_bt(other)
+    probe = np.array([[5.9, 5.0, 1.0]])  # the cabinet only the truth's file holds
+    assert truth.classify(probe)[0] == 1 and rebuilt.is_known_obstacle(probe)[0]
+    bt.unlink()
+    with pytest.raises(OSError):
+        belief_map(s)  # a missing file is read (and refused) afresh, never served from the cache
 
 
 def test_auto_variants_fit_a_scanned_corridor() -> None:
