@@ -296,6 +296,10 @@ def solve_separation(o, c, M, A, b, los, tol):
     residual = np.inf
     newton = 0
     while newton < _MAX_NEWTON:
+        # The barrier objective at v for this t, once known: the value the accepted step's line
+        # search computed at the very point v now holds (bit for bit what a recomputation gives).
+        phi_known = False
+        phi_cur = 0.0
         for _centering in range(_MAX_CENTERING):
             newton += 1
             # Gradient and Hessian of t f + psi (theta frozen at 1 for the plain ellipsoid).
@@ -352,7 +356,9 @@ def solve_separation(o, c, M, A, b, los, tol):
                 if ds[i] < 0.0:
                     alpha = min(alpha, -0.99 * s[i] / ds[i])
             feasible = residual <= 1e-12 * (1.0 + bmax)
-            phi0 = _barrier_value(v, s, o, d, M, t, los, e)
+            phi0 = 0.0  # only the feasible (Armijo) search reads it
+            if feasible:
+                phi0 = phi_cur if phi_known else _barrier_value(v, s, o, d, M, t, los, e)
             accepted = False
             for _ls in range(60):
                 for p in range(7):
@@ -366,6 +372,8 @@ def solve_separation(o, c, M, A, b, los, tol):
                 alpha *= 0.5
             if not accepted:
                 break
+            phi_cur = phi1
+            phi_known = True
             for p in range(7):
                 v[p] = v_try[p]
             for i in range(k):
