@@ -11,6 +11,7 @@ from secure3d.simulation.scene import (
     VOXEL_NAME,
     box_arrays,
     check_voxel_boxes,
+    merged_voxel_boxes,
     obstacle_meshes,
     voxel_boxes_from_centres,
     world_trimesh,
@@ -77,3 +78,27 @@ def test_check_voxel_boxes_rejects_bad_input():
     with pytest.raises(GeometryError, match="NaN"):
         check_voxel_boxes(np.array([[[0, 0, np.nan], [1, 1, 1]]]))
     assert check_voxel_boxes([]).shape == (0, 2, 3)
+
+
+def test_voxel_results_are_reused_by_content_and_never_shared(rng):
+    """The second call with voxel boxes of the same bytes reuses the first's merge and surface:
+    the same answers as a fresh build, copies the caller may change, and a change of the caller's
+    array after a call is a new content (a new build)."""
+    from secure3d.simulation import scene
+
+    cells = np.unique(rng.integers(0, 12, size=(300, 3)), axis=0)
+    vb = voxel_boxes_from_centres((cells + 0.5) * 0.1, 0.1)
+    merged = merged_voxel_boxes(vb)
+    np.testing.assert_array_equal(merged, scene._merged_voxel_boxes(vb.copy()))
+    merged[:] = 0.0  # the caller's copy
+    np.testing.assert_array_equal(merged_voxel_boxes(vb), scene._merged_voxel_boxes(vb.copy()))
+    ((_, first),) = obstacle_meshes(voxel_boxes=vb)
+    first.vertices[:] = 0.0
+    ((_, second),) = obstacle_meshes(voxel_boxes=vb)
+    v, f = scene._voxel_surface(vb.copy())
+    np.testing.assert_array_equal(second.vertices, v)
+    np.testing.assert_array_equal(second.faces, f)
+    vb[0] += 5.0  # the same array, other content: not served from the cache
+    ((_, moved),) = obstacle_meshes(voxel_boxes=vb)
+    assert moved.vertices.max() > v.max() + 4.0
+    np.testing.assert_array_equal(merged_voxel_boxes(vb), scene._merged_voxel_boxes(vb.copy()))
