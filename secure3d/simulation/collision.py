@@ -29,7 +29,7 @@ import trimesh
 
 from secure3d._deps import fcl as _fcl
 from secure3d.errors import GeometryError
-from secure3d.simulation.scene import VOXEL_NAME, merged_voxel_boxes
+from secure3d.simulation.scene import VOXEL_NAME, by_voxel_content, check_voxel_boxes
 from secure3d.world.spec import Box, MeshObstacle
 
 #: Segments shorter than this (m) are checked as a sphere: a capsule of zero length is a sphere and
@@ -79,6 +79,18 @@ def rotation_z_to(direction: np.ndarray) -> np.ndarray:
     return np.array([[x0, y0, z0], [x1, y1, z1], [x2, y2, z2]])
 
 
+def _voxel_shapes(voxel_boxes: np.ndarray) -> tuple[list[Any], list[Any]]:
+    """fcl boxes and their transforms for voxel boxes (n, 2, 3), merged first
+    (:func:`~secure3d.simulation.scene.merged_voxel_boxes`). Shared by the collision worlds of one
+    voxel world (fcl shapes are immutable, and a static object's transform never changes)."""
+    from secure3d.simulation.scene import merged_voxel_boxes
+
+    fcl = _fcl()
+    vb = merged_voxel_boxes(voxel_boxes)
+    shapes = [fcl.Box(*(hi - lo)) for lo, hi in vb]
+    return shapes, [fcl.Transform(0.5 * (lo + hi)) for lo, hi in vb]
+
+
 class CollisionWorld:
     """The true obstacles in an fcl broad-phase manager.
 
@@ -120,12 +132,12 @@ class CollisionWorld:
             names.append(m.name)
             surface.append(is_surface)
         if voxel_boxes is not None:
-            vb = merged_voxel_boxes(voxel_boxes)  # checked, then merged
-            for lo, hi in vb:
-                geoms.append(fcl.Box(*(hi - lo)))
-                transforms.append(fcl.Transform(0.5 * (lo + hi)))
-                names.append(VOXEL_NAME)
-                surface.append(False)
+            vb = check_voxel_boxes(voxel_boxes)
+            shapes, places = by_voxel_content("fcl", vb, _voxel_shapes)  # type: ignore[misc]
+            geoms += shapes
+            transforms += places
+            names += [VOXEL_NAME] * len(shapes)
+            surface += [False] * len(shapes)
         self.names: tuple[str, ...] = tuple(names)
         self._surface = np.array(surface, dtype=bool)
         self._geoms = geoms

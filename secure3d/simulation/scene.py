@@ -131,7 +131,7 @@ def merged_voxel_boxes(voxel_boxes: np.ndarray) -> np.ndarray:
     sets up in a third of the time. Corners are multiples of the pitch, so they move by float
     rounding only."""
     vb = check_voxel_boxes(voxel_boxes)
-    return _by_content("merged", vb, _merged_voxel_boxes).copy()
+    return by_voxel_content("merged", vb, _merged_voxel_boxes).copy()
 
 
 def _merged_voxel_boxes(vb: np.ndarray) -> np.ndarray:
@@ -216,7 +216,7 @@ def obstacle_meshes(
     if voxel_boxes is not None:
         vb = check_voxel_boxes(voxel_boxes)
         if len(vb):
-            v, f = _by_content("surface", vb, _voxel_surface)
+            v, f = by_voxel_content("surface", vb, _voxel_surface)
             out.append((VOXEL_NAME, trimesh.Trimesh(v.copy(), f.copy(), process=False)))
     return out
 
@@ -231,18 +231,20 @@ def _voxel_surface(vb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return v, f
 
 
-#: What the last few voxel worlds gave :func:`merged_voxel_boxes` and :func:`obstacle_meshes`,
-#: by a digest of the voxel boxes: every flight of a campaign over one scan sets up its collision
-#: world and camera from the same voxels (geb079: 0.4 s of a 0.9 s set-up), and the variants only
-#: add obstacles of their own. Results are never handed out: callers get copies.
+#: What the last few voxel worlds gave :func:`merged_voxel_boxes`, :func:`obstacle_meshes` and
+#: the collision world's fcl shapes, by a digest of the voxel boxes: every flight of a campaign
+#: over one scan sets up its collision world and camera from the same voxels (geb079: 0.5 s of a
+#: 0.9 s set-up), and the variants only add obstacles of their own.
 CONTENT_CACHE_SIZE = 4
 _CONTENT: collections.OrderedDict[tuple, object] = collections.OrderedDict()
 _CONTENT_LOCK = threading.Lock()
 
 
-def _by_content(kind: str, vb: np.ndarray, build: Callable[[np.ndarray], object]) -> object:
-    """``build(vb)``, or what it gave for voxel boxes of the same bytes (BLAKE2b, 7 ms for the
-    geb079 scan's 143,729 leaves)."""
+def by_voxel_content(kind: str, vb: np.ndarray, build: Callable[[np.ndarray], object]) -> object:
+    """``build(vb)`` for the voxel boxes ``vb`` (n, 2, 3), or what it gave for a ``kind`` of voxel
+    boxes of the same bytes (BLAKE2b, 7 ms for the geb079 scan's 143,729 leaves). ``build`` gets
+    its own copy of ``vb``; what it returns is shared by every later call, so callers copy it or
+    treat it as read-only."""
     data = np.ascontiguousarray(vb, dtype=float)
     key = (kind, data.shape, hashlib.blake2b(data.tobytes(), digest_size=20).digest())
     with _CONTENT_LOCK:

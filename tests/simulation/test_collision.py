@@ -203,3 +203,25 @@ def test_empty_world_and_bad_input():
         world.swept_collides([0, 0], [0, 0, 0], 0.1)
     with pytest.raises(GeometryError, match="path"):
         world.first_contact(np.zeros((3, 2)), 0.1)
+
+
+def test_worlds_of_one_voxel_set_share_shapes_and_outlive_each_other(rng):
+    """Two collision worlds of the same voxels share their fcl shapes (built once) and answer
+    alike; the second still answers after the first is gone and the cache has moved on."""
+    import gc
+
+    from secure3d.simulation import scene
+
+    centres = (np.unique(rng.integers(0, 20, size=(400, 3)), axis=0) + 0.5) * 0.1
+    vb = voxel_boxes_from_centres(centres, 0.1)
+    first, second = CollisionWorld(voxel_boxes=vb), CollisionWorld(voxel_boxes=vb)
+    assert first._geoms[0] is second._geoms[0]
+    probes = rng.uniform(-0.2, 2.2, size=(60, 3))
+    answers = [first.nearest(p, 0.05) for p in probes]
+    del first
+    for k in range(scene.CONTENT_CACHE_SIZE + 1):  # push the shapes out of the cache
+        CollisionWorld(voxel_boxes=vb + 10.0 * (k + 1))
+    gc.collect()
+    assert [second.nearest(p, 0.05) for p in probes] == answers
+    inside = centres[0]
+    assert second.sphere_collides(inside, 0.01) and VOXEL_NAME in second.names
