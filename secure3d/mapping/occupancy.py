@@ -156,6 +156,11 @@ class OccupancyMap(ClaimEditing, ObstacleViews, OccupancyFiles):
         """Number of finest-level voxels with sensor evidence."""
         return len(self._sensor)
 
+    @property
+    def claimed_count(self) -> int:
+        """Number of voxels the server claims, occupied or free."""
+        return len(self._claim)
+
     def __repr__(self) -> str:
         return (
             f"OccupancyMap(resolution={self._resolution}, sensed={len(self)}, "

@@ -234,10 +234,22 @@ def _voxel_surface(vb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 #: What the last few voxel worlds gave :func:`merged_voxel_boxes`, :func:`obstacle_meshes` and
 #: the collision world's fcl shapes, by a digest of the voxel boxes: every flight of a campaign
 #: over one scan sets up its collision world and camera from the same voxels (geb079: 0.5 s of a
-#: 0.9 s set-up), and the variants only add obstacles of their own.
-CONTENT_CACHE_SIZE = 4
-_CONTENT: collections.OrderedDict[tuple, object] = collections.OrderedDict()
+#: 0.9 s set-up, 50 MB held), and the variants only add obstacles of their own. At most
+#: CONTENT_CACHE_SIZE entries (three per world) and CONTENT_CACHE_BYTES in all: the least recently
+#: used go first, and a value larger than the budget is not kept.
+CONTENT_CACHE_SIZE = 12
+CONTENT_CACHE_BYTES = 512 << 20
+_CONTENT: collections.OrderedDict[tuple, tuple[object, int]] = collections.OrderedDict()
 _CONTENT_LOCK = threading.Lock()
+
+
+def _nbytes(value: object) -> int:
+    """Memory a cached value holds, roughly: its arrays' bytes, 256 for any other object."""
+    if isinstance(value, np.ndarray):
+        return int(value.nbytes)
+    if isinstance(value, (tuple, list)):
+        return sum(_nbytes(v) for v in value)
+    return 256
 
 
 def by_voxel_content(kind: str, vb: np.ndarray, build: Callable[[np.ndarray], object]) -> object:
@@ -251,12 +263,16 @@ def by_voxel_content(kind: str, vb: np.ndarray, build: Callable[[np.ndarray], ob
         hit = _CONTENT.get(key)
         if hit is not None:
             _CONTENT.move_to_end(key)
-            return hit
+            return hit[0]
     value = build(data.copy())  # never the caller's array: it may change after this call
+    size = _nbytes(value)
+    if size > CONTENT_CACHE_BYTES:
+        return value
     with _CONTENT_LOCK:
-        _CONTENT[key] = value
-        while len(_CONTENT) > CONTENT_CACHE_SIZE:
-            _CONTENT.popitem(last=False)
+        _CONTENT[key] = (value, size)
+        held = sum(n for _, n in _CONTENT.values())
+        while len(_CONTENT) > CONTENT_CACHE_SIZE or held > CONTENT_CACHE_BYTES:
+            held -= _CONTENT.popitem(last=False)[1][1]
     return value
 
 

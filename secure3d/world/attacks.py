@@ -159,11 +159,12 @@ def belief_map(scenario: Scenario, resolution: float | None = None) -> Occupancy
             _BELIEFS.move_to_end(key)
     if cached is None:
         cached = _claimed_belief(claim, res, (b.lo, b.hi))
-        if key is not None:
+        if key is not None and cached.claimed_count <= MAX_CACHED_CLAIMS:
             with _BELIEF_LOCK:
                 _BELIEFS[key] = cached
-                while len(_BELIEFS) > BELIEF_CACHE_SIZE:
-                    _BELIEFS.popitem(last=False)
+                held = sum(m.claimed_count for m in _BELIEFS.values())
+                while len(_BELIEFS) > BELIEF_CACHE_SIZE or held > MAX_CACHED_CLAIMS:
+                    held -= _BELIEFS.popitem(last=False)[1].claimed_count
     # The cached map is never handed out: every caller gets its own copy (1-2 ms on a real scan,
     # against 60-80 ms to read and claim its file). Copies share its merged boxes until changed.
     return cached.copy()
@@ -173,6 +174,9 @@ def belief_map(scenario: Scenario, resolution: float | None = None) -> Occupancy
 # the files it names, the resolution and the bounds. A plan() call, a campaign's variants and the
 # closed loop's reset over one server map then read and claim its file once.
 BELIEF_CACHE_SIZE = 4
+#: Claimed voxels the cached beliefs may hold in all (about 11 bytes each with their merged boxes:
+#: the geb079 scan claims 1.14 M, 12.6 MB). A larger belief is built afresh every time.
+MAX_CACHED_CLAIMS = 1 << 24
 MAX_DIGESTED_BYTES = 1 << 28  # larger files are read afresh every time (no digest)
 _BELIEFS: collections.OrderedDict[tuple, OccupancyMap] = collections.OrderedDict()
 _BELIEF_LOCK = threading.Lock()

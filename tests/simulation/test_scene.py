@@ -102,3 +102,28 @@ def test_voxel_results_are_reused_by_content_and_never_shared(rng):
     ((_, moved),) = obstacle_meshes(voxel_boxes=vb)
     assert moved.vertices.max() > v.max() + 4.0
     np.testing.assert_array_equal(merged_voxel_boxes(vb), scene._merged_voxel_boxes(vb.copy()))
+
+
+def test_voxel_cache_keeps_to_its_byte_budget(rng, monkeypatch):
+    """Least recently used entries go once the cache holds more than its bytes; a value larger
+    than the whole budget is built and returned but not kept."""
+    from secure3d.simulation import scene
+
+    monkeypatch.setattr(scene, "_CONTENT", scene.collections.OrderedDict())
+    monkeypatch.setattr(scene, "CONTENT_CACHE_BYTES", 3 * 8 * 100)
+    built = []
+
+    def build(vb):  # 800 bytes a value: three fit at most
+        built.append(1)
+        return np.zeros(100)
+
+    boxes = [voxel_boxes_from_centres(rng.uniform(0, 1, (5, 3)), 0.1) for _ in range(4)]
+    for vb in boxes:
+        scene.by_voxel_content("test", vb, build)
+    assert len(scene._CONTENT) == 3 and len(built) == 4
+    scene.by_voxel_content("test", boxes[3], build)  # kept
+    scene.by_voxel_content("test", boxes[0], build)  # evicted first: built again
+    assert len(built) == 5
+    scene.by_voxel_content("test", boxes[1], lambda vb: np.zeros(1000))  # over budget
+    assert len(scene._CONTENT) == 3
+    assert sum(n for _, n in scene._CONTENT.values()) <= scene.CONTENT_CACHE_BYTES

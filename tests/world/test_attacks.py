@@ -443,6 +443,26 @@ def test_cached_belief_is_a_fresh_independent_copy(tmp_path: Path) -> None:
         belief_map(s)  # a missing file is read (and refused) afresh, never served from the cache
 
 
+def test_belief_cache_keeps_to_its_claim_budget(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A belief claiming more voxels than the cache's budget is built afresh each time; smaller
+    ones push out the least recently used until the cached claims fit."""
+    import collections
+
+    from secure3d.world import attacks
+
+    monkeypatch.setattr(attacks, "_BELIEFS", collections.OrderedDict())
+    s = load_scenario(MAPS / "office_bt.yaml")
+    claims = belief_map(s).claimed_count
+    assert len(attacks._BELIEFS) == 1 and claims > 0
+    monkeypatch.setattr(attacks, "MAX_CACHED_CLAIMS", claims - 1)
+    coarse = belief_map(s, resolution=0.2)  # fewer claims: kept, and the first goes
+    assert 0 < coarse.claimed_count < claims
+    assert [k[2] for k in attacks._BELIEFS] == [0.2]
+    monkeypatch.setattr(attacks, "_BELIEFS", collections.OrderedDict())
+    belief_map(s)
+    assert not attacks._BELIEFS, "a belief over the budget is not kept"
+
+
 def test_auto_variants_fit_a_scanned_corridor() -> None:
     """A scanned corridor's walls are rough (geb079, 8 cm voxels): no box keeps the full gap from
     every voxel, so gaps to voxels are judged by the route, which must keep that gap beside the new
