@@ -241,6 +241,7 @@ def indexed_slot_boxes(
     their least over the node and ``neighbours`` nodes either side (:func:`neighbour_minimum`), and
     with the nodes' reactive-set ``centres`` (K, 3) picks S of its 2S nearest
     :func:`by_direction`."""
+    check_neighbours(neighbours, "indexed_slot_boxes: neighbours")
     m = len(problem.boxes_lo)
     o = problem.options
     K, S, R = len(pts), o.obstacle_slots, o.obstacle_radius

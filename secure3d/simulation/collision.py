@@ -29,7 +29,12 @@ import trimesh
 
 from secure3d._deps import fcl as _fcl
 from secure3d.errors import GeometryError
-from secure3d.simulation.scene import VOXEL_NAME, by_voxel_content, check_voxel_boxes
+from secure3d.simulation.scene import (
+    VOXEL_NAME,
+    by_voxel_content,
+    check_voxel_boxes,
+    merged_voxel_boxes,
+)
 from secure3d.world.spec import Box, MeshObstacle
 
 #: Segments shorter than this (m) are checked as a sphere: a capsule of zero length is a sphere and
@@ -83,8 +88,6 @@ def _voxel_shapes(voxel_boxes: np.ndarray) -> tuple[list[Any], list[Any]]:
     """fcl boxes and their transforms for voxel boxes (n, 2, 3), merged first
     (:func:`~secure3d.simulation.scene.merged_voxel_boxes`). Shared by the collision worlds of one
     voxel world (fcl shapes are immutable, and a static object's transform never changes)."""
-    from secure3d.simulation.scene import merged_voxel_boxes
-
     fcl = _fcl()
     vb = merged_voxel_boxes(voxel_boxes)
     shapes = [fcl.Box(*(hi - lo)) for lo, hi in vb]

@@ -12,14 +12,13 @@ Voxel boxes are passed as one ``(n, 2, 3)`` array of ``[lo, hi]`` corners and sh
 
 from __future__ import annotations
 
-import collections
 import hashlib
-import threading
 from collections.abc import Callable, Sequence
 
 import numpy as np
 import trimesh
 
+from secure3d._bounded_cache import BoundedCache
 from secure3d.errors import GeometryError
 from secure3d.geometry.box_mesh import UNIT_BOX as _UNIT_BOX
 from secure3d.geometry.box_mesh import box_arrays
@@ -239,8 +238,6 @@ def _voxel_surface(vb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 #: used go first, and a value larger than the budget is not kept.
 CONTENT_CACHE_SIZE = 12
 CONTENT_CACHE_BYTES = 512 << 20
-_CONTENT: collections.OrderedDict[tuple, tuple[object, int]] = collections.OrderedDict()
-_CONTENT_LOCK = threading.Lock()
 
 
 def _nbytes(value: object) -> int:
@@ -259,21 +256,15 @@ def by_voxel_content(kind: str, vb: np.ndarray, build: Callable[[np.ndarray], ob
     treat it as read-only."""
     data = np.ascontiguousarray(vb, dtype=float)
     key = (kind, data.shape, hashlib.blake2b(data.tobytes(), digest_size=20).digest())
-    with _CONTENT_LOCK:
-        hit = _CONTENT.get(key)
-        if hit is not None:
-            _CONTENT.move_to_end(key)
-            return hit[0]
+    hit = _CONTENT.get(key)
+    if hit is not None:
+        return hit
     value = build(data.copy())  # never the caller's array: it may change after this call
-    size = _nbytes(value)
-    if size > CONTENT_CACHE_BYTES:
-        return value
-    with _CONTENT_LOCK:
-        _CONTENT[key] = (value, size)
-        held = sum(n for _, n in _CONTENT.values())
-        while len(_CONTENT) > CONTENT_CACHE_SIZE or held > CONTENT_CACHE_BYTES:
-            held -= _CONTENT.popitem(last=False)[1][1]
+    _CONTENT.put(key, value)
     return value
+
+
+_CONTENT = BoundedCache(CONTENT_CACHE_SIZE, CONTENT_CACHE_BYTES, _nbytes)
 
 
 def labelled_union(parts: Sequence[tuple[str, trimesh.Trimesh]]) -> trimesh.Trimesh:

@@ -15,17 +15,16 @@ dangerous case; ``stale``: the map predates the obstacle), invent them (``phanto
 
 from __future__ import annotations
 
-import collections
 import hashlib
 import os
 import stat
-import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from secure3d._bounded_cache import BoundedCache
 from secure3d.world.hidden_obstacles import (  # noqa: F401  (re-exported)
     GAP_ALLOWANCE,
     PLACEMENT_CLEARANCE,
@@ -153,18 +152,11 @@ def belief_map(scenario: Scenario, resolution: float | None = None) -> Occupancy
     b = scenario.world.bounds
     claim = server_claim(scenario)
     key = _belief_key(claim, res, b.lo, b.hi)
-    with _BELIEF_LOCK:
-        cached = None if key is None else _BELIEFS.get(key)
-        if cached is not None:
-            _BELIEFS.move_to_end(key)
+    cached = None if key is None else _BELIEFS.get(key)
     if cached is None:
         cached = _claimed_belief(claim, res, (b.lo, b.hi))
-        if key is not None and cached.claimed_count <= MAX_CACHED_CLAIMS:
-            with _BELIEF_LOCK:
-                _BELIEFS[key] = cached
-                held = sum(m.claimed_count for m in _BELIEFS.values())
-                while len(_BELIEFS) > BELIEF_CACHE_SIZE or held > MAX_CACHED_CLAIMS:
-                    held -= _BELIEFS.popitem(last=False)[1].claimed_count
+        if key is not None:
+            _BELIEFS.put(key, cached)
     # The cached map is never handed out: every caller gets its own copy (1-2 ms on a real scan,
     # against 60-80 ms to read and claim its file). Copies share its merged boxes until changed.
     return cached.copy()
@@ -178,8 +170,14 @@ BELIEF_CACHE_SIZE = 4
 #: the geb079 scan claims 1.14 M, 12.6 MB). A larger belief is built afresh every time.
 MAX_CACHED_CLAIMS = 1 << 24
 MAX_DIGESTED_BYTES = 1 << 28  # larger files are read afresh every time (no digest)
-_BELIEFS: collections.OrderedDict[tuple, OccupancyMap] = collections.OrderedDict()
-_BELIEF_LOCK = threading.Lock()
+
+
+def _claims(belief: object) -> int:
+    """What a cached belief holds, for the cache's budget: its claimed voxels."""
+    return belief.claimed_count  # type: ignore[attr-defined]
+
+
+_BELIEFS = BoundedCache(BELIEF_CACHE_SIZE, MAX_CACHED_CLAIMS, _claims)
 
 
 def _file_digest(path: Path) -> tuple[str, int, str]:

@@ -170,3 +170,5 @@ def test_a_node_takes_its_neighbours_nearest_boxes_into_its_slots(maps_dir):
 
     with pytest.raises(PlanningError, match="neighbours must be"):
         lb.select_slots(problem, "secure", guess.states, assignment, neighbours=-1)
+    with pytest.raises(PlanningError, match="indexed_slot_boxes: neighbours must be"):
+        ss.indexed_slot_boxes(problem, "secure", None, None, None, neighbours=1.5)

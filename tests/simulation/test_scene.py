@@ -107,10 +107,12 @@ def test_voxel_results_are_reused_by_content_and_never_shared(rng):
 def test_voxel_cache_keeps_to_its_byte_budget(rng, monkeypatch):
     """Least recently used entries go once the cache holds more than its bytes; a value larger
     than the whole budget is built and returned but not kept."""
+    from secure3d._bounded_cache import BoundedCache
     from secure3d.simulation import scene
 
-    monkeypatch.setattr(scene, "_CONTENT", scene.collections.OrderedDict())
-    monkeypatch.setattr(scene, "CONTENT_CACHE_BYTES", 3 * 8 * 100)
+    monkeypatch.setattr(
+        scene, "_CONTENT", BoundedCache(scene.CONTENT_CACHE_SIZE, 3 * 8 * 100, scene._nbytes)
+    )
     built = []
 
     def build(vb):  # 800 bytes a value: three fit at most
@@ -126,4 +128,4 @@ def test_voxel_cache_keeps_to_its_byte_budget(rng, monkeypatch):
     assert len(built) == 5
     scene.by_voxel_content("test", boxes[1], lambda vb: np.zeros(1000))  # over budget
     assert len(scene._CONTENT) == 3
-    assert sum(n for _, n in scene._CONTENT.values()) <= scene.CONTENT_CACHE_BYTES
+    assert scene._CONTENT.held <= scene._CONTENT.budget

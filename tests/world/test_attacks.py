@@ -446,21 +446,24 @@ def test_cached_belief_is_a_fresh_independent_copy(tmp_path: Path) -> None:
 def test_belief_cache_keeps_to_its_claim_budget(monkeypatch: pytest.MonkeyPatch) -> None:
     """A belief claiming more voxels than the cache's budget is built afresh each time; smaller
     ones push out the least recently used until the cached claims fit."""
-    import collections
-
+    from secure3d._bounded_cache import BoundedCache
     from secure3d.world import attacks
 
-    monkeypatch.setattr(attacks, "_BELIEFS", collections.OrderedDict())
+    def fresh() -> BoundedCache:
+        return BoundedCache(attacks.BELIEF_CACHE_SIZE, attacks.MAX_CACHED_CLAIMS, attacks._claims)
+
+    monkeypatch.setattr(attacks, "_BELIEFS", fresh())
     s = load_scenario(MAPS / "office_bt.yaml")
     claims = belief_map(s).claimed_count
     assert len(attacks._BELIEFS) == 1 and claims > 0
-    monkeypatch.setattr(attacks, "MAX_CACHED_CLAIMS", claims - 1)
+    monkeypatch.setattr(attacks._BELIEFS, "budget", claims - 1)
     coarse = belief_map(s, resolution=0.2)  # fewer claims: kept, and the first goes
     assert 0 < coarse.claimed_count < claims
-    assert [k[2] for k in attacks._BELIEFS] == [0.2]
-    monkeypatch.setattr(attacks, "_BELIEFS", collections.OrderedDict())
+    assert [k[2] for k in attacks._BELIEFS.keys()] == [0.2]
+    monkeypatch.setattr(attacks, "_BELIEFS", fresh())
+    monkeypatch.setattr(attacks._BELIEFS, "budget", claims - 1)
     belief_map(s)
-    assert not attacks._BELIEFS, "a belief over the budget is not kept"
+    assert not len(attacks._BELIEFS), "a belief over the budget is not kept"
 
 
 def test_auto_variants_fit_a_scanned_corridor() -> None:
