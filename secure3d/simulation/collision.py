@@ -32,7 +32,6 @@ from secure3d.errors import GeometryError
 from secure3d.simulation.scene import (
     VOXEL_NAME,
     by_voxel_content,
-    check_voxel_boxes,
     merged_voxel_boxes,
 )
 from secure3d.world.spec import Box, MeshObstacle
@@ -135,8 +134,7 @@ class CollisionWorld:
             names.append(m.name)
             surface.append(is_surface)
         if voxel_boxes is not None:
-            vb = check_voxel_boxes(voxel_boxes)
-            shapes, places = by_voxel_content("fcl", vb, _voxel_shapes)  # type: ignore[misc]
+            shapes, places = by_voxel_content("fcl", voxel_boxes, _voxel_shapes)  # type: ignore[misc]
             geoms += shapes
             transforms += places
             names += [VOXEL_NAME] * len(shapes)

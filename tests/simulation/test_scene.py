@@ -129,3 +129,12 @@ def test_voxel_cache_keeps_to_its_byte_budget(rng, monkeypatch):
     scene.by_voxel_content("test", boxes[1], lambda vb: np.zeros(1000))  # over budget
     assert len(scene._CONTENT) == 3
     assert scene._CONTENT.held <= scene._CONTENT.budget
+
+
+def test_voxel_cache_refuses_what_is_not_voxel_boxes():
+    from secure3d.simulation import scene
+
+    with pytest.raises(GeometryError, match="voxel_boxes"):
+        scene.by_voxel_content("merged", np.zeros((3, 3)), scene._merged_voxel_boxes)
+    with pytest.raises(GeometryError, match="build callable"):
+        scene.by_voxel_content("merged", np.zeros((0, 2, 3)), None)
