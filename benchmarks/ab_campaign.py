@@ -250,9 +250,14 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=Path("out/ab_campaign"))
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks/results/ab_campaign.md")
     args = ap.parse_args()
+    from secure3d.world.family_registry import FAMILIES
+
+    kinds = ("auto", "corner", "forest", *FAMILIES)
     for pair in args.pairs:
         if pair.count(":") != 1:
             raise SystemExit(f"{pair}: expected BASE:KIND, e.g. forest:thin")
+        if pair.split(":")[1] not in kinds:
+            raise SystemExit(f"{pair}: KIND must be one of {', '.join(kinds)}")
     if args.n < 1 or not args.tie >= 0 or not args.plan_budget > 0:
         raise SystemExit(
             f"-n must be >= 1, --tie >= 0 and --plan-budget > 0 (got {args.n}, {args.tie},"

@@ -27,7 +27,7 @@ from secure3d.planning.interrupt import (
 )
 from secure3d.planning.nlp_cache import NLPCache
 from secure3d.planning.problem import Planner, PlanningProblem, Solver
-from secure3d.planning.result import PlanStatus
+from secure3d.planning.result import Certificate, PlanStatus
 from secure3d.planning.transcribed import T_MAX, T_MIN, TranscribedNLP
 
 #: Largest constraint violation accepted from a solver that reports success.
@@ -74,6 +74,8 @@ class _Solve:
     warm_build: float = 0.0
     #: node times as fractions of T; None: evenly spaced (a warm replan keeps earlier nodes)
     grid: np.ndarray | None = None
+    #: the certificate's verdict on this solution, once judged (a passed one is not judged again)
+    certificate: Certificate | None = None
 
 
 @dataclass(frozen=True)

@@ -138,7 +138,7 @@ def test_a_tightened_re_solve_that_fails_warm_is_tried_again_cold(monkeypatch):
 
     monkeypatch.setattr(solve, "_resolve_from", fake_resolve)
     monkeypatch.setattr(
-        solve, "_refresh_slots", lambda p, pl, t, c, extra_margin: (t, solve.SolveCost())
+        solve, "_refreshed", lambda p, pl, t, c, extra_margin: (t, solve.SolveCost())
     )
     rejected = SimpleNamespace(nlp=SimpleNamespace(key="k"), lam_x=np.zeros(2), lam_g=np.zeros(2))
     extra = np.array([0.0, 0.03, 0.03, 0.0])
