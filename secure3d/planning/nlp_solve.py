@@ -37,7 +37,7 @@ FEASIBILITY_TOL = 1e-4
 #: the start region: it is often only just large enough for the first reactive sets).
 MARGIN_FAMILIES = ("visibility", "obstacle", "occlusion")
 #: The start region's rows (a reactive set inside the box observed around the start), tightened
-#: only by the certificate's last retry (``START_TIGHTENING`` in :mod:`.solve`).
+#: only by the certificate's last retry (``START_TIGHTENING`` in :mod:`.judging`).
 START_FAMILY = "start_region"
 
 _IPOPT_STATUS = {

@@ -1,5 +1,5 @@
 """A solution whose obstacle slots are stale is certified as it is, and kept if it passes
-(``planning.solve.CERTIFY_STALE``); otherwise its slots are refreshed and it is re-solved. Real
+(``planning.judging.CERTIFY_STALE``); otherwise its slots are refreshed and it is re-solved. Real
 IPOPT solves and the real certificate on shipped scenes."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import pytest
 
 import secure3d
 from secure3d.planning import certificate as certificate_module
+from secure3d.planning import judging, slot_refresh, solve
 from secure3d.planning import lookback as lb
-from secure3d.planning import slot_refresh, solve
 from secure3d.planning.certificate import certify
 from secure3d.planning.guess import initial_guess
 from secure3d.planning.problem import problem_from_scenario
@@ -67,7 +67,7 @@ def test_a_stale_solution_that_certifies_is_kept_without_a_re_solve(cloud_server
 
 def test_without_the_rule_the_same_scene_re_solves_to_a_plan_no_faster(cloud_server, monkeypatch):
     kept = secure3d.plan(cloud_server, "secure")
-    monkeypatch.setattr(solve, "CERTIFY_STALE", False)
+    monkeypatch.setattr(judging, "CERTIFY_STALE", False)
     solves, verdicts = _recorded(monkeypatch)
     refreshed = secure3d.plan(cloud_server, "secure")
     assert refreshed.status is PlanStatus.SUCCESS
@@ -99,6 +99,6 @@ def test_the_baseline_and_an_uncertified_call_never_take_the_shortcut(cloud_serv
         problem, "secure", assignment, g.final_time, g.states, g.controls, solve.DEFAULT_CACHE
     )
     assert first.status.ok
-    assert solve._certified_as_is(problem, "secure", first) is not None
-    assert solve._certified_as_is(problem, "baseline", first) is None
-    assert solve._certified_as_is(problem.with_options(certify=False), "secure", first) is None
+    assert judging.certified_as_is(problem, "secure", first) is not None
+    assert judging.certified_as_is(problem, "baseline", first) is None
+    assert judging.certified_as_is(problem.with_options(certify=False), "secure", first) is None

@@ -120,7 +120,7 @@ def test_a_tightened_re_solve_that_fails_warm_is_tried_again_cold(monkeypatch):
     fails it starts again from the solution's primal point alone (the cold barrier schedule)."""
     from types import SimpleNamespace
 
-    from secure3d.planning import solve
+    from secure3d.planning import judging
     from secure3d.planning.result import PlanStatus
 
     def solved(status, it):
@@ -136,23 +136,23 @@ def test_a_tightened_re_solve_that_fails_warm_is_tried_again_cold(monkeypatch):
             else solved(PlanStatus.SUCCESS, 43)
         )
 
-    monkeypatch.setattr(solve, "_resolve_from", fake_resolve)
+    monkeypatch.setattr(judging, "_resolve_from", fake_resolve)
     monkeypatch.setattr(
-        solve, "_refreshed", lambda p, pl, t, c, extra_margin: (t, solve.SolveCost())
+        judging, "refreshed", lambda p, pl, t, c, extra_margin: (t, judging.SolveCost())
     )
     rejected = SimpleNamespace(nlp=SimpleNamespace(key="k"), lam_x=np.zeros(2), lam_g=np.zeros(2))
     extra = np.array([0.0, 0.03, 0.03, 0.0])
-    out, cost = solve._tightened_solve(None, "secure", rejected, None, extra)
+    out, cost = judging.tightened_solve(None, "secure", rejected, None, extra)
     assert seen == [(True, 0.03), (False, 0.03)]
     assert out.status is PlanStatus.SUCCESS and cost.iterations == 243
     # a warm re-solve that succeeds is kept
     seen.clear()
     monkeypatch.setattr(
-        solve,
+        judging,
         "_resolve_from",
         lambda *a: seen.append(a[4] is not None) or solved(PlanStatus.SUCCESS, 9),
     )
-    out, cost = solve._tightened_solve(None, "secure", rejected, None, extra)
+    out, cost = judging.tightened_solve(None, "secure", rejected, None, extra)
     assert seen == [True] and cost.iterations == 9
 
 
