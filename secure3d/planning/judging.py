@@ -11,7 +11,6 @@ from dataclasses import replace
 
 import numpy as np
 
-from secure3d.planning import lookback as lb
 from secure3d.planning.interrupt import BudgetSpent, budget_spent
 from secure3d.planning.nlp_cache import NLPCache
 from secure3d.planning.nlp_solve import SolveCost, _Solve
@@ -110,24 +109,6 @@ def judged(
     return replace(result, certificate=cert, status=status, message=msg, rejections=tuple(rejected))
 
 
-#: A secure solution the certificate rejects (it samples between the nodes and rolls out the real
-#: manoeuvres; the NLP sees ellipsoids at the nodes) is re-solved with the clearance and visibility
-#: rows of the nodes at either end of every failing interval
-#: (:func:`~secure3d.planning.certificate.failing_nodes`) tightened by this much more (m), up to
-#: this many times; a node keeps the tightening of earlier rounds.
-#: Tightening every row instead lengthened 3D-occlusion replans (T 18.4 -> 21.0 -> 27.2 s), so the
-#: node spacing grew and new violations appeared between nodes further on.
-CERTIFY_TIGHTENING = (0.03, 0.08)
-#: When those retries still fail at nodes the plan counts as seen from the start region (look-back
-#: -1), one more re-solve tightens also those nodes' start-region rows by this much (m). The NLP's start box holds the fitted reactive
-#: set at the start as well as the observed box, and the certificate counts only the observed box
-#: and the body along the braking path: a replan from rest whose manoeuvres between its first
-#: nodes poked 1-2 mm out of that failed every retry the same way (geb079_hidden_crate, fence
-#: variant 0, seed 3307: eight plans from rest refused, and the robot held). Not in the first
-#: retries: the start box is often only just large enough for the first reactive sets.
-START_TIGHTENING = 0.01
-
-
 def tightened_solve(
     problem: PlanningProblem, planner: str, s: _Solve, cache: NLPCache, extra: np.ndarray
 ) -> tuple[_Solve, SolveCost]:
@@ -169,23 +150,27 @@ def refreshed(
     start: tuple | None = None,
 ) -> tuple[_Solve, SolveCost]:
     """Solution ``s`` with its obstacle slots refreshed (:func:`~.slot_refresh.refresh_slots`, with
-    ``extra_margin`` and ``start``), and what that cost; or ``s`` itself with its passed
-    certificate when it certifies as it is (:data:`CERTIFY_STALE`, :func:`certified_as_is`)."""
-    cert = certified_as_is(problem, planner, s)
-    if cert is not None:
-        return replace(s, certificate=cert), SolveCost()
-    return _refresh_slots(problem, planner, s, cache, extra_margin=extra_margin, start=start)
+    ``extra_margin`` and ``start``), and what that cost; or, if its slots are stale and it
+    certifies as it is (:data:`CERTIFY_STALE`, :func:`certified_as_is`), ``s`` itself with that
+    certificate."""
+    return _refresh_slots(
+        problem,
+        planner,
+        s,
+        cache,
+        extra_margin=extra_margin,
+        start=start,
+        accept=lambda stale: certified_as_is(problem, planner, stale),
+    )
 
 
 def certified_as_is(problem: PlanningProblem, planner: str, s: _Solve) -> Certificate | None:
-    """The passed certificate of a secure solution ``s`` whose slots are stale
-    (:func:`~.lookback.slots_stale`); None otherwise: slots not stale (no refresh to spare), the
-    certificate failed, or the budget ran out while it judged (then the slots are refreshed, and
-    the caller's own certificate meets the budget)."""
+    """The passed certificate of a secure solution ``s`` (one whose slots are stale, when
+    :func:`refreshed` asks), judged as it is; None otherwise: not the secure planner, not
+    certified by the call, the certificate failed, or the budget ran out while it judged (then
+    the slots are refreshed, and the caller's own certificate meets the budget)."""
     o = problem.options
     if not (CERTIFY_STALE and planner == Planner.SECURE and o.certify and s.status.ok):
-        return None
-    if not lb.slots_stale(problem, planner, s.X, s.assignment, s.slots):
         return None
     from secure3d.planning.certificate import certify
 

@@ -12,6 +12,8 @@ solution it refreshed to the certificate (:data:`KEEP_STALE`).
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
@@ -20,6 +22,7 @@ from secure3d.planning.interrupt import budget_spent, final_time_watch, ran_away
 from secure3d.planning.nlp_cache import NLPCache
 from secure3d.planning.nlp_solve import SolveCost, _Solve, _solve_once
 from secure3d.planning.problem import PlanningProblem
+from secure3d.planning.result import Certificate
 
 __all__ = [
     "KEEP_STALE",
@@ -128,10 +131,13 @@ def refresh_slots(
     cache: NLPCache,
     extra_margin: float | np.ndarray = 0.0,
     start: tuple[float, np.ndarray, np.ndarray, np.ndarray | None] | None = None,
+    accept: Callable[[_Solve], Certificate | None] | None = None,
 ) -> tuple[_Solve, SolveCost]:
     """Re-select the obstacle slots on solution ``s`` and re-solve warm, up to SLOT_REFRESHES
     times, while :func:`~secure3d.planning.lookback.slots_stale` (a box left out of them comes
     closer than part of the margin). Returns the last solution, and what the re-solves cost.
+    ``accept``: asked once, of ``s`` if its slots are stale, before the first re-solve; a
+    certificate it returns ends the refresh with ``s`` and that certificate (no re-solve).
     ``extra_margin``: one margin (m), or one per node, added to the re-solves' margin rows.
     ``start``: the (T, X, U, grid) the solve of ``s`` started from, if the re-solves are watched:
     one whose final time runs past REFRESH_RUNAWAY times its solution's is stopped
@@ -157,13 +163,16 @@ def refresh_slots(
     cost = SolveCost()
     restarted = False
     keep = KEEP_STALE and problem.options.slower_guesses
-    for _ in range(SLOT_REFRESHES):
+    for i in range(SLOT_REFRESHES):
         if (
             not s.status.ok
             or budget_spent()
             or not lb.slots_stale(problem, planner, s.X, s.assignment, s.slots)
         ):
             break
+        cert = accept(s) if i == 0 and accept is not None else None
+        if cert is not None:
+            return replace(s, certificate=cert), cost
         watch = start is not None and (keep or not restarted)
         with final_time_watch(REFRESH_RUNAWAY * s.T if watch else np.inf):
             r = resolve_from(problem, planner, s, cache, None, extra_margin)
