@@ -17,6 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from secure3d.errors import PlanningError
 from secure3d.planning import lookback as lb
 from secure3d.planning.interrupt import budget_spent, final_time_watch, ran_away
 from secure3d.planning.nlp_cache import NLPCache
@@ -160,6 +161,8 @@ def refresh_slots(
     without it a tightened solution moved onto boxes outside its slots (issue 16: obstacle
     margins down to -0.8 m).
     """
+    if accept is not None and not callable(accept):
+        raise PlanningError(f"refresh_slots: accept must be callable or None, got {accept!r}")
     cost = SolveCost()
     restarted = False
     keep = KEEP_STALE and problem.options.slower_guesses

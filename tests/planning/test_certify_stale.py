@@ -102,3 +102,11 @@ def test_the_baseline_and_an_uncertified_call_never_take_the_shortcut(cloud_serv
     assert judging.certified_as_is(problem, "secure", first) is not None
     assert judging.certified_as_is(problem, "baseline", first) is None
     assert judging.certified_as_is(problem.with_options(certify=False), "secure", first) is None
+
+
+def test_refresh_slots_refuses_an_accept_that_is_not_callable(cloud_server):
+    from secure3d.errors import PlanningError
+
+    problem = problem_from_scenario(cloud_server)
+    with pytest.raises(PlanningError, match="accept must be callable"):
+        slot_refresh.refresh_slots(problem, "secure", None, solve.DEFAULT_CACHE, accept=3)
