@@ -29,8 +29,13 @@ import pytest  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 MAPS = REPO / "maps"
+#: The real OctoMap files the tests read: ``$SECURE3D_SHARED_OCTOMAP`` if set, else the project's
+#: shared data beside the repository, else the copies in tests/data/octomap (the same files, with
+#: OctoMap's licence; geb079.bt links to maps/octomaps), so that a bare clone runs every test.
+_OCTOMAP_DIRS = [REPO.parent / "shared" / "data" / "octomap", REPO / "tests" / "data" / "octomap"]
 SHARED_OCTOMAP = Path(
-    os.environ.get("SECURE3D_SHARED_OCTOMAP", REPO.parent / "shared" / "data" / "octomap")
+    os.environ.get("SECURE3D_SHARED_OCTOMAP")
+    or next((d for d in _OCTOMAP_DIRS if d.is_dir()), _OCTOMAP_DIRS[-1])
 )
 
 
@@ -47,7 +52,7 @@ def maps_dir() -> Path:
 
 @pytest.fixture(scope="session")
 def octomap_dir() -> Path:
-    """The real OctoMap files shipped in ../shared/data/octomap (skips nothing: they must exist)."""
+    """The real OctoMap files (:data:`SHARED_OCTOMAP`; skips nothing: they must exist)."""
     if not SHARED_OCTOMAP.is_dir():
         raise FileNotFoundError(f"shared OctoMap data not found at {SHARED_OCTOMAP}")
     return SHARED_OCTOMAP
