@@ -19,7 +19,7 @@ import functools
 import time
 
 import secure3d
-from secure3d.planning import certificate, lookback, nlp_cache
+from secure3d.planning import certificate, judging, lookback, nlp_cache
 from secure3d.planning import solve as solve_module
 from secure3d.simulation.campaign_run import campaign_family
 from secure3d.world import load_scenario
@@ -29,7 +29,7 @@ from secure3d.world.family_registry import FAMILIES
 STAGES = (
     (solve_module, "initial_guess"),
     (solve_module, "_solve_once"),
-    (solve_module, "_refresh_slots"),
+    (judging, "_refresh_slots"),
     (solve_module, "_judged"),
     (solve_module, "_extra_starts"),
     (nlp_cache.NLPCache, "get"),
