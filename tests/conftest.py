@@ -69,6 +69,32 @@ TINY_ROOM = Path(__file__).resolve().parent / "data" / "tiny_room.yaml"
 
 
 @pytest.fixture(scope="module")
+def benchmark_module():
+    """A loader of ``benchmarks/`` scripts by module name, with benchmarks/ on ``sys.path`` and its
+    own ``_common`` (examples/ has a ``_common`` too, which an earlier test in the same process may
+    have imported); ``sys.path`` and ``sys.modules`` are as they were afterwards."""
+    import importlib
+    import sys
+
+    saved_path = list(sys.path)
+    saved = {n: sys.modules.pop(n) for n in ("_common",) if n in sys.modules}
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    loaded: list[str] = []
+
+    def load(name: str):
+        loaded.append(name)
+        return importlib.import_module(name)
+
+    try:
+        yield load
+    finally:
+        sys.path[:] = saved_path
+        for n in ("_common", *loaded):
+            sys.modules.pop(n, None)
+        sys.modules.update(saved)
+
+
+@pytest.fixture(scope="module")
 def tiny(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A copy of ``tests/data/tiny_room.yaml`` in a fresh folder (outputs may land beside it)."""
     path = tmp_path_factory.mktemp("scenarios") / "tiny.yaml"

@@ -2,30 +2,15 @@
 
 from __future__ import annotations
 
-import importlib
 import json
-import sys
-from pathlib import Path
 
 import pytest
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
-
 
 @pytest.fixture(scope="module")
-def ab():
-    """benchmarks/ab_campaign.py with benchmarks/_common.py (examples/ has a ``_common`` too, which
-    an earlier test in the same process may have imported), sys.modules as it was afterwards."""
-    names = ("_common", "ab_campaign")
-    saved = {name: sys.modules.pop(name) for name in names if name in sys.modules}
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        yield importlib.import_module("ab_campaign")
-    finally:
-        sys.path.remove(str(BENCHMARKS))
-        for name in names:
-            sys.modules.pop(name, None)
-        sys.modules.update(saved)
+def ab(benchmark_module):
+    """benchmarks/ab_campaign.py (see the ``benchmark_module`` fixture)."""
+    return benchmark_module("ab_campaign")
 
 
 def _run(seconds: float, iterations: int, goal: bool = True, ttg: float = 5.0) -> dict:

@@ -6,39 +6,9 @@ break it only when someone next ran it."""
 
 from __future__ import annotations
 
-import importlib
-import sys
-from pathlib import Path
 
-import pytest
-
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
-
-
-@pytest.fixture()
-def bench_module():
-    """Import a benchmark script with benchmarks/ on the path (and its ``_common``), leaving
-    sys.modules as it was."""
-    saved_path = list(sys.path)
-    saved = {n: sys.modules.pop(n) for n in ("_common",) if n in sys.modules}
-    sys.path.insert(0, str(BENCHMARKS))
-    loaded: list[str] = []
-
-    def load(name: str):
-        loaded.append(name)
-        return importlib.import_module(name)
-
-    try:
-        yield load
-    finally:
-        sys.path[:] = saved_path
-        for n in ("_common", *loaded):
-            sys.modules.pop(n, None)
-        sys.modules.update(saved)
-
-
-def test_plan_call_stages_wraps_functions_that_exist(bench_module):
-    stages = bench_module("plan_call_stages").STAGES
+def test_plan_call_stages_wraps_functions_that_exist(benchmark_module):
+    stages = benchmark_module("plan_call_stages").STAGES
     assert len(stages) >= 5
     for owner, name in stages:
         assert callable(getattr(owner, name, None)), f"{owner.__name__}.{name} is gone"

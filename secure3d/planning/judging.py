@@ -63,7 +63,7 @@ def judged(
     result = solution_result(problem, planner, s, cost)
     if not (result.ok and planner == Planner.SECURE and problem.options.certify):
         return result
-    from secure3d.planning.certificate import certify, failing_nodes
+    from secure3d.planning.certificate import failing_nodes
 
     def out_of_time(exc: BudgetSpent) -> PlanResult:
         failed = failed_result(
@@ -78,7 +78,7 @@ def judged(
     rounds = [(level, 0.0) for level in CERTIFY_TIGHTENING]
     rounds.append((CERTIFY_TIGHTENING[-1], START_TIGHTENING))
     try:
-        cert = s.certificate if s.certificate is not None else certify(result, problem)
+        cert = _certificate(s, result, problem)
         for levels in rounds:
             if cert.ok or budget_spent():
                 break
@@ -98,7 +98,7 @@ def judged(
                 break
             s = t_
             result = solution_result(problem, planner, s, cost)
-            cert = s.certificate if s.certificate is not None else certify(result, problem)
+            cert = _certificate(s, result, problem)
     except BudgetSpent as exc:
         return out_of_time(exc)
     result = replace(
@@ -107,6 +107,16 @@ def judged(
     status = result.status if cert.ok else PlanStatus.NOT_CERTIFIED
     msg = result.message if cert.ok else f"solver: {result.message}; certificate: {cert}"
     return replace(result, certificate=cert, status=status, message=msg, rejections=tuple(rejected))
+
+
+def _certificate(s: _Solve, result: PlanResult, problem: PlanningProblem) -> Certificate:
+    """The certificate of solution ``s`` (its ``result``): the one it carries if the call has
+    judged it already (:func:`certified_as_is`), else a new one."""
+    if s.certificate is not None:
+        return s.certificate
+    from secure3d.planning.certificate import certify
+
+    return certify(result, problem)
 
 
 def tightened_solve(
