@@ -12,6 +12,7 @@ from secure3d.planning.certificate import (
     CertificateSettings,
     SampledPlan,
     _box_index,
+    _check_window,
     _clear_views,
     _stored_views,
     _view_origins,
@@ -29,12 +30,13 @@ def views_after_adding(
     added_hi: np.ndarray,
     *,
     t_from: float = 0.0,
+    t_until: float = np.inf,
     settings: CertificateSettings | None = None,
 ) -> np.ndarray | None:
-    """Re-certify, from ``t_from`` on, a plan that passed with ``views`` (a passing
-    :attr:`Certificate.views`, from ``sampled``) once the boxes (``added_lo``, ``added_hi``) joined
-    the obstacles it passed against; ``problem`` holds all of them now. A sound shortcut of
-    :func:`certify` for a map whose obstacles only grew.
+    """Re-certify, from ``t_from`` on (and before ``t_until``), a plan that passed with ``views``
+    (a passing :attr:`Certificate.views`, from ``sampled``) once the boxes (``added_lo``,
+    ``added_hi``) joined the obstacles it passed against; ``problem`` holds all of them now. A
+    sound shortcut of :func:`certify` (with the same window) for a map whose obstacles only grew.
 
     More obstacles never help a plan, so only the checks the added boxes take part in can fail:
     every judged manoeuvre point must stay clear of them by the body radius, and the sight cone
@@ -46,11 +48,13 @@ def views_after_adding(
     """
     from secure3d.geometry._box_kernels import cone_box_blocked_any
 
+    _check_window(t_from, t_until)
     settings = settings or CertificateSettings()
     tol, r = settings.tolerance, problem.model.body_radius
     if views is None or len(views) != len(sampled.points):
         return None
-    judge = np.flatnonzero(sampled.times[sampled.owner] >= t_from - 1e-9)
+    t = sampled.times[sampled.owner]
+    judge = np.flatnonzero((t >= t_from - 1e-9) & (t < t_until - 1e-9))
     if np.any(views[judge] == -2):
         return None
     added_lo, added_hi = _added_boxes(added_lo, added_hi)

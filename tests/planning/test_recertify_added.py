@@ -143,3 +143,76 @@ def test_a_window_must_be_numbers_in_order(corner):
         with pytest.raises(PlanningError, match=name):
             certify(plan, problem, sampled=sampled, **kw)
     assert certify(plan, problem, sampled=sampled, t_from=np.float64(0.5), t_until=np.inf).ok
+
+
+def test_window_shortcut_never_passes_what_the_windowed_certificate_fails(corner, rng):
+    """``t_until`` in the shortcut: the same window as the certificate's. Random boxes near the
+    manoeuvres and sight lines: a pass of the shortcut is a pass of the windowed certificate, and
+    boxes that only touch points after the window never stop it."""
+    problem, plan, sampled, _ = corner
+    t = sampled.times[sampled.owner]
+    t_until = 0.5 * plan.final_time
+    window = certify(plan, problem, sampled=sampled, t_from=0.2, t_until=t_until)
+    assert window.ok
+    shown = 0
+    for _ in range(40):
+        i = rng.integers(len(sampled.points))
+        cam = sampled.origins[max(window.views[i], 0)]
+        centre = cam + rng.uniform() * (sampled.points[i] - cam) + rng.normal(0.0, 0.25, 3)
+        half = rng.uniform(0.02, 0.15, 3)
+        lo, hi = (centre - half)[None], (centre + half)[None]
+        grown = _with(problem, lo, hi)
+        views = views_after_adding(
+            window.views, sampled, grown, lo, hi, t_from=0.2, t_until=t_until
+        )
+        full = certify(plan, grown, sampled=sampled, t_from=0.2, t_until=t_until)
+        if views is not None:
+            shown += 1
+            assert full.ok, "the window shortcut passed a window the certificate fails"
+    assert 0 < shown < 40
+    # a box on the last manoeuvre points only: outside the window, so the window still stands
+    late = sampled.points[t > 0.9 * plan.final_time]
+    lo, hi = late.min(axis=0)[None], late.max(axis=0)[None]
+    grown = _with(problem, lo, hi)
+    assert not certify(plan, grown, sampled=sampled, t_from=0.2).ok
+    kept = views_after_adding(window.views, sampled, grown, lo, hi, t_from=0.2, t_until=t_until)
+    assert kept is not None and certify(plan, grown, sampled=sampled, t_from=0.2, t_until=t_until).ok
+    # the whole rest was never judged by the window's views: no shortcut for it
+    assert views_after_adding(window.views, sampled, grown, lo, hi, t_from=0.2) is None
+    with pytest.raises(PlanningError, match="t_until"):
+        views_after_adding(window.views, sampled, grown, lo, hi, t_from=0.2, t_until=np.nan)
+
+
+def test_a_deferred_window_is_judged_against_added_boxes_alone(corner, monkeypatch):
+    """In flight, while a replan is deferred before a known failure, each frame re-judges the
+    window before it: once a window passed, the next frame (the boxes only grew, the same failure
+    time) checks only the added boxes, and a box across the window still fails it."""
+    from collections import OrderedDict
+    from types import SimpleNamespace
+
+    import secure3d.planning.certificate as certificate
+    from secure3d.simulation.recheck import plan_unsafe
+
+    problem, plan, sampled, _ = corner
+    calls = []
+    real = certificate.certify
+    monkeypatch.setattr(
+        certificate, "certify", lambda *a, **k: calls.append(k.get("t_until")) or real(*a, **k)
+    )
+    loop = SimpleNamespace(planner="secure", rechecks=OrderedDict())
+    until = 0.6 * plan.final_time
+    far = np.array([[-50.0, -50.0, -50.0]])
+    lo, hi = problem.boxes_lo, problem.boxes_hi
+    assert plan_unsafe(loop, plan, problem, 0.1, lo, hi, until) is None
+    assert calls == [until]
+    lo2, hi2 = np.concatenate([lo, far]), np.concatenate([hi, far + 0.1])
+    assert plan_unsafe(loop, plan, problem, 0.2, lo2, hi2, until) is None
+    assert calls == [until], "the second window was judged by the certificate again"
+    # a box on the window's own manoeuvres: not shown by the shortcut, failed by the certificate
+    t = sampled.times[sampled.owner]
+    inside = sampled.points[(t > 0.3) & (t < 0.5 * plan.final_time)]
+    lo3 = np.concatenate([lo2, inside.mean(axis=0)[None] - 0.2])
+    hi3 = np.concatenate([hi2, inside.mean(axis=0)[None] + 0.2])
+    why = plan_unsafe(loop, plan, problem, 0.3, lo3, hi3, until)
+    assert why is not None and 0.3 <= why[1] < until
+    assert len(calls) == 2
