@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -14,7 +14,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from secure3d.planning.result import PlanResult
     from secure3d.simulation.loop import Loop
 
-__all__ = ["Recheck", "path_clearance", "plan_unsafe"]
+__all__ = ["Passed", "Recheck", "path_clearance", "plan_unsafe"]
 
 
 def path_clearance(
@@ -34,19 +34,28 @@ def path_clearance(
     return float(np.maximum(dist, 0.0).min() - loop.model.body_radius)
 
 
+@dataclass(frozen=True, eq=False)
+class Passed:
+    """A window of a plan that passed: judged before plan time ``until`` (``inf``: the whole rest)
+    against the boxes ``lo, hi`` (n, 3), with ``views`` (``Certificate.views``: what observed each
+    manoeuvre point)."""
+
+    until: float
+    views: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+
 @dataclass(eq=False)
 class Recheck:
-    """A plan being re-certified in flight: its sampled manoeuvres (map-independent), the obstacle
-    boxes it last passed against and what observed each manoeuvre point then (``Certificate.views``;
-    None until it first passed). ``window`` is the same for the part before a known failure while
-    a replan is deferred: (the failure's plan time, the views, lo, hi) of the last window passed."""
+    """A plan being re-certified in flight: its sampled manoeuvres (map-independent) and, per
+    window, its last pass (:class:`Passed`): ``rest`` for the whole rest of the plan (None until it
+    first passed), ``window`` for the part before a known failure while a replan is deferred."""
 
     plan: PlanResult
     sampled: object
-    views: np.ndarray | None = None
-    lo: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    hi: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    window: tuple | None = None
+    rest: Passed | None = None
+    window: Passed | None = None
 
 
 def _grew_from(lo: np.ndarray, hi: np.ndarray, old_lo: np.ndarray, old_hi: np.ndarray) -> bool:
@@ -66,9 +75,8 @@ def _record(loop: Loop, plan: PlanResult, judged: object, plan_problem_: object)
     cert = plan.certificate
     if cert is not None and cert.ok and cert.sampled is not None:
         # certified when planned, against the boxes of the problem it was planned on
-        rec = Recheck(
-            plan, cert.sampled, cert.views, plan_problem_.boxes_lo, plan_problem_.boxes_hi
-        )
+        lo, hi = plan_problem_.boxes_lo, plan_problem_.boxes_hi
+        rec = Recheck(plan, cert.sampled, rest=Passed(np.inf, cert.views, lo, hi))
     else:
         rec = Recheck(plan, sample_plan(plan, judged))
     loop.rechecks[id(plan)] = rec
@@ -77,34 +85,39 @@ def _record(loop: Loop, plan: PlanResult, judged: object, plan_problem_: object)
     return rec
 
 
-def _window_unsafe(
-    rec: Recheck, plan: PlanResult, judged: object, t_rel: float, t_until: float
+def _first_failure(
+    rec: Recheck, judged: object, t_rel: float, t_until: float
 ) -> tuple[str, float] | None:
-    """:func:`plan_unsafe` of the window ``[t_rel, t_until)`` before a known failure: against the
-    added boxes alone when the same window passed last time and the boxes only grew since
-    (:func:`~secure3d.planning.recertify.views_after_adding`, sound), else by the certificate."""
+    """Where the plan of ``rec`` first fails in ``[t_rel, t_until)`` among ``judged``'s boxes (the
+    failure and its plan time), or None. Against the added boxes alone when the same window passed
+    last time and the boxes only grew since
+    (:func:`~secure3d.planning.recertify.views_after_adding`, sound), else by the certificate (only
+    where the window first fails matters; a pass judges every point, views and all)."""
     from secure3d.planning.certificate import certify
     from secure3d.planning.recertify import views_after_adding
 
     lo, hi = judged.boxes_lo, judged.boxes_hi
-    if rec.window is not None and rec.window[0] == t_until:
-        _, views, old_lo, old_hi = rec.window
-        if _grew_from(lo, hi, old_lo, old_hi):
-            n = len(old_lo)
-            views = views_after_adding(
-                views, rec.sampled, judged, lo[n:], hi[n:], t_from=t_rel, t_until=t_until
-            )
-            if views is not None:
-                rec.window = (t_until, views, lo, hi)
-                return None
-    cert = certify(
-        plan, judged, t_from=t_rel, t_until=t_until, sampled=rec.sampled, first_only=True
-    )
-    if cert.ok:
-        rec.window = (t_until, cert.views, lo, hi)
-        return None
-    first = cert.first_violation
-    return str(first), float(first.time)
+    last = rec.rest if np.isinf(t_until) else rec.window
+    views = None
+    if last is not None and last.until == t_until and _grew_from(lo, hi, last.lo, last.hi):
+        n = len(last.lo)
+        views = views_after_adding(
+            last.views, rec.sampled, judged, lo[n:], hi[n:], t_from=t_rel, t_until=t_until
+        )
+    if views is None:
+        cert = certify(
+            rec.plan, judged, t_from=t_rel, t_until=t_until, sampled=rec.sampled, first_only=True
+        )
+        if not cert.ok:
+            first = cert.first_violation
+            return str(first), float(first.time) if first is not None else t_rel
+        views = cert.views
+    passed = Passed(t_until, views, lo, hi)
+    if np.isinf(t_until):
+        rec.rest = passed
+    else:
+        rec.window = passed
+    return None
 
 
 def plan_unsafe(
@@ -127,30 +140,11 @@ def plan_unsafe(
     :meth:`Loop.judged_plus` grows them) is judged against the added boxes alone first
     (:func:`~secure3d.planning.recertify.views_after_adding`, sound); the full certificate runs
     only if that does not show it safe. So is the window before a known failure, once it passed."""
-    from secure3d.planning.certificate import certify
-    from secure3d.planning.recertify import views_after_adding
-
     if loop.planner == Planner.SECURE:
         judged = dataclasses.replace(plan_problem_, boxes_lo=lo, boxes_hi=hi)
-        rec = _record(loop, plan, judged, plan_problem_)
-        if np.isfinite(t_until):
-            # known to fail at t_until: judge the window before it, up to its first failure (the
-            # views of the whole rest stay those of its last full pass)
-            return _window_unsafe(rec, plan, judged, t_rel, t_until)
-        n = len(rec.lo)
-        if rec.views is not None and _grew_from(lo, hi, rec.lo, rec.hi):
-            # the boxes only grew since the plan last passed: check what the new ones touch
-            views = views_after_adding(rec.views, rec.sampled, judged, lo[n:], hi[n:], t_from=t_rel)
-            if views is not None:
-                rec.views, rec.lo, rec.hi = views, lo, hi
-                return None
-        # only where the rest first fails matters (a pass judges every point, views and all)
-        cert = certify(plan, judged, t_from=t_rel, sampled=rec.sampled, first_only=True)
-        if cert.ok:
-            rec.views, rec.lo, rec.hi = cert.views, lo, hi
-            return None
-        first = cert.first_violation
-        return str(first), float(first.time) if first is not None else t_rel
+        # with a finite t_until (known to fail there) the window before it, up to its first
+        # failure; the whole rest keeps the views of its own last pass
+        return _first_failure(_record(loop, plan, judged, plan_problem_), judged, t_rel, t_until)
     # The baseline only promises a collision-free path: react when the new evidence brings an obstacle
     # into the body's planned path.
     after = path_clearance(loop, plan, t_rel, lo, hi)

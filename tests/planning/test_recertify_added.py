@@ -176,7 +176,9 @@ def test_window_shortcut_never_passes_what_the_windowed_certificate_fails(corner
     grown = _with(problem, lo, hi)
     assert not certify(plan, grown, sampled=sampled, t_from=0.2).ok
     kept = views_after_adding(window.views, sampled, grown, lo, hi, t_from=0.2, t_until=t_until)
-    assert kept is not None and certify(plan, grown, sampled=sampled, t_from=0.2, t_until=t_until).ok
+    assert (
+        kept is not None and certify(plan, grown, sampled=sampled, t_from=0.2, t_until=t_until).ok
+    )
     # the whole rest was never judged by the window's views: no shortcut for it
     assert views_after_adding(window.views, sampled, grown, lo, hi, t_from=0.2) is None
     with pytest.raises(PlanningError, match="t_until"):
